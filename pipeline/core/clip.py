@@ -1,0 +1,62 @@
+"""The clip record every source's annotate stage emits, in one shared shape."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+
+@dataclasses.dataclass
+class ClipRecord:
+    """One clip with its candidate tracks, before or after filtering.
+
+    T frames, N tracks. Tracks live in the camera frame of each frame (OpenCV axes, metres).
+
+    Attributes:
+      source: 'adt', 'drivetrack' or 'pstudio'.
+      name: clip name without '.npz' (the release's naming).
+      unit: the unit of work this clip came from, for tracing and error messages.
+      images_jpeg: T JPEG-encoded frames, passed through from the source.
+      fx_fy_cx_cy: [4] pinhole intrinsics of the stored frames.
+      image_size: (width, height) of the stored frames in pixels.
+      extrinsics_w2c: [T, 4, 4] world-to-camera, or None for static cameras.
+      tracks_xyz: [T, N, 3] float64 points in the camera frame.
+      visibility: [T, N] bool.
+      queries_xyt: [N, 3] float64 (x, y, query frame index).
+      frame_ids: [T] int64 source frame identifiers (timestamps or indices).
+      track_stats: per-track statistics the filters read, each [N].
+      target_tracks: how many tracks the released clip keeps.
+    """
+
+    source: str
+    name: str
+    unit: str
+    images_jpeg: list[bytes]
+    fx_fy_cx_cy: np.ndarray
+    image_size: tuple[int, int]
+    extrinsics_w2c: np.ndarray | None
+    tracks_xyz: np.ndarray
+    visibility: np.ndarray
+    queries_xyt: np.ndarray
+    frame_ids: np.ndarray
+    track_stats: dict[str, np.ndarray]
+    target_tracks: int
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.tracks_xyz.shape[0])
+
+    @property
+    def num_tracks(self) -> int:
+        return int(self.tracks_xyz.shape[1])
+
+    def select_tracks(self, indices: np.ndarray) -> ClipRecord:
+        """A copy keeping only the tracks at ``indices`` [K] (in that order)."""
+        return dataclasses.replace(
+            self,
+            tracks_xyz=self.tracks_xyz[:, indices],
+            visibility=self.visibility[:, indices],
+            queries_xyt=self.queries_xyt[indices],
+            track_stats={key: value[indices] for key, value in self.track_stats.items()},
+        )

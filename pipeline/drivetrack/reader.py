@@ -1,0 +1,289 @@
+"""Read one Waymo Open v2 segment's components with pyarrow, as typed NumPy records.
+
+Layout: ``<root>/<component>/<segment_context_name>.parquet``. Paths go through Beam's
+FileSystems, so a root on GCS or S3 works like a local folder.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterator
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+from apache_beam.io.filesystem import CompressionTypes
+from apache_beam.io.filesystems import FileSystems
+
+from pipeline.core.errors import InputError
+from pipeline.drivetrack import columns as C
+
+
+@dataclasses.dataclass(frozen=True)
+class CameraCalibration:
+    """fx_fy_cx_cy [4], distortion [5] (k1, k2, p1, p2, k3), camera_to_vehicle [4, 4]."""
+
+    fx_fy_cx_cy: np.ndarray
+    distortion: np.ndarray
+    camera_to_vehicle: np.ndarray
+    width: int
+    height: int
+
+
+@dataclasses.dataclass(frozen=True)
+class LidarCalibration:
+    """lidar_to_vehicle [4, 4]; inclinations [H] in radians as stored (or None), min, max."""
+
+    lidar_to_vehicle: np.ndarray
+    inclinations: np.ndarray | None
+    inclination_min: float
+    inclination_max: float
+
+
+@dataclasses.dataclass(frozen=True)
+class CameraFrames:
+    """One camera's frames sorted by time: timestamps [T], JPEG bytes, vehicle poses [T, 4, 4]."""
+
+    timestamps: np.ndarray
+    jpegs: list[bytes]
+    world_from_vehicle_at_exposure: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
+class BoxLabels:
+    """Box rows present in both lidar_box and lidar_camera_synced_box, sorted by (id, time).
+
+    object_ids [R] str, timestamps [R] int64, types [R] int, lidar_boxes [R, 7] and
+    synced_boxes [R, 7] as (cx, cy, cz, length, width, height, heading) in the vehicle
+    frame of the frame pose, most_visible_camera [R] int.
+    """
+
+    object_ids: np.ndarray
+    timestamps: np.ndarray
+    types: np.ndarray
+    lidar_boxes: np.ndarray
+    synced_boxes: np.ndarray
+    most_visible_camera: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
+class LidarFrame:
+    """TOP lidar first return: range [H, W], pixel_pose [H, W, 6], camera_projection [H, W, 6]."""
+
+    timestamp: int
+    range_image: np.ndarray
+    pixel_pose: np.ndarray
+    camera_projection: np.ndarray
+
+
+def list_segments(root: str) -> list[str]:
+    """Segment names under ``<root>/camera_image/``, sorted."""
+    folder = FileSystems.join(root, C.CAMERA_IMAGE)
+    matches = FileSystems.match([FileSystems.join(folder, "*.parquet")])[0].metadata_list
+    names = sorted(m.path.rsplit("/", 1)[-1][: -len(".parquet")] for m in matches)
+    if not names:
+        raise InputError(
+            f"no segments: {folder} holds no .parquet files; --input must be a Waymo Open v2 "
+            "split folder holding camera_image/, lidar/, ... component folders"
+        )
+    return names
+
+
+def transforms_from_column(column: pa.ChunkedArray | pa.Array, what: str) -> np.ndarray:
+    """Row-major 4x4 transforms stored as fixed_size_list<float>[16] or list<double>: [R, 4, 4]."""
+    array = column.combine_chunks() if isinstance(column, pa.ChunkedArray) else column
+    kind = array.type
+    if not (pa.types.is_list(kind) or pa.types.is_large_list(kind) or pa.types.is_fixed_size_list(kind)):
+        raise InputError(f"{what}: expected a list of 16 numbers, column type is {kind}")
+    if not pa.types.is_floating(kind.value_type) and not pa.types.is_integer(kind.value_type):
+        raise InputError(f"{what}: expected numbers in the transform, found {kind.value_type}")
+    if array.null_count:
+        raise InputError(f"{what}: {array.null_count} null transform(s)")
+    lengths = pc.list_value_length(array).to_numpy(zero_copy_only=False)
+    if len(lengths) and (lengths != 16).any():
+        raise InputError(f"{what}: a transform has {lengths[lengths != 16][0]} values, expected 16")
+    values = array.flatten().to_numpy(zero_copy_only=False).astype(np.float64)
+    return values.reshape(-1, 4, 4)
+
+
+def _numbers(table: pa.Table, name: str, what: str, dtype=np.float64) -> np.ndarray:
+    column = table.column(name)
+    if not (pa.types.is_floating(column.type) or pa.types.is_integer(column.type)):
+        raise InputError(f"{what}: column {name} has type {column.type}, expected numbers")
+    if column.null_count:
+        raise InputError(f"{what}: column {name} has {column.null_count} null value(s)")
+    return column.to_numpy().astype(dtype)
+
+
+class SegmentReader:
+    """Typed access to one segment's components; every error names the file and the cause."""
+
+    def __init__(self, root: str, segment: str):
+        self.root = root
+        self.segment = segment
+
+    def _path(self, component: str) -> str:
+        return FileSystems.join(self.root, component, f"{self.segment}.parquet")
+
+    def read(self, component: str, columns: list[str], filters=None) -> pa.Table:
+        """Columns of one component file, optionally filtered; clear errors for bad files."""
+        path = self._path(component)
+        label = f"{component}/{self.segment}.parquet"
+        if not FileSystems.exists(path):
+            raise InputError(f"missing component file {label}")
+        try:
+            with FileSystems.open(path, compression_type=CompressionTypes.UNCOMPRESSED) as handle:
+                parquet = pq.ParquetFile(handle)
+                present = set(parquet.schema_arrow.names)
+                missing = [name for name in columns if name not in present]
+                if missing:
+                    raise InputError(f"{label}: missing column(s) {missing}")
+                table = parquet.read(columns=columns)
+        except InputError:
+            raise
+        except (pa.ArrowException, OSError, ValueError) as error:
+            raise InputError(f"{label}: unreadable Parquet ({error})") from error
+        if filters is not None:
+            table = table.filter(filters)
+        return table
+
+    def camera_calibration(self, camera: int) -> CameraCalibration:
+        names = [C.CAMERA_NAME, *C.CAM_INTRINSICS, *C.CAM_DISTORTION, C.CAM_EXTRINSIC]
+        names += [C.CAM_WIDTH, C.CAM_HEIGHT]
+        table = self.read(C.CAMERA_CALIBRATION, names, pc.field(C.CAMERA_NAME) == camera)
+        what = f"camera_calibration/{self.segment} camera {camera}"
+        if table.num_rows != 1:
+            raise InputError(f"{what}: expected 1 row, found {table.num_rows}")
+        intrinsics = np.array([_numbers(table, n, what)[0] for n in C.CAM_INTRINSICS])
+        distortion = np.array([_numbers(table, n, what)[0] for n in C.CAM_DISTORTION])
+        extrinsic = transforms_from_column(table.column(C.CAM_EXTRINSIC), what)[0]
+        width = int(_numbers(table, C.CAM_WIDTH, what, np.int64)[0])
+        height = int(_numbers(table, C.CAM_HEIGHT, what, np.int64)[0])
+        if not np.all(np.isfinite(intrinsics)) or (intrinsics[:2] <= 0).any():
+            raise InputError(f"{what}: invalid intrinsics {intrinsics.tolist()}")
+        return CameraCalibration(intrinsics, distortion, extrinsic, width, height)
+
+    def lidar_calibration(self) -> LidarCalibration:
+        names = [C.LASER_NAME, C.LIDAR_EXTRINSIC, C.BEAM_INCLINATION_VALUES]
+        names += [C.BEAM_INCLINATION_MIN, C.BEAM_INCLINATION_MAX]
+        table = self.read(C.LIDAR_CALIBRATION, names, pc.field(C.LASER_NAME) == C.TOP_LASER)
+        what = f"lidar_calibration/{self.segment} TOP"
+        if table.num_rows != 1:
+            raise InputError(f"{what}: expected 1 row, found {table.num_rows}")
+        extrinsic = transforms_from_column(table.column(C.LIDAR_EXTRINSIC), what)[0]
+        values = table.column(C.BEAM_INCLINATION_VALUES)[0]
+        inclinations = None if not values.is_valid else np.asarray(values.values, np.float64)
+        return LidarCalibration(
+            extrinsic,
+            inclinations,
+            float(_numbers(table, C.BEAM_INCLINATION_MIN, what)[0]),
+            float(_numbers(table, C.BEAM_INCLINATION_MAX, what)[0]),
+        )
+
+    def vehicle_poses(self) -> dict[int, np.ndarray]:
+        """world_from_vehicle [4, 4] per frame timestamp."""
+        table = self.read(C.VEHICLE_POSE, [C.TIMESTAMP, C.WORLD_FROM_VEHICLE])
+        what = f"vehicle_pose/{self.segment}"
+        poses = transforms_from_column(table.column(C.WORLD_FROM_VEHICLE), what)
+        stamps = _numbers(table, C.TIMESTAMP, what, np.int64)
+        return dict(zip(stamps.tolist(), poses, strict=True))
+
+    def camera_frames(self, camera: int) -> CameraFrames:
+        names = [C.TIMESTAMP, C.CAMERA_NAME, C.IMAGE_JPEG, C.IMAGE_POSE]
+        table = self.read(C.CAMERA_IMAGE, names, pc.field(C.CAMERA_NAME) == camera)
+        what = f"camera_image/{self.segment} camera {camera}"
+        if table.num_rows == 0:
+            raise InputError(f"{what}: no frames")
+        stamps = _numbers(table, C.TIMESTAMP, what, np.int64)
+        order = np.argsort(stamps, kind="stable")
+        if len(np.unique(stamps)) != len(stamps):
+            raise InputError(f"{what}: duplicate frame timestamps")
+        jpegs = table.column(C.IMAGE_JPEG).to_pylist()
+        poses = transforms_from_column(table.column(C.IMAGE_POSE), what)
+        return CameraFrames(stamps[order], [jpegs[i] for i in order], poses[order])
+
+    def box_labels(self) -> BoxLabels:
+        what = f"lidar_box/{self.segment}"
+        boxes = self.read(C.LIDAR_BOX, [C.TIMESTAMP, C.OBJECT_ID, C.BOX_TYPE, *C.BOX_FIELDS])
+        synced = self.read(
+            C.LIDAR_CAMERA_SYNCED_BOX,
+            [C.TIMESTAMP, C.OBJECT_ID, C.MOST_VISIBLE_CAMERA, *C.SYNCED_BOX_FIELDS],
+        )
+        synced_what = f"lidar_camera_synced_box/{self.segment}"
+        synced_rows = {
+            key: row
+            for row, key in enumerate(
+                zip(
+                    _numbers(synced, C.TIMESTAMP, synced_what, np.int64).tolist(),
+                    synced.column(C.OBJECT_ID).to_pylist(),
+                    strict=True,
+                )
+            )
+        }
+        synced_values = np.stack([_numbers(synced, n, synced_what) for n in C.SYNCED_BOX_FIELDS], 1)
+        visible_camera = _numbers(synced, C.MOST_VISIBLE_CAMERA, synced_what, np.int64)
+        box_values = np.stack([_numbers(boxes, n, what) for n in C.BOX_FIELDS], axis=1)
+        stamps = _numbers(boxes, C.TIMESTAMP, what, np.int64)
+        ids = boxes.column(C.OBJECT_ID).to_pylist()
+        types = _numbers(boxes, C.BOX_TYPE, what, np.int64)
+        pairs = [(i, synced_rows.get((stamps[i], ids[i]))) for i in range(len(ids))]
+        pairs = [(i, j) for i, j in pairs if j is not None]
+        pairs.sort(key=lambda p: (ids[p[0]], stamps[p[0]]))
+        rows = np.array([i for i, _ in pairs], dtype=np.int64)
+        srows = np.array([j for _, j in pairs], dtype=np.int64)
+        return BoxLabels(
+            object_ids=np.array([ids[i] for i in rows], dtype=object),
+            timestamps=stamps[rows],
+            types=types[rows],
+            lidar_boxes=box_values[rows].reshape(-1, 7),
+            synced_boxes=synced_values[srows].reshape(-1, 7),
+            most_visible_camera=visible_camera[srows],
+        )
+
+    def top_lidar_frames(self, timestamps: list[int]) -> Iterator[LidarFrame]:
+        """TOP lidar first-return range images with per-pixel poses and camera projections."""
+        wanted = pc.field(C.LASER_NAME) == C.TOP_LASER
+        key = [C.TIMESTAMP, C.LASER_NAME]
+        tables = {
+            C.LIDAR: self.read(C.LIDAR, key + [C.LIDAR_RANGE_VALUES, C.LIDAR_RANGE_SHAPE], wanted),
+            C.LIDAR_POSE: self.read(C.LIDAR_POSE, key + [C.LIDAR_POSE_VALUES, C.LIDAR_POSE_SHAPE], wanted),
+            C.LIDAR_CAMERA_PROJECTION: self.read(
+                C.LIDAR_CAMERA_PROJECTION, key + [C.PROJECTION_VALUES, C.PROJECTION_SHAPE], wanted
+            ),
+        }
+        rows = {
+            name: {ts: i for i, ts in enumerate(table.column(C.TIMESTAMP).to_pylist())}
+            for name, table in tables.items()
+        }
+        for timestamp in timestamps:
+            arrays = []
+            for name, values, shape, channels in (
+                (C.LIDAR, C.LIDAR_RANGE_VALUES, C.LIDAR_RANGE_SHAPE, 4),
+                (C.LIDAR_POSE, C.LIDAR_POSE_VALUES, C.LIDAR_POSE_SHAPE, 6),
+                (C.LIDAR_CAMERA_PROJECTION, C.PROJECTION_VALUES, C.PROJECTION_SHAPE, 6),
+            ):
+                what = f"{name}/{self.segment} TOP frame {timestamp}"
+                row = rows[name].get(timestamp)
+                if row is None:
+                    raise InputError(f"{what}: no row for this frame")
+                arrays.append(_range_image(tables[name], row, values, shape, channels, what))
+            yield LidarFrame(timestamp, arrays[0][..., 0], arrays[1], arrays[2])
+
+
+def _range_image(
+    table: pa.Table, row: int, values_name: str, shape_name: str, channels: int, what: str
+) -> np.ndarray:
+    shape_cell = table.column(shape_name)[row]
+    values_cell = table.column(values_name)[row]
+    if not shape_cell.is_valid or not values_cell.is_valid:
+        raise InputError(f"{what}: empty range image")
+    shape = [int(s) for s in shape_cell.values.to_numpy(zero_copy_only=False)]
+    values = values_cell.values.to_numpy(zero_copy_only=False)
+    if len(shape) != 3 or shape[2] != channels or int(np.prod(shape)) != values.size:
+        raise InputError(
+            f"{what}: range image shape {shape} does not hold {values.size} values with {channels} channels"
+        )
+    if values.size == 0:
+        raise InputError(f"{what}: empty range image")
+    return values.reshape(shape)

@@ -1,0 +1,1 @@
+"""Writing clips, audit tables, manifests and run records; validating clips."""

@@ -1,0 +1,46 @@
+"""Clips as ``.npz`` files in the released TAPVid-3D schema, byte-for-byte reproducible.
+
+``np.savez`` stamps each zip member with the current time, so two runs would differ; this
+writer uses the same container (a zip of ``.npy`` members) with a fixed timestamp.
+"""
+
+from __future__ import annotations
+
+import io
+import zipfile
+
+import numpy as np
+
+from pipeline.core.clip import ClipRecord
+
+FIXED_ZIP_TIME = (1980, 1, 1, 0, 0, 0)
+
+
+def clip_arrays(clip: ClipRecord) -> dict[str, np.ndarray]:
+    """The released schema's arrays for a clip (float32 geometry, bool visibility)."""
+    images = np.empty(len(clip.images_jpeg), dtype=object)
+    # Fresh bytes objects: pickled object arrays depend on object identity, not just content.
+    images[:] = [bytes(bytearray(frame)) for frame in clip.images_jpeg]
+    arrays = {
+        "images_jpeg_bytes": images,
+        "queries_xyt": clip.queries_xyt.astype(np.float32),
+        "tracks_XYZ": clip.tracks_xyz.astype(np.float32),
+        "visibility": clip.visibility.astype(bool),
+        "fx_fy_cx_cy": np.asarray(clip.fx_fy_cx_cy, dtype=np.float32),
+    }
+    if clip.extrinsics_w2c is not None:
+        arrays["extrinsics_w2c"] = clip.extrinsics_w2c.astype(np.float32)
+    return arrays
+
+
+def encode_npz(arrays: dict[str, np.ndarray]) -> bytes:
+    """A deterministic ``.npz`` (stored, uncompressed, like ``np.savez``) readable by np.load."""
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as archive:
+        for key in sorted(arrays):
+            info = zipfile.ZipInfo(f"{key}.npy", date_time=FIXED_ZIP_TIME)
+            info.external_attr = 0o644 << 16
+            member = io.BytesIO()
+            np.lib.format.write_array(member, np.asanyarray(arrays[key]), allow_pickle=True)
+            archive.writestr(info, member.getvalue())
+    return buffer.getvalue()

@@ -1,0 +1,1 @@
+"""Track filters shared by all sources: statistics per track, then thresholded verdicts."""

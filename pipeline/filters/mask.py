@@ -1,0 +1,81 @@
+"""Mask agreement: a visible track should land on its own object's mask."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from apache_beam.io.filesystem import CompressionTypes
+from apache_beam.io.filesystems import FileSystems
+from scipy.spatial import cKDTree
+
+from pipeline.core.errors import InputError
+
+MAX_CLOSING_PX = 63
+
+
+def adaptive_closing_px(points_uv: np.ndarray) -> int:
+    """Closing kernel (odd, pixels) bridging the gaps between neighbouring projected points:
+    twice the median nearest-neighbour spacing of ``points_uv`` [M, 2], plus one."""
+    if len(points_uv) < 2:
+        return 3
+    distances, _ = cKDTree(points_uv).query(points_uv, k=2)
+    size = int(np.ceil(2.0 * np.median(distances[:, 1]))) | 1
+    return int(np.clip(size, 3, MAX_CLOSING_PX))
+
+
+def silhouette_mask(points_uv: np.ndarray, width: int, height: int, closing_px: int) -> np.ndarray:
+    """Object mask [H, W] bool from its projected points [M, 2]: the points' pixels, closed
+    with an elliptical kernel of ``closing_px`` (0 = adaptive), then grown by half a kernel
+    so surface points just beyond the outermost scan line still count as on the object."""
+    mask = np.zeros((height, width), np.uint8)
+    pixels = np.floor(points_uv).astype(np.int64)
+    inside = (pixels[:, 0] >= 0) & (pixels[:, 0] < width) & (pixels[:, 1] >= 0)
+    inside &= pixels[:, 1] < height
+    if not inside.any():
+        return mask.astype(bool)
+    mask[pixels[inside, 1], pixels[inside, 0]] = 1
+    size = closing_px or adaptive_closing_px(points_uv[inside])
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+    mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, kernel)
+    grow = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size // 2 | 1, size // 2 | 1))
+    return cv2.dilate(mask, grow).astype(bool)
+
+
+def on_mask(mask: np.ndarray, track_uv: np.ndarray) -> np.ndarray:
+    """True where pixels [N, 2] fall on ``mask`` [H, W] (False outside the image)."""
+    height, width = mask.shape
+    pixels = np.floor(track_uv).astype(np.int64)
+    inside = (pixels[:, 0] >= 0) & (pixels[:, 0] < width) & (pixels[:, 1] >= 0)
+    inside &= pixels[:, 1] < height
+    result = np.zeros(len(track_uv), bool)
+    result[inside] = mask[pixels[inside, 1], pixels[inside, 0]]
+    return result
+
+
+def agreement(on_object: np.ndarray, visible: np.ndarray, has_mask: np.ndarray) -> np.ndarray:
+    """Share of a track's visible frames (that have a mask) where it is on its mask.
+
+    Args:
+      on_object: [T, N] bool, track on the mask.
+      visible: [T, N] bool.
+      has_mask: [T] bool, frames with a mask.
+    Returns:
+      [N] float64; NaN where the track has no visible frame with a mask.
+    """
+    counted = visible & has_mask[:, None]
+    total = counted.sum(axis=0)
+    hits = (on_object & counted).sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(total > 0, hits / np.maximum(total, 1), np.nan)
+
+
+def read_mask_png(path: str, width: int, height: int) -> np.ndarray | None:
+    """A user-supplied mask [H, W] bool (non-zero = object), or None when the file is absent."""
+    if not FileSystems.exists(path):
+        return None
+    with FileSystems.open(path, compression_type=CompressionTypes.UNCOMPRESSED) as handle:
+        data = handle.read()
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE)
+    if image is None or image.shape != (height, width):
+        raise InputError(f"mask {path}: not a {width}x{height} image")
+    return image > 0

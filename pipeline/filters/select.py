@@ -1,0 +1,90 @@
+"""The filter stage: per-track verdicts from recorded statistics, then the seeded subsample.
+
+Filters run in a fixed order; a track is counted against the first filter that rejects it.
+The statistics stay with every candidate track, so an audit can replay other thresholds.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from pipeline.core.clip import ClipRecord
+from pipeline.core.config import RunConfig
+from pipeline.core.sampling import choose_subset, rng_for
+from pipeline.filters.flicker import passes_flicker, visibility_flips
+
+FILTER_ORDER = ("never_visible", "flicker", "mask")
+
+
+@dataclasses.dataclass
+class FilterOutcome:
+    """What the filter stage decided for one clip.
+
+    verdicts: filter name -> [N] bool (True = passes), over all candidates.
+    stats: statistic name -> [N] over all candidates (as recorded, plus flicker's flips).
+    selected: [K] indices of the candidates written, in output order.
+    """
+
+    clip: str
+    source: str
+    unit: str
+    num_frames: int
+    target_tracks: int
+    verdicts: dict[str, np.ndarray]
+    stats: dict[str, np.ndarray]
+    selected: np.ndarray
+
+    @property
+    def candidates(self) -> int:
+        return len(next(iter(self.verdicts.values())))
+
+    def dropped_by(self) -> dict[str, int]:
+        """Tracks rejected per filter, each counted against the first filter that rejects it."""
+        alive = np.ones(self.candidates, bool)
+        counts = {}
+        for name in FILTER_ORDER:
+            counts[name] = int((alive & ~self.verdicts[name]).sum())
+            alive &= self.verdicts[name]
+        return counts
+
+    @property
+    def passed(self) -> int:
+        return int(np.logical_and.reduce(list(self.verdicts.values())).sum())
+
+
+def decide(clip: ClipRecord, config: RunConfig) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """Verdict per filter [N] bool, and the statistics they read [N]."""
+    stats = dict(clip.track_stats)
+    stats["visibility_flips"] = visibility_flips(clip.visibility)
+    stats.setdefault("visible_frames", clip.visibility.sum(axis=0).astype(np.int64))
+    verdicts = {
+        "never_visible": stats["visible_frames"] > 0,
+        "flicker": passes_flicker(stats["visibility_flips"], clip.num_frames, config.flicker.max_fraction),
+    }
+    if "mask_agreement" in stats:
+        score = stats["mask_agreement"]
+        verdicts["mask"] = np.isnan(score) | (score >= config.mask.min_agreement)
+    else:
+        verdicts["mask"] = np.ones(clip.num_tracks, bool)
+    return verdicts, stats
+
+
+def apply_filters(clip: ClipRecord, config: RunConfig) -> tuple[ClipRecord, FilterOutcome]:
+    """Keep the tracks every filter passes, then draw the clip's target count (seeded)."""
+    verdicts, stats = decide(clip, config)
+    survivors = np.nonzero(np.logical_and.reduce([verdicts[name] for name in FILTER_ORDER]))[0]
+    rng = rng_for(config.seed, f"{clip.name}/subsample")
+    selected = survivors[choose_subset(len(survivors), clip.target_tracks, rng)]
+    outcome = FilterOutcome(
+        clip=clip.name,
+        source=clip.source,
+        unit=clip.unit,
+        num_frames=clip.num_frames,
+        target_tracks=clip.target_tracks,
+        verdicts=verdicts,
+        stats=stats,
+        selected=selected,
+    )
+    return clip.select_tracks(selected), outcome
