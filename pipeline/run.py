@@ -25,6 +25,7 @@ from pipeline import graph
 from pipeline.core.config import RunConfig, with_overrides
 from pipeline.core.errors import InputError
 from pipeline.export.files import read_bytes
+from pipeline.filters.select import FILTER_ORDER
 
 # Each source module provides list_units, unit_name, ANNOTATOR and sample_input.
 SOURCE_MODULES = {"drivetrack": "pipeline.drivetrack.transform"}
@@ -61,7 +62,7 @@ def configure_logging() -> None:
 
 
 def print_summary(summary: dict, output: str, source: str) -> None:
-    dropped = ", ".join(f"{k} {v}" for k, v in summary["dropped_by_filter"].items())
+    dropped = ", ".join(f"{name} {summary['dropped_by_filter'][name]}" for name in FILTER_ORDER)
     print(
         f"\n{source}: {summary['units']} unit(s), {summary['units_failed']} failed; "
         f"{summary['clips_written']} clip(s) written ({summary['clips_below_target']} below "

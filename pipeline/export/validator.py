@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import pickle
 import zipfile
 
 import numpy as np
@@ -111,6 +112,6 @@ def check_clip_bytes(data: bytes, source: str | None) -> list[str]:
     """Invariant violations of a clip file's bytes, including unreadable files."""
     try:
         arrays = load_clip(data)
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError) as error:
+    except (zipfile.BadZipFile, pickle.UnpicklingError, ValueError, OSError, EOFError) as error:
         return [f"unreadable .npz ({error})"]
     return check_arrays(arrays, source)

@@ -14,12 +14,15 @@ MAX_CLOSING_PX = 63
 
 
 def adaptive_closing_px(points_uv: np.ndarray) -> int:
-    """Closing kernel (odd, pixels) bridging the gaps between neighbouring projected points:
-    twice the median nearest-neighbour spacing of ``points_uv`` [M, 2], plus one."""
+    """Closing kernel (odd, pixels) that bridges the gaps between lidar scan lines: twice the
+    median distance from a projected point [M, 2] to its nearest point on a lower line."""
     if len(points_uv) < 2:
         return 3
-    distances, _ = cKDTree(points_uv).query(points_uv, k=2)
-    size = int(np.ceil(2.0 * np.median(distances[:, 1]))) | 1
+    distances, index = cKDTree(points_uv).query(points_uv, k=min(16, len(points_uv)))
+    below = points_uv[index, 1] - points_uv[:, None, 1] > 0.5
+    gaps = np.where(below, distances, np.inf).min(axis=1)
+    gap = np.median(gaps[np.isfinite(gaps)]) if np.isfinite(gaps).any() else distances[:, 1].max()
+    size = int(np.ceil(2.0 * max(gap, np.median(distances[:, 1])))) | 1
     return int(np.clip(size, 3, MAX_CLOSING_PX))
 
 

@@ -1,0 +1,31 @@
+"""Shared fixtures: the sample driving world, written once per test session."""
+
+from __future__ import annotations
+
+import shutil
+
+import pytest
+
+from tests.fixtures.driving_world import DrivingWorld
+from tests.fixtures.waymo_world import write_split
+
+
+@pytest.fixture(scope="session")
+def world() -> DrivingWorld:
+    return DrivingWorld()
+
+
+@pytest.fixture(scope="session")
+def sample_split(tmp_path_factory, world):
+    """(split folder, generator output) for the one-segment sample world."""
+    folder = tmp_path_factory.mktemp("waymo") / "split"
+    generated = write_split(str(folder), world=world)
+    return str(folder), generated
+
+
+@pytest.fixture
+def split_copy(sample_split, tmp_path):
+    """A private copy of the sample split that a test may corrupt."""
+    target = tmp_path / "split"
+    shutil.copytree(sample_split[0], target)
+    return str(target)
