@@ -76,18 +76,25 @@ def bench_drivetrack(frames: int) -> None:
         agree += int((ours_visible == theirs_visible).sum())
         total += len(track_z)
         if seed == 0:
-            print(f"per frame: {len(lidar_z)} lidar points in the image, {len(track_z)} track points, "
-                  f"{(~ours_visible).mean():.1%} occluded")
+            print(
+                f"per frame: {len(lidar_z)} lidar points in the image, {len(track_z)} track points, "
+                f"{(~ours_visible).mean():.1%} occluded"
+            )
     print(f"occlusion decision at {WIDTH}x{HEIGHT}, mean over {frames} frame(s):")
     print(f"  ours (4-pixel nearest-lidar lookup): {1000 * ours_total / frames:9.2f} ms/frame")
     print(f"  DriveTrack generator (dense map):    {1000 * theirs_total / frames:9.2f} ms/frame")
-    print(f"  speed-up: {theirs_total / ours_total:.1f}x   identical decisions: {agree}/{total} "
-          f"({agree / total:.2%})")
+    print(
+        f"  speed-up: {theirs_total / ours_total:.1f}x   identical decisions: {agree}/{total} "
+        f"({agree / total:.2%})"
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.bench", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="python -m pipeline.bench",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     parser.add_argument("source", choices=["drivetrack"])
     parser.add_argument("--frames", type=int, default=3, help="frames to time (default %(default)s)")
     args = parser.parse_args(argv)

@@ -9,7 +9,7 @@ run goes on. Finalize writes the manifests, ``failures.jsonl`` and ``run.json``.
 from __future__ import annotations
 
 import json
-import logging
+import sys
 import time
 import traceback
 
@@ -24,9 +24,14 @@ from pipeline.export.manifests import load_official_splits, split_clips
 from pipeline.export.npz_writer import clip_arrays, encode_npz
 from pipeline.filters.select import FILTER_ORDER, FilterOutcome, apply_filters
 
-log = logging.getLogger("pipeline")
 FAILURES = "failures"
 SOURCES = ("adt", "drivetrack", "pstudio")
+
+
+def progress(message: str) -> None:
+    """One progress line on stderr, from whichever worker process runs the step (Beam's worker
+    log forwarding would hide logging records on some runners)."""
+    print(f"{time.strftime('%H:%M:%S')} {message}", file=sys.stderr, flush=True)
 
 
 def failure(unit: str, stage: str, error: BaseException) -> dict:
@@ -62,10 +67,10 @@ class AnnotateDoFn(beam.DoFn):
         try:
             clips = self.annotate(unit)
         except Exception as error:  # noqa: BLE001 - every failure becomes data
-            log.error("unit %s failed: %s", name, error)
+            progress(f"unit {name} FAILED: {error}")
             yield beam.pvalue.TaggedOutput(FAILURES, failure(name, "annotate", error))
             return
-        log.info("unit %s: %d clip(s) in %.1f s", name, len(clips), time.monotonic() - started)
+        progress(f"unit {name}: {len(clips)} clip(s) in {time.monotonic() - started:.1f} s")
         yield from clips
 
 
@@ -86,13 +91,13 @@ class WriteClip(beam.DoFn):
             if kept.num_tracks:
                 write_atomic(f"{self.output}/{kept.source}/{kept.name}.npz", encode_npz(clip_arrays(kept)))
             else:
-                log.warning("clip %s: no track survived the filters; not written", kept.name)
+                progress(f"clip {kept.name}: no track survived the filters; not written")
         except Exception as error:  # noqa: BLE001
-            log.error("clip %s failed: %s", kept.name, error)
+            progress(f"clip {kept.name} FAILED: {error}")
             unit = f"{kept.unit} ({kept.name})"
             yield beam.pvalue.TaggedOutput(FAILURES, failure(unit, "write", error))
             return
-        log.info("clip %s: %d of %d candidate tracks written", kept.name, kept.num_tracks, outcome.candidates)
+        progress(f"clip {kept.name}: {kept.num_tracks} of {outcome.candidates} candidate tracks written")
         yield {
             "clip": kept.name,
             "source": kept.source,

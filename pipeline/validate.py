@@ -7,8 +7,7 @@ import sys
 
 from pipeline.export.files import list_files, read_bytes
 from pipeline.export.validator import check_clip_bytes
-
-SOURCES = ("adt", "drivetrack", "pstudio")
+from pipeline.graph import SOURCES
 
 
 def source_of(path: str) -> str | None:

@@ -62,7 +62,7 @@ def test_filter_stage_counts_each_track_once_in_order():
     visibility[:, 0] = False  # never visible
     visibility[::2, 1] = False  # flickers 19 times
     visibility[::2, 2] = False  # flickers and off-mask: counted against flicker
-    mask_agreement = np.array([1.0, 1.0, 0.1, 0.5, 0.9, np.nan])
+    mask_agreement = np.array([1.0, 1.0, 0.1, 0.3, 0.9, np.nan])  # default keeps >= 0.5
     kept, outcome = apply_filters(_clip(visibility, mask_agreement, target=10), RunConfig())
     assert outcome.dropped_by() == {"never_visible": 1, "flicker": 2, "mask": 1}
     assert outcome.selected.tolist() == [4, 5]  # NaN agreement: no evidence, kept

@@ -13,12 +13,6 @@ def in_view(points_cam: np.ndarray, fx_fy_cx_cy: np.ndarray, width: int, height:
     return (points_cam[..., 2] > 0) & in_image(pixels, width, height)
 
 
-def passes_absolute_depth_test(z: np.ndarray, depth: np.ndarray, delta: float) -> np.ndarray:
-    """Eq. 4's test |z - D| < delta; False where the depth is unknown (NaN)."""
-    with np.errstate(invalid="ignore"):
-        return np.abs(z - depth) < delta
-
-
 def passes_relative_depth_test(z: np.ndarray, depth: np.ndarray, margin: float) -> np.ndarray:
     """Not occluded with a relative margin: D >= (1 - margin) z (DriveTrack's 5% rule).
 

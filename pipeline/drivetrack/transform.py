@@ -8,8 +8,6 @@ from pipeline.drivetrack.annotate import UnitInput, annotate_unit
 from pipeline.drivetrack.reader import SegmentReader, list_segments
 from pipeline.graph import AnnotateDoFn
 
-SOURCE = "drivetrack"
-
 
 def list_units(input_root: str, config: RunConfig) -> list[tuple[str, int]]:
     """Every (segment, camera) pair of the split folder, sorted."""
