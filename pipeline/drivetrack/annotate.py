@@ -325,13 +325,6 @@ def track_object(
     query_frames = sample_query_frames(visibility, rng)
     queries = queries_from_tracks(tracks, np.maximum(query_frames, 0), calibration.fx_fy_cx_cy)
     queries[query_frames < 0] = np.nan
-    for t in frames:
-        check_jpeg(
-            unit.frames.jpegs[t],
-            calibration.width,
-            calibration.height,
-            f"camera_image/{unit.segment} camera {unit.camera} frame {unit.frames.timestamps[t]}",
-        )
     return ClipRecord(
         source="drivetrack",
         name=name,
@@ -359,6 +352,14 @@ def annotate_unit(unit: UnitInput, config: RunConfig) -> list[ClipRecord]:
     runs = select_objects(unit, cam_from_world, world_from_frame, config)
     if not runs:
         return []
+    calibration = unit.calibration
+    for t in sorted({t for run in runs for t in range(run.start, run.stop)}):
+        check_jpeg(
+            unit.frames.jpegs[t],
+            calibration.width,
+            calibration.height,
+            f"camera_image/{unit.segment} camera {unit.camera} frame {unit.frames.timestamps[t]}",
+        )
     rules = config.drivetrack
     evidence = gather_lidar(
         unit, runs, cam_from_world, world_from_frame, rules.box_shrink_m, rules.occlusion_margin
