@@ -32,12 +32,6 @@ def transform_points(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
     return np.einsum("ij,...j->...i", transform[:3, :3], points) + transform[:3, 3]
 
 
-def transform_points_per_frame(transforms: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Apply transforms [T, 4, 4] to points [T, N, 3] frame by frame; returns [T, N, 3]."""
-    rotated = np.einsum("tij,tnj->tni", transforms[:, :3, :3], points)
-    return rotated + transforms[:, None, :3, 3]
-
-
 def project(points_cam: np.ndarray, fx_fy_cx_cy: np.ndarray) -> np.ndarray:
     """Pinhole projection of camera-frame points [..., 3] to pixels [..., 2].
 
