@@ -136,4 +136,4 @@ def test_config_overrides_are_typed_and_checked():
         with_overrides(RunConfig(), ["flicker.maxfraction=1"])
     with pytest.raises(ValueError, match="expected float"):
         with_overrides(RunConfig(), ["flicker.max_fraction=lots"])
-    assert json.loads(json.dumps(config.to_dict()))["mask"]["min_agreement"] == 0.5
+    assert json.loads(json.dumps(config.to_dict()))["drivetrack"]["mask_min_agreement"] == 0.5

@@ -17,25 +17,6 @@ class FlickerConfig:
 
 
 @dataclasses.dataclass(frozen=True)
-class MaskConfig:
-    """Drop a track that is visible but off its object's mask too often.
-
-    min_agreement: keep when (visible frames on the mask) / (visible frames) >= this.
-      0.5 trims 1-3% of the sample world's candidates, the share the DriveTrack generator's
-      Segment Anything masks trimmed (2-3%); 0.8 trimmed 13-22% there, mostly true surface
-      points the one-sweep lidar silhouette missed.
-    masks_dir: optional per-frame masks instead of the default lidar silhouette,
-      read as ``<masks_dir>/<clip name>/<frame id>.png`` (non-zero = object).
-    closing_px: kernel of the morphological closing of the lidar silhouette;
-      0 picks it from the spacing of the projected lidar points in each frame.
-    """
-
-    min_agreement: float = 0.5
-    masks_dir: str = ""
-    closing_px: int = 0
-
-
-@dataclasses.dataclass(frozen=True)
 class DriveTrackConfig:
     """DriveTrack (Balasingam et al., CVPR 2024) choices, as the TAPVid-3D release used them.
 
@@ -43,6 +24,15 @@ class DriveTrackConfig:
     (normal estimated from the lidar points) faces away from the camera. Beyond ~30 m the
     5% depth margin exceeds a car's width, so the depth test alone calls the far side of a
     car visible. Set it false to reproduce the generator's decisions exactly.
+
+    mask_min_agreement: keep a track when (visible frames on the object's mask) / (visible
+      frames) >= this. 0.5 trims 1-3% of the sample world's candidates, the share the
+      generator's Segment Anything masks trimmed (2-3%); 0.8 trimmed 13-22% there, mostly true
+      surface points the one-sweep lidar silhouette missed.
+    masks_dir: optional per-frame masks instead of the default lidar silhouette,
+      read as ``<masks_dir>/<clip name>/<frame id>.png`` (non-zero = object).
+    mask_closing_px: kernel of the morphological closing of the lidar silhouette;
+      0 picks it from the spacing of the projected lidar points in each frame.
     """
 
     cameras: tuple[int, ...] = (1, 2, 3)
@@ -54,6 +44,56 @@ class DriveTrackConfig:
     facing_test: bool = True
     tracks_per_clip: int = 256
     oversample: int = 4
+    mask_min_agreement: float = 0.5
+    masks_dir: str = ""
+    mask_closing_px: int = 0
+
+
+@dataclasses.dataclass(frozen=True)
+class AdtConfig:
+    """Aria Digital Twin choices, as the TAPVid-3D release made them (SOURCES.md section 4).
+
+    chunk_frames: frames per clip (chunk k = frames [k * chunk_frames, (k + 1) * chunk_frames)).
+    min_frames: a chunk with fewer frames (the end of a sequence) is skipped.
+    with_skeleton: read the depth and segmentation that render the wearer's body and hands.
+    image_size, focal: the square pinhole camera every frame is re-rendered to, then rotated
+      90 degrees clockwise.
+    depth_delta_m: depth-test tolerance |z - D(u, v)| < delta.
+    dynamic_share: share of candidate queries drawn on dynamic objects when any are in view.
+    mask_min_agreement: keep a track when (visible frames on its own object's id) /
+      (visible frames) >= this.
+    """
+
+    chunk_frames: int = 300
+    min_frames: int = 300
+    with_skeleton: bool = True
+    image_size: int = 512
+    focal: float = 280.0
+    depth_delta_m: float = 0.01
+    dynamic_share: float = 0.5
+    mask_min_agreement: float = 0.5
+    tracks_per_clip: int = 1024
+    oversample: int = 4
+
+
+@dataclasses.dataclass(frozen=True)
+class PstudioConfig:
+    """Panoptic Studio (Dynamic 3D Gaussians) choices (SOURCES.md section 5).
+
+    params_dir: folder holding ``<sequence>/params.npz``; empty = ``<input>/output/<exp>``
+      when ``<input>/output`` holds exactly one experiment.
+    depth_delta_m: depth-test tolerance |z - D(u, v)| < delta on the splat depth.
+    min_alpha: a pixel whose accumulated alpha is below this has no surface (depth unknown).
+    mask_min_agreement: keep a track whose centre lies on the foreground mask in at least this
+      fraction of the (frame, camera) pairs where it projects into the image.
+    """
+
+    params_dir: str = ""
+    depth_delta_m: float = 0.02
+    min_alpha: float = 0.5
+    mask_min_agreement: float = 0.75
+    tracks_per_clip: int = 50
+    oversample: int = 8
 
 
 @dataclasses.dataclass(frozen=True)
@@ -64,8 +104,9 @@ class RunConfig:
     splits_file: str = ""
     minival_per_source: int = 50
     flicker: FlickerConfig = dataclasses.field(default_factory=FlickerConfig)
-    mask: MaskConfig = dataclasses.field(default_factory=MaskConfig)
+    adt: AdtConfig = dataclasses.field(default_factory=AdtConfig)
     drivetrack: DriveTrackConfig = dataclasses.field(default_factory=DriveTrackConfig)
+    pstudio: PstudioConfig = dataclasses.field(default_factory=PstudioConfig)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)

@@ -236,8 +236,8 @@ def object_masks(
     calibration = unit.calibration
     masks = []
     for t in range(run.start, run.stop):
-        if config.mask.masks_dir:
-            path = f"{config.mask.masks_dir.rstrip('/')}/{clip_name}/{unit.frames.timestamps[t]}.png"
+        if config.drivetrack.masks_dir:
+            path = f"{config.drivetrack.masks_dir.rstrip('/')}/{clip_name}/{unit.frames.timestamps[t]}.png"
             masks.append(read_mask_png(path, calibration.width, calibration.height))
             continue
         body = evidence.body_points[run.object_id].get(t, np.zeros((0, 3)))
@@ -245,7 +245,7 @@ def object_masks(
         points_cam = points_cam[points_cam[:, 2] > 0]
         uv = project(points_cam, calibration.fx_fy_cx_cy)
         masks.append(
-            silhouette_mask(uv, calibration.width, calibration.height, config.mask.closing_px)
+            silhouette_mask(uv, calibration.width, calibration.height, config.drivetrack.mask_closing_px)
             if len(uv)
             else None
         )

@@ -65,7 +65,7 @@ def decide(clip: ClipRecord, config: RunConfig) -> tuple[dict[str, np.ndarray], 
     }
     if "mask_agreement" in stats:
         score = stats["mask_agreement"]
-        verdicts["mask"] = np.isnan(score) | (score >= config.mask.min_agreement)
+        verdicts["mask"] = np.isnan(score) | (score >= getattr(config, clip.source).mask_min_agreement)
     else:
         verdicts["mask"] = np.ones(clip.num_tracks, bool)
     return verdicts, stats
