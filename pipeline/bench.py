@@ -13,7 +13,11 @@ import argparse
 import importlib
 import sys
 
-BENCHES = {"drivetrack": "pipeline.drivetrack.bench"}
+BENCHES = {
+    "adt": "pipeline.adt.bench",
+    "drivetrack": "pipeline.drivetrack.bench",
+    "pstudio": "pipeline.pstudio.bench",
+}
 
 
 def main(argv: list[str] | None = None) -> int:

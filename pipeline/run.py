@@ -28,7 +28,11 @@ from pipeline.export.files import read_bytes
 from pipeline.filters.select import FILTER_ORDER
 
 # Each source module provides list_units, unit_name, ANNOTATOR and sample_input.
-SOURCE_MODULES = {"drivetrack": "pipeline.drivetrack.transform"}
+SOURCE_MODULES = {
+    "adt": "pipeline.adt.transform",
+    "drivetrack": "pipeline.drivetrack.transform",
+    "pstudio": "pipeline.pstudio.transform",
+}
 
 log = logging.getLogger("pipeline")
 

@@ -1,4 +1,4 @@
-"""Shared fixtures: the sample driving world, written once per test session."""
+"""Shared fixtures: the sample driving and studio worlds, written once per test session."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ import shutil
 import pytest
 
 from tests.fixtures.driving_world import DrivingWorld
+from tests.fixtures.dynamic3dgs_files import write_sequence
 from tests.fixtures.waymo_world import write_split
 
 
@@ -29,3 +30,11 @@ def split_copy(sample_split, tmp_path):
     target = tmp_path / "split"
     shutil.copytree(sample_split[0], target)
     return str(target)
+
+
+@pytest.fixture(scope="session")
+def pstudio_sample(tmp_path_factory):
+    """(root holding data/ and output/, the StudioWorld) for the one-sequence studio sample."""
+    root = tmp_path_factory.mktemp("pstudio") / "root"
+    studio = write_sequence(str(root))
+    return str(root), studio

@@ -1,0 +1,319 @@
+"""Annotate one ADT chunk: queries on object pixels, rigid attachment, depth-test visibility.
+
+Pure NumPy on frames already re-rendered to the stored camera (``rectify.py``): no
+projectaria-tools here. All geometry is in the stored (upright pinhole) camera with the
+intrinsics ``fx_fy_cx_cy`` and pixel centres at +0.5 (pixel [r, c] covers [c, c+1) x [r, r+1)).
+
+Paper (SOURCES.md section 2): Q_cam = K^-1 (x, y, 1) D(x, y); Q_obj = P_obj<-world(t_q)
+P_world<-cam(t_q) Q_cam; Q_cam(t) = P_cam<-world(t) P_world<-obj(t) Q_obj; visible when in front,
+in the image, |z - D_t(u, v)| < delta and not on the wearer's (human) pixels.
+
+The chunk is read twice, one frame at a time: pass 1 encodes the frames and draws the queries;
+pass 2 carries every track through every frame. Only [T, N] / [T, N, 3] track arrays and the
+JPEG bytes are kept, never a [T, S, S] stack.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+
+import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+
+from pipeline.core.clip import ClipRecord
+from pipeline.core.config import AdtConfig, RunConfig
+from pipeline.core.errors import InputError
+from pipeline.core.geometry import in_image, invert_se3, project, unproject
+from pipeline.core.sampling import rng_for
+
+
+@dataclasses.dataclass
+class Frame:
+    """One stored frame's geometry (S = image size).
+
+    depth: [S, S] float32 z-depth in metres (0 = no surface).
+    ids: [S, S] uint64 instance ids (0 = none).
+    cam_from_world: [4, 4] world-to-stored-camera.
+    world_from_object: object id -> [4, 4] pose (``transform_scene_object``).
+    timestamp: the frame's RGB timestamp (ns), for messages.
+    """
+
+    depth: np.ndarray
+    ids: np.ndarray
+    cam_from_world: np.ndarray
+    world_from_object: dict[int, np.ndarray]
+    timestamp: int
+
+
+@dataclasses.dataclass(frozen=True)
+class Instances:
+    """Which ids are the wearer (human) and which objects move (dynamic)."""
+
+    human: frozenset[int]
+    dynamic: frozenset[int]
+
+
+# ------------------------------------------------------------------------------------ pixels
+
+
+def pixel_centres(rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """Continuous coordinates [N, 2] (x, y) of pixel centres."""
+    return np.stack([cols + 0.5, rows + 0.5], axis=-1).astype(np.float64)
+
+
+def pixel_at(xy: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, cols) [N] of the pixels containing points [N, 2] (clamped into the image)."""
+    cols = np.clip(np.floor(xy[:, 0]), 0, size - 1).astype(np.int64)
+    rows = np.clip(np.floor(xy[:, 1]), 0, size - 1).astype(np.int64)
+    return rows, cols
+
+
+def sample_depth(depth: np.ndarray, xy: np.ndarray, max_spread: float = np.inf) -> np.ndarray:
+    """Depth [N] at continuous points [N, 2]: bilinear between the four nearest pixel centres
+    when all four hold a surface and differ by at most ``max_spread`` (one surface, not an
+    edge between two), else the containing pixel's value; NaN where there is none.
+
+    At a pixel centre it returns that pixel's value exactly.
+    """
+    size_y, size_x = depth.shape
+    x, y = xy[:, 0] - 0.5, xy[:, 1] - 0.5
+    x0 = np.clip(np.floor(x), 0, size_x - 1).astype(np.int64)
+    y0 = np.clip(np.floor(y), 0, size_y - 1).astype(np.int64)
+    x1, y1 = np.minimum(x0 + 1, size_x - 1), np.minimum(y0 + 1, size_y - 1)
+    fx, fy = np.clip(x - x0, 0.0, 1.0), np.clip(y - y0, 0.0, 1.0)
+    d00, d01 = depth[y0, x0].astype(np.float64), depth[y0, x1].astype(np.float64)
+    d10, d11 = depth[y1, x0].astype(np.float64), depth[y1, x1].astype(np.float64)
+    bilinear = d00 * (1 - fx) * (1 - fy) + d01 * fx * (1 - fy) + d10 * (1 - fx) * fy + d11 * fx * fy
+    rows, cols = pixel_at(xy, size_x)
+    nearest = depth[rows, cols].astype(np.float64)
+    corners = np.stack([d00, d01, d10, d11])
+    complete = (corners.min(axis=0) > 0) & (corners.max(axis=0) - corners.min(axis=0) <= max_spread)
+    out = np.where(complete, bilinear, nearest)
+    return np.where(out > 0, out, np.nan)
+
+
+def interior(ids: np.ndarray) -> np.ndarray:
+    """[S, S] bool: pixels whose 3x3 neighbourhood holds one id (their depth is not a blend of
+    two surfaces: the re-rendering interpolates depth bilinearly across edges)."""
+    windows = sliding_window_view(np.pad(ids, 1, mode="edge"), (3, 3))
+    return (windows == ids[..., None, None]).all(axis=(-1, -2))
+
+
+# ------------------------------------------------------------------------------------ queries
+
+
+def query_pixel_pools(frame: Frame, instances: Instances) -> tuple[np.ndarray, np.ndarray]:
+    """Flat pixel indices that may hold a query: (on dynamic objects, on static objects).
+
+    A query pixel has a surface (depth > 0), an object id (not 0, not the human) and lies
+    inside its object's region (``interior``).
+    """
+    ids = frame.ids
+    ok = (frame.depth > 0) & (ids != 0) & interior(ids)
+    if instances.human:
+        ok &= ~np.isin(ids, list(instances.human))
+    dynamic = ok & np.isin(ids, list(instances.dynamic)) if instances.dynamic else np.zeros_like(ok)
+    return np.flatnonzero(dynamic), np.flatnonzero(ok & ~dynamic)
+
+
+def draw_query_pixels(
+    dynamic_pool: np.ndarray, static_pool: np.ndarray, count: int, dynamic_share: float, rng
+) -> np.ndarray:
+    """``count`` distinct flat pixel indices (fewer if the pools are smaller): a share
+    ``dynamic_share`` from the dynamic pool when it is not empty, the rest from the static one
+    (topped up from the other pool when one runs short)."""
+    want_dynamic = min(len(dynamic_pool), int(round(dynamic_share * count))) if len(dynamic_pool) else 0
+    want_static = min(len(static_pool), count - want_dynamic)
+    want_dynamic = min(len(dynamic_pool), count - want_static)
+    chosen = [
+        rng.choice(dynamic_pool, size=want_dynamic, replace=False),
+        rng.choice(static_pool, size=want_static, replace=False),
+    ]
+    return np.concatenate(chosen).astype(np.int64)
+
+
+def attach(
+    xy: np.ndarray,
+    depth: np.ndarray,
+    fx_fy_cx_cy: np.ndarray,
+    cam_from_world: np.ndarray,
+    world_from_object: np.ndarray,
+) -> np.ndarray:
+    """Query points in their objects' frames (paper eq. 1-2).
+
+    Args:
+      xy: [N, 2] query pixels; depth: [N] z-depth there (metres).
+      cam_from_world: [4, 4] at the query frame; world_from_object: [N, 4, 4] each query's object.
+    Returns:
+      [N, 3] points in object coordinates.
+    """
+    points_cam = unproject(xy, depth, fx_fy_cx_cy)
+    object_from_cam = invert_se3(world_from_object) @ invert_se3(cam_from_world)[None]
+    return np.einsum("nij,nj->ni", object_from_cam[:, :3, :3], points_cam) + object_from_cam[:, :3, 3]
+
+
+def carry(points_object: np.ndarray, cam_from_world: np.ndarray, world_from_object: np.ndarray) -> np.ndarray:
+    """Paper eq. 3 at one frame: object points [N, 3] with their objects' poses [N, 4, 4] and the
+    camera [4, 4] -> camera points [N, 3]."""
+    cam_from_object = cam_from_world[None] @ world_from_object
+    return np.einsum("nij,nj->ni", cam_from_object[:, :3, :3], points_object) + cam_from_object[:, :3, 3]
+
+
+def frame_visibility(
+    points_cam: np.ndarray,
+    object_ids: np.ndarray,
+    depth: np.ndarray,
+    ids: np.ndarray,
+    human_ids: frozenset[int],
+    fx_fy_cx_cy: np.ndarray,
+    delta: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Visibility (paper eq. 4) and own-id agreement of N points at one frame.
+
+    Args:
+      points_cam: [N, 3] stored-camera points; object_ids: [N] each point's object.
+      depth: [S, S] metres; ids: [S, S] instance ids; human_ids: the wearer's ids (the hand term).
+    Returns:
+      visible: [N] bool, in front, inside the image, |z - D(u, v)| < delta, not on a human pixel.
+        D is bilinear where the four pixels around (u, v) agree within delta, else the
+        containing pixel's depth (no blending across a depth edge).
+      on_own_id: [N] bool, the id at the point's pixel is its own object's.
+    """
+    size = depth.shape[1]
+    xy = project(points_cam, fx_fy_cx_cy)
+    inside = (points_cam[:, 2] > 0) & in_image(xy, size, depth.shape[0])
+    visible = np.zeros(len(points_cam), bool)
+    on_own = np.zeros(len(points_cam), bool)
+    if not inside.any():
+        return visible, on_own
+    xy_in = xy[inside]
+    rows, cols = pixel_at(xy_in, size)
+    pixel_ids = ids[rows, cols]
+    surface = sample_depth(depth, xy_in, max_spread=delta)
+    with np.errstate(invalid="ignore"):
+        close = np.abs(points_cam[inside, 2] - surface) < delta
+    not_human = ~np.isin(pixel_ids, list(human_ids)) if human_ids else np.ones(len(rows), bool)
+    visible[inside] = close & not_human
+    on_own[inside] = pixel_ids == object_ids[inside]
+    return visible, on_own
+
+
+def check_object_poses(frame: Frame, instances: Instances, where: str) -> None:
+    """Every object id in the frame's segmentation must have a pose."""
+    for object_id in np.unique(frame.ids).tolist():
+        if object_id and object_id not in instances.human and object_id not in frame.world_from_object:
+            raise InputError(f"{where}: object {object_id} has no pose at t={frame.timestamp} ns")
+
+
+# ------------------------------------------------------------------------------------ the chunk
+
+
+@dataclasses.dataclass(frozen=True)
+class Chunk:
+    """What one unit annotates: the clip's name, its unit, its frames' timestamps [T]."""
+
+    name: str
+    unit: str
+    timestamps: np.ndarray
+
+
+def annotate_chunk(
+    chunk: Chunk,
+    read_frame: Callable[[int], Frame],
+    read_jpeg: Callable[[int], bytes],
+    instances_of: Callable[[np.ndarray], Instances],
+    config: RunConfig,
+) -> ClipRecord:
+    """Candidate tracks of one chunk (``oversample`` x ``tracks_per_clip`` before filtering).
+
+    Args:
+      read_frame: timestamp -> Frame (re-rendered depth, ids and poses), called twice per frame.
+      read_jpeg: timestamp -> the stored RGB frame as JPEG bytes, called once per frame.
+      instances_of: the ids present in a frame [K] -> which are human / dynamic.
+    """
+    rules: AdtConfig = config.adt
+    size = rules.image_size
+    intrinsics = np.array([rules.focal, rules.focal, size / 2.0, size / 2.0])
+    num_frames = len(chunk.timestamps)
+    total = rules.oversample * rules.tracks_per_clip
+    query_frames = rng_for(config.seed, f"{chunk.name}/query_frames").integers(0, num_frames, total)
+    per_frame = np.bincount(query_frames, minlength=num_frames)
+
+    # Pass 1: frames, queries, attachment.
+    jpegs, extrinsics = [], []
+    q_xy, q_t, q_obj_points, q_ids = [], [], [], []
+    for t, timestamp in enumerate(chunk.timestamps.tolist()):
+        jpegs.append(read_jpeg(timestamp))
+        frame = read_frame(timestamp)
+        extrinsics.append(frame.cam_from_world)
+        instances = instances_of(np.unique(frame.ids))
+        check_object_poses(frame, instances, chunk.unit)
+        if not per_frame[t]:
+            continue
+        dynamic_pool, static_pool = query_pixel_pools(frame, instances)
+        rng = rng_for(config.seed, f"{chunk.name}/query_pixels/{t}")
+        flat = draw_query_pixels(dynamic_pool, static_pool, int(per_frame[t]), rules.dynamic_share, rng)
+        rows, cols = np.divmod(flat, size)
+        xy = pixel_centres(rows, cols)
+        ids = frame.ids[rows, cols]
+        poses = (
+            np.stack([frame.world_from_object[i] for i in ids.tolist()]) if len(ids) else np.zeros((0, 4, 4))
+        )
+        depth = frame.depth[rows, cols].astype(np.float64)
+        q_obj_points.append(attach(xy, depth, intrinsics, frame.cam_from_world, poses))
+        q_xy.append(xy)
+        q_t.append(np.full(len(flat), t, dtype=np.int64))
+        q_ids.append(ids)
+    if not q_xy or not sum(len(x) for x in q_xy):
+        raise InputError(f"{chunk.unit}: no pixel with depth on an object in any frame; no query")
+    xy, t_q = np.concatenate(q_xy), np.concatenate(q_t)
+    points_object, object_ids = np.concatenate(q_obj_points), np.concatenate(q_ids)
+    count = len(xy)
+
+    # Pass 2: every track through every frame.
+    tracks = np.zeros((num_frames, count, 3))
+    visibility = np.zeros((num_frames, count), bool)
+    agree = np.zeros(count, np.int64)
+    unique_ids, track_object = np.unique(object_ids, return_inverse=True)
+    for t, timestamp in enumerate(chunk.timestamps.tolist()):
+        frame = read_frame(timestamp)
+        missing = [i for i in unique_ids.tolist() if i not in frame.world_from_object]
+        if missing:
+            raise InputError(f"{chunk.unit}: object {missing[0]} has no pose at t={timestamp} ns")
+        poses = np.stack([frame.world_from_object[i] for i in unique_ids.tolist()])[track_object]
+        points = carry(points_object, frame.cam_from_world, poses)
+        human = instances_of(np.unique(frame.ids)).human
+        visible, on_own = frame_visibility(
+            points, object_ids, frame.depth, frame.ids, human, intrinsics, rules.depth_delta_m
+        )
+        tracks[t], visibility[t] = points, visible
+        agree += visible & on_own
+
+    visible_frames = visibility.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        agreement = np.where(visible_frames > 0, agree / np.maximum(visible_frames, 1), np.nan)
+    instances_all = instances_of(unique_ids)
+    dynamic = (
+        np.isin(object_ids, list(instances_all.dynamic)) if instances_all.dynamic else np.zeros(count, bool)
+    )
+    return ClipRecord(
+        source="adt",
+        name=chunk.name,
+        unit=chunk.unit,
+        images_jpeg=jpegs,
+        fx_fy_cx_cy=intrinsics,
+        image_size=(size, size),
+        extrinsics_w2c=np.stack(extrinsics),
+        tracks_xyz=tracks,
+        visibility=visibility,
+        queries_xyt=np.concatenate([xy, t_q[:, None].astype(np.float64)], axis=1),
+        frame_ids=np.asarray(chunk.timestamps, dtype=np.int64),
+        track_stats={
+            "mask_agreement": agreement,
+            "visible_frames": visible_frames.astype(np.int64),
+            "object_id": object_ids.astype(np.uint64),
+            "dynamic": dynamic,
+        },
+        target_tracks=rules.tracks_per_clip,
+    )

@@ -1,0 +1,177 @@
+"""Beam edge of the ADT source: list (sequence, chunk) units and annotate them.
+
+``--input`` is one ADT sequence folder or a folder of them, on a local or mounted file system
+(projectaria-tools reads VRS files from local paths only).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import cv2
+import numpy as np
+
+from pipeline.adt.annotate import Chunk, Frame, Instances, annotate_chunk
+from pipeline.adt.reader import SequenceReader, list_sequences, v1_name
+from pipeline.adt.rectify import Rectifier, stored_cam_from_world
+from pipeline.core.clip import ClipRecord
+from pipeline.core.config import RunConfig
+from pipeline.core.errors import InputError
+from pipeline.graph import AnnotateDoFn, progress
+
+JPEG_QUALITY = 95
+SHARED_EXCERPT = "../shared/data/adt_sample/aria_digital_twin_test_data"
+EXCERPT_SETTINGS = ("adt.chunk_frames=2", "adt.min_frames=2", "adt.max_gt_offset_ms=40")
+
+
+def open_reader(sequence: str, config: RunConfig) -> SequenceReader:
+    return SequenceReader(sequence, config.adt.with_skeleton, int(config.adt.max_gt_offset_ms * 1e6))
+
+
+def chunk_count(frames: int, config: RunConfig) -> int:
+    """Chunks of ``chunk_frames`` frames; the last one only if it has ``min_frames`` or more."""
+    size = config.adt.chunk_frames
+    full, rest = divmod(frames, size)
+    return full + (1 if rest and rest >= config.adt.min_frames else 0)
+
+
+def list_units(input_root: str, config: RunConfig) -> list[tuple[str, int]]:
+    """(sequence folder, chunk index) for every chunk of every sequence under ``input_root``.
+
+    A sequence that cannot be read yields one unit (chunk 0), which fails at annotate with the
+    reason, so the other sequences still run and the failure is recorded.
+    """
+    if config.adt.chunk_frames < 1 or config.adt.min_frames < 1:
+        raise InputError("adt.chunk_frames and adt.min_frames must be at least 1")
+    units = []
+    for sequence in list_sequences(input_root):
+        try:
+            frames = len(open_reader(sequence, config).frame_timestamps())
+        except InputError:
+            units.append((sequence, 0))
+            continue
+        chunks = chunk_count(frames, config)
+        if not chunks:
+            progress(
+                f"{os.path.basename(sequence)}: {frames} frame(s) in the ground-truth window, fewer "
+                f"than adt.min_frames={config.adt.min_frames}; skipped"
+            )
+        units += [(sequence, k) for k in range(chunks)]
+    return units
+
+
+def unit_name(unit: tuple[str, int]) -> str:
+    return f"{os.path.basename(os.path.normpath(unit[0]))}/chunk_{unit[1]}"
+
+
+def clip_name(sequence: str, chunk: int) -> str:
+    """The release's ADT clip name: ``<v1 sequence name>_<chunk index>``."""
+    return f"{v1_name(sequence)}_{chunk}"
+
+
+def encode_jpeg(image_rgb: np.ndarray) -> bytes:
+    """RGB [H, W, 3] uint8 -> JPEG bytes (OpenCV, deterministic for a given build)."""
+    ok, data = cv2.imencode(".jpg", image_rgb[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+    if not ok:
+        raise RuntimeError("JPEG encoding failed")
+    return data.tobytes()
+
+
+class SequenceFrames:
+    """A sequence's frames in the stored camera, read one at a time (the callables annotate uses)."""
+
+    def __init__(self, reader: SequenceReader, config: RunConfig):
+        self.reader = reader
+        self.rectifier = Rectifier(reader.calibration, config.adt.image_size, config.adt.focal)
+
+    def frame(self, timestamp: int) -> Frame:
+        return Frame(
+            depth=self.rectifier.depth_m(self.reader.depth_mm(timestamp)),
+            ids=self.rectifier.ids(self.reader.ids(timestamp)),
+            cam_from_world=stored_cam_from_world(self.reader.world_from_camera(timestamp)),
+            world_from_object=self.reader.object_poses(timestamp),
+            timestamp=int(timestamp),
+        )
+
+    def jpeg(self, timestamp: int) -> bytes:
+        return encode_jpeg(self.rectifier.rgb(self.reader.rgb(timestamp)))
+
+    def instances(self, ids: np.ndarray) -> Instances:
+        human, dynamic = set(), set()
+        for instance_id in ids.tolist():
+            if not instance_id:
+                continue
+            kind, motion = self.reader.instance(instance_id)
+            if kind == "human":
+                human.add(instance_id)
+            elif motion == "dynamic":
+                dynamic.add(instance_id)
+        return Instances(frozenset(human), frozenset(dynamic))
+
+
+def _named(error: InputError, sequence: str, name: str) -> InputError:
+    """The error with its message prefixed by the unit's name (instead of the sequence's)."""
+    message = str(error)
+    for prefix in (f"{name}: ", f"{os.path.basename(os.path.normpath(sequence))}: "):
+        if message.startswith(prefix):
+            message = message[len(prefix) :]
+    return InputError(f"{name}: {message}")
+
+
+def annotate_unit(sequence: str, chunk: int, config: RunConfig) -> list[ClipRecord]:
+    """One (sequence, chunk) unit -> its clip; InputError messages start with the unit's name."""
+    name = unit_name((sequence, chunk))
+    try:
+        reader = open_reader(sequence, config)
+        stamps = reader.frame_timestamps()
+    except InputError as error:
+        raise _named(error, sequence, name) from error
+    size = config.adt.chunk_frames
+    stamps = stamps[chunk * size : (chunk + 1) * size]
+    if len(stamps) < config.adt.min_frames:
+        raise InputError(f"{name}: {len(stamps)} frame(s), fewer than adt.min_frames={config.adt.min_frames}")
+    frames = SequenceFrames(reader, config)
+    record = Chunk(name=clip_name(sequence, chunk), unit=name, timestamps=stamps)
+    try:
+        return [annotate_chunk(record, frames.frame, frames.jpeg, frames.instances, config)]
+    except InputError as error:
+        raise _named(error, sequence, name) from error
+
+
+class AnnotateAdt(AnnotateDoFn):
+    """(sequence, chunk) -> one candidate clip."""
+
+    unit_name = staticmethod(unit_name)
+
+    def annotate(self, unit: tuple[str, int]) -> list[ClipRecord]:
+        return annotate_unit(unit[0], unit[1], self.config)
+
+
+def no_sample_message() -> str:
+    settings = " ".join(f"--set {s}" for s in EXCERPT_SETTINGS)
+    return (
+        "adt: there is no embedded ADT sample (ADT is real Aria recordings with a digital twin; "
+        "no synthetic stand-in is shipped). Pass --input with an ADT sequence folder or a folder "
+        "of them.\n"
+        "To download ADT: accept the licence and get the CDN url file (ADT_download_urls.json) "
+        "from https://www.projectaria.com/datasets/adt/, then, with projectaria-tools installed:\n"
+        "  aria_dataset_downloader -c ADT_download_urls.json -o ADT/ "
+        "-l Apartment_release_clean_seq131_M1292\n"
+        "(-l takes sequence names, or all; run it without -d to list the data types and pass with -d the "
+        "ones holding video.vrs, the depth and segmentation VRS files and the ground-truth csv/json "
+        "files), then:\n"
+        "  python -m pipeline.run --source adt --input ADT/\n"
+        "To try the shared 3-frame excerpt (2 frames in its ground-truth window, depth for only "
+        "the first of them within 5 ms):\n"
+        f"  python -m pipeline.run --source adt --input {SHARED_EXCERPT} {settings}"
+    )
+
+
+def sample_input(folder: str) -> str:
+    """There is no embedded ADT sample: print how to get ADT (and run the shared excerpt), exit 2."""
+    print(no_sample_message(), file=sys.stderr)
+    raise SystemExit(2)
+
+
+ANNOTATOR = AnnotateAdt

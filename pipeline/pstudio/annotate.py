@@ -1,0 +1,211 @@
+"""Panoptic Studio annotation of one (sequence, camera) unit, on arrays (no Beam, no files).
+
+1. Queries: pixels on the unit camera's foreground mask at random frames; depth rendered from
+   the splats at those pixels; unprojected; attached to the nearest foreground Gaussian centre
+   at that frame (a KD-tree). The track is that centre at every frame, in the camera frame.
+2. Visibility per frame: in the image, in front, and |z - D(u, v)| < delta, with D rendered
+   from all Gaussians at the track's projection (no hand term for this source).
+3. A candidate is kept only if it is visible at its own query frame; the query (x, y) is the
+   centre's projection there.
+4. Multi-view mask statistic: over every (frame, camera) pair where the centre projects into
+   the image, the fraction that lands on that camera's foreground mask.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from pipeline.core.clip import ClipRecord
+from pipeline.core.config import RunConfig
+from pipeline.core.geometry import invert_se3, project, transform_points, unproject
+from pipeline.core.sampling import rng_for
+from pipeline.core.visibility import in_view
+from pipeline.pstudio.render import render_depth_at
+from pipeline.pstudio.splats import Splats2D, project_splats
+
+
+@dataclasses.dataclass
+class Views:
+    """The sequence's static cameras (C of them): ids [C], fx_fy_cx_cy [C, 4], w2c [C, 4, 4]."""
+
+    camera_ids: np.ndarray
+    fx_fy_cx_cy: np.ndarray
+    w2c: np.ndarray
+    width: int
+    height: int
+
+    def index(self, camera_id: int) -> int:
+        return int(np.nonzero(self.camera_ids == camera_id)[0][0])
+
+
+@dataclasses.dataclass
+class Gaussians:
+    """Dynamic 3D Gaussians: means [T, N, 3], quaternions [T, N, 4] (w, x, y, z, unnormalised),
+    scales [N, 3], opacities [N], foreground [N] bool."""
+
+    means: np.ndarray
+    quaternions: np.ndarray
+    scales: np.ndarray
+    opacities: np.ndarray
+    foreground: np.ndarray
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.means.shape[0])
+
+
+@dataclasses.dataclass
+class UnitInput:
+    """Everything one unit reads. ``mask(view, t)`` returns camera ``view``'s foreground mask
+    [H, W] bool at frame t; ``frames_jpeg`` are the unit camera's T frames."""
+
+    sequence: str
+    camera_id: int
+    views: Views
+    gaussians: Gaussians
+    frames_jpeg: list[bytes]
+    mask: Callable[[int, int], np.ndarray]
+
+    @property
+    def clip_name(self) -> str:
+        return f"{self.sequence}_{self.camera_id}"
+
+
+def splats_in_view(unit: UnitInput, view: int, t: int, points_uv: np.ndarray | None = None) -> Splats2D:
+    """The Gaussians of frame t projected into camera ``view`` (all of them are occluders);
+    with ``points_uv`` [P, 2], only those that can reach the tiles of those points."""
+    g, v = unit.gaussians, unit.views
+    return project_splats(
+        g.means[t],
+        g.quaternions[t],
+        g.scales,
+        g.opacities,
+        v.w2c[view],
+        v.fx_fy_cx_cy[view],
+        v.width,
+        v.height,
+        points_uv,
+    )
+
+
+def attach_queries(
+    unit: UnitInput, attempts: int, config: RunConfig
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Draw ``attempts`` query pixels on the unit camera's mask at random frames; attach each
+    to the nearest foreground Gaussian centre at its frame.
+
+    Returns (query frames [A], Gaussian indices [A], attachment distances [A] in metres) for the
+    attempts that hit a surface within ``max_attach_distance_m`` of a centre, in draw order,
+    each Gaussian at most once.
+    """
+    view = unit.views.index(unit.camera_id)
+    intrinsics = unit.views.fx_fy_cx_cy[view]
+    world_from_cam = invert_se3(unit.views.w2c[view])
+    foreground = np.nonzero(unit.gaussians.foreground)[0]
+    rng = rng_for(config.seed, f"{unit.clip_name}/queries")
+    frames = rng.integers(0, unit.gaussians.num_frames, size=attempts)
+    draws = rng.random(attempts)
+    gaussian = np.full(attempts, -1)
+    distance = np.full(attempts, np.nan)
+    for t in np.unique(frames):
+        rows, cols = np.nonzero(unit.mask(view, int(t)))
+        picked = np.nonzero(frames == t)[0]
+        if not len(rows):
+            continue
+        choice = np.minimum((draws[picked] * len(rows)).astype(np.int64), len(rows) - 1)
+        pixels = np.stack([cols[choice], rows[choice]], axis=1).astype(np.float64)
+        depth, _ = render_depth_at(
+            splats_in_view(unit, view, int(t), pixels), pixels, config.pstudio.min_alpha
+        )
+        surface = np.isfinite(depth)
+        points = transform_points(world_from_cam, unproject(pixels[surface], depth[surface], intrinsics))
+        tree = cKDTree(unit.gaussians.means[t, foreground].astype(np.float64))
+        nearest_distance, nearest = tree.query(points)
+        close = nearest_distance <= config.pstudio.max_attach_distance_m
+        gaussian[picked[surface][close]] = foreground[nearest[close]]
+        distance[picked[surface][close]] = nearest_distance[close]
+    hit = np.nonzero(gaussian >= 0)[0]
+    _, first = np.unique(gaussian[hit], return_index=True)
+    keep = hit[np.sort(first)]
+    return frames[keep], gaussian[keep], distance[keep]
+
+
+def track_visibility(
+    unit: UnitInput, gaussians: np.ndarray, config: RunConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """Tracks [T, K, 3] (camera frame) of Gaussian centres [K] and their visibility [T, K]."""
+    view = unit.views.index(unit.camera_id)
+    intrinsics = unit.views.fx_fy_cx_cy[view]
+    frames = unit.gaussians.num_frames
+    tracks = np.empty((frames, len(gaussians), 3))
+    visible = np.zeros((frames, len(gaussians)), bool)
+    for t in range(frames):
+        tracks[t] = transform_points(
+            unit.views.w2c[view], unit.gaussians.means[t, gaussians].astype(np.float64)
+        )
+        seen = in_view(tracks[t], intrinsics, unit.views.width, unit.views.height)
+        if not seen.any():
+            continue
+        pixels = project(tracks[t, seen], intrinsics)
+        depth, _ = render_depth_at(splats_in_view(unit, view, t, pixels), pixels, config.pstudio.min_alpha)
+        with np.errstate(invalid="ignore"):
+            visible[t, seen] = np.abs(tracks[t, seen, 2] - depth) < config.pstudio.depth_delta_m
+    return tracks, visible
+
+
+def multiview_mask_fraction(unit: UnitInput, gaussians: np.ndarray) -> np.ndarray:
+    """[K] fraction of (frame, camera) pairs with the centre in the image that land on that
+    camera's foreground mask (NaN when it is never in any image)."""
+    views = unit.views
+    on_mask = np.zeros(len(gaussians))
+    in_image = np.zeros(len(gaussians))
+    for t in range(unit.gaussians.num_frames):
+        centres = unit.gaussians.means[t, gaussians].astype(np.float64)
+        for view in range(len(views.camera_ids)):
+            points = transform_points(views.w2c[view], centres)
+            seen = in_view(points, views.fx_fy_cx_cy[view], views.width, views.height)
+            pixels = np.floor(project(points[seen], views.fx_fy_cx_cy[view]) + 0.5).astype(np.int64)
+            pixels = np.minimum(pixels, [views.width - 1, views.height - 1])
+            mask = unit.mask(view, t)
+            in_image[seen] += 1
+            on_mask[seen] += mask[pixels[:, 1], pixels[:, 0]]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(in_image > 0, on_mask / in_image, np.nan)
+
+
+def annotate_unit(unit: UnitInput, config: RunConfig) -> list[ClipRecord]:
+    """One candidate clip (oversampled tracks with their statistics) for the unit."""
+    settings = config.pstudio
+    wanted = settings.tracks_per_clip * settings.oversample
+    query_frames, gaussians, distance = attach_queries(unit, 2 * wanted, config)
+    tracks, visible = track_visibility(unit, gaussians, config)
+    valid = np.nonzero(visible[query_frames, np.arange(len(gaussians))])[0][:wanted]
+    query_frames, gaussians, distance = query_frames[valid], gaussians[valid], distance[valid]
+    tracks, visible = tracks[:, valid], visible[:, valid]
+    view = unit.views.index(unit.camera_id)
+    intrinsics = unit.views.fx_fy_cx_cy[view]
+    query_xy = project(tracks[query_frames, np.arange(len(valid))], intrinsics)
+    clip = ClipRecord(
+        source="pstudio",
+        name=unit.clip_name,
+        unit=f"{unit.sequence}/camera_{unit.camera_id}",
+        images_jpeg=unit.frames_jpeg,
+        fx_fy_cx_cy=intrinsics,
+        image_size=(unit.views.width, unit.views.height),
+        extrinsics_w2c=None,
+        tracks_xyz=tracks,
+        visibility=visible,
+        queries_xyt=np.concatenate([query_xy, query_frames[:, None].astype(np.float64)], axis=1),
+        frame_ids=np.arange(unit.gaussians.num_frames, dtype=np.int64),
+        track_stats={
+            "mask_agreement": multiview_mask_fraction(unit, gaussians),
+            "attach_distance_m": distance,
+            "gaussian_index": gaussians.astype(np.int64),
+        },
+        target_tracks=settings.tracks_per_clip,
+    )
+    return [clip]

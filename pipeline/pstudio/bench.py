@@ -1,0 +1,165 @@
+"""Panoptic Studio speed figures on a synthetic 300,000-Gaussian dome scene at 640x360.
+
+Five people-sized ellipsoids (120,000 foreground Gaussians) walk on a floor inside a dome wall
+(180,000 background Gaussians), for 150 frames, seen by four cameras. Prints the full-frame
+depth render time, the selected-pixel render time for a clip's 400 candidate tracks, their
+ratio, and the time to annotate one 150-frame clip.
+"""
+
+from __future__ import annotations
+
+import time
+
+import cv2
+import numpy as np
+
+from pipeline.core.config import RunConfig
+from pipeline.pstudio.annotate import Gaussians, UnitInput, Views, annotate_unit, splats_in_view
+from pipeline.pstudio.render import render_depth_at, render_depth_image
+
+WIDTH, HEIGHT, FRAMES, CAMERAS = 640, 360, 150, 4
+PEOPLE, PER_PERSON, FLOOR, WALL = 5, 24_000, 100_000, 80_000
+
+
+def _sphere(count: int, rng: np.random.Generator) -> np.ndarray:
+    v = rng.normal(size=(count, 3))
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def _quaternion_z(normals: np.ndarray, yaw: float = 0.0) -> np.ndarray:
+    """Quaternions [K, 4] turning local z onto unit normals [K, 3], then yawing by ``yaw``."""
+    z = np.array([0.0, 0.0, 1.0])
+    axis = np.cross(z, normals)
+    w = 1.0 + normals @ z
+    q = np.concatenate([w[:, None], axis], axis=1)
+    q[w < 1e-6] = [0.0, 1.0, 0.0, 0.0]
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    yaw_q = np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
+    w1, v1 = yaw_q[0], yaw_q[1:]
+    w2, v2 = q[:, 0], q[:, 1:]
+    return np.concatenate(
+        [(w1 * w2 - v2 @ v1)[:, None], w1 * v2 + w2[:, None] * v1 + np.cross(v1, v2)], axis=1
+    )
+
+
+def synthetic_scene(seed: int = 0) -> tuple[Gaussians, Views]:
+    """The 300,000-Gaussian scene: means [150, N, 3] and quaternions as float32, like params.npz."""
+    rng = np.random.default_rng(seed)
+    axes = np.array([0.22, 0.16, 0.85])
+    unit = _sphere(PER_PERSON, rng)
+    local, local_normals = unit * axes, unit / axes
+    local_normals /= np.linalg.norm(local_normals, axis=1, keepdims=True)
+    floor = np.concatenate([rng.uniform(-4, 4, (FLOOR, 2)), np.zeros((FLOOR, 1))], axis=1)
+    angle = rng.uniform(0, 2 * np.pi, WALL)
+    wall = np.stack([4.5 * np.cos(angle), 4.5 * np.sin(angle), rng.uniform(0, 3, WALL)], axis=1)
+    wall_normals = -wall * [1, 1, 0] / 4.5
+    background = np.concatenate([floor, wall])
+    background_q = np.concatenate(
+        [_quaternion_z(np.tile([0.0, 0.0, 1.0], (FLOOR, 1))), _quaternion_z(wall_normals)]
+    )
+    count = PEOPLE * PER_PERSON + FLOOR + WALL
+    means = np.empty((FRAMES, count, 3), np.float32)
+    quaternions = np.empty((FRAMES, count, 4), np.float32)
+    means[:, PEOPLE * PER_PERSON :] = background
+    quaternions[:, PEOPLE * PER_PERSON :] = background_q
+    for t in range(FRAMES):
+        for p in range(PEOPLE):
+            phase = 2 * np.pi * (p / PEOPLE + t / FRAMES / 2)
+            yaw = phase + np.pi / 2
+            c, s = np.cos(yaw), np.sin(yaw)
+            rotation = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+            centre = [1.6 * np.cos(phase), 1.6 * np.sin(phase), 0.9]
+            block = slice(p * PER_PERSON, (p + 1) * PER_PERSON)
+            means[t, block] = local @ rotation.T + centre
+            quaternions[t, block] = _quaternion_z(local_normals, yaw)
+    scales = np.concatenate(
+        [
+            np.tile([0.006, 0.006, 0.001], (PEOPLE * PER_PERSON, 1)),
+            np.tile([0.018, 0.018, 0.002], (FLOOR, 1)),
+            np.tile([0.024, 0.024, 0.002], (WALL, 1)),
+        ]
+    )
+    opacities = np.full(count, 0.9)
+    foreground = np.arange(count) < PEOPLE * PER_PERSON
+    views = _cameras()
+    return Gaussians(means, quaternions, scales, opacities, foreground), views
+
+
+def _cameras() -> Views:
+    w2c = []
+    for k in range(CAMERAS):
+        a = 2 * np.pi * k / CAMERAS + 0.3
+        eye = np.array([3.8 * np.cos(a), 3.8 * np.sin(a), 1.7])
+        forward = -eye * [1, 1, 0] / np.linalg.norm(eye[:2]) + [0, 0, -0.25]
+        forward /= np.linalg.norm(forward)
+        right = np.cross(forward, [0, 0, 1.0])
+        right /= np.linalg.norm(right)
+        rotation = np.stack([right, np.cross(forward, right), forward])
+        transform = np.eye(4)
+        transform[:3, :3], transform[:3, 3] = rotation, -rotation @ eye
+        w2c.append(transform)
+    intrinsics = np.tile([420.0, 420.0, 320.0, 180.0], (CAMERAS, 1))
+    return Views(np.arange(CAMERAS), intrinsics, np.stack(w2c), WIDTH, HEIGHT)
+
+
+def _mask_function(gaussians: Gaussians, views: Views):
+    """Foreground masks: the foreground centres drawn into each view and dilated by 3 px."""
+    foreground = np.nonzero(gaussians.foreground)[0]
+
+    def mask(view: int, t: int) -> np.ndarray:
+        points = (
+            gaussians.means[t, foreground].astype(np.float64) @ views.w2c[view, :3, :3].T
+            + views.w2c[view, :3, 3]
+        )
+        fx, fy, cx, cy = views.fx_fy_cx_cy[view]
+        u = np.round(fx * points[:, 0] / points[:, 2] + cx).astype(np.int64)
+        v = np.round(fy * points[:, 1] / points[:, 2] + cy).astype(np.int64)
+        inside = (points[:, 2] > 0) & (u >= 0) & (u < WIDTH) & (v >= 0) & (v < HEIGHT)
+        image = np.zeros((HEIGHT, WIDTH), np.uint8)
+        image[v[inside], u[inside]] = 1
+        return cv2.dilate(image, np.ones((7, 7), np.uint8)) > 0
+
+    return mask
+
+
+def run(frames: int) -> None:
+    """Print render and annotation timings on the synthetic scene (``frames`` frames timed)."""
+    started = time.perf_counter()
+    gaussians, views = synthetic_scene()
+    count = gaussians.means.shape[1]
+    print(f"scene: {count:,} Gaussians x {FRAMES} frames, {CAMERAS} cameras at {WIDTH}x{HEIGHT}")
+    print(f"  built in {time.perf_counter() - started:.1f} s")
+    jpeg = cv2.imencode(".jpg", np.zeros((HEIGHT, WIDTH, 3), np.uint8))[1].tobytes()
+    unit = UnitInput("bench", 0, views, gaussians, [jpeg] * FRAMES, _mask_function(gaussians, views))
+    rng = np.random.default_rng(1)
+    splats_in_view(unit, 0, 0)  # compile the kernels outside the timings
+    render_depth_image(splats_in_view(unit, 0, 0), 0.5)
+    full = sparse = 0.0
+    timed = [int(t) for t in np.linspace(0, FRAMES - 1, frames)]
+    for t in timed:
+        start = time.perf_counter()
+        depth, _ = render_depth_image(splats_in_view(unit, 0, t), 0.5)
+        full += time.perf_counter() - start
+        surface = np.argwhere(np.isfinite(depth))
+        points = surface[rng.choice(len(surface), 400, replace=False)][:, ::-1].astype(np.float64)
+        start = time.perf_counter()
+        sparse_depth, _ = render_depth_at(splats_in_view(unit, 0, t, points), points, 0.5)
+        sparse += time.perf_counter() - start
+        rows, cols = points[:, 1].astype(int), points[:, 0].astype(int)
+        assert np.array_equal(sparse_depth, depth[rows, cols], equal_nan=True)
+    print(f"depth render, mean over {len(timed)} frame(s) (projection of all Gaussians included):")
+    print(f"  full frame ({WIDTH * HEIGHT:,} pixels): {1000 * full / len(timed):8.1f} ms/frame")
+    print(f"  400 selected pixels:           {1000 * sparse / len(timed):8.1f} ms/frame")
+    print(f"  speed-up of the selected-pixel path: {full / sparse:.1f}x (identical values at those pixels)")
+    config = RunConfig()
+    start = time.perf_counter()
+    (clip,) = annotate_unit(unit, config)
+    elapsed = time.perf_counter() - start
+    print(
+        f"annotate one {FRAMES}-frame clip: {elapsed:.1f} s ({1000 * elapsed / FRAMES:.0f} ms/frame), "
+        f"{clip.num_tracks} candidate tracks, visible {clip.visibility.mean():.0%} of (track, frame) pairs"
+    )
+    estimate = 2 * FRAMES * full / len(timed)
+    print(
+        f"  (both passes over {FRAMES} frames with full-frame renders: about {estimate:.0f} s of rendering)"
+    )

@@ -1,0 +1,178 @@
+"""Dynamic 3D Gaussians' files: ``data/<seq>/train_meta.json``, ``ims/``, ``seg/`` and
+``output/<exp>/<seq>/params.npz``, read through Beam's FileSystems.
+
+Every problem raises InputError naming the file and the cause.
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+
+import cv2
+import numpy as np
+from apache_beam.io.filesystem import CompressionTypes
+from apache_beam.io.filesystems import FileSystems
+
+from pipeline.core.config import PstudioConfig
+from pipeline.core.errors import InputError
+from pipeline.core.images import check_jpeg
+from pipeline.pstudio.annotate import Gaussians, Views
+
+PARAMS_SHAPES = {  # member -> shape with T, N symbolic
+    "means3D": ("T", "N", 3),
+    "unnorm_rotations": ("T", "N", 4),
+    "log_scales": ("N", 3),
+    "logit_opacities": ("N", 1),
+    "seg_colors": ("N", 3),
+}
+
+
+def _read(path: str) -> bytes:
+    try:
+        with FileSystems.open(path, compression_type=CompressionTypes.UNCOMPRESSED) as handle:
+            return handle.read()
+    except Exception as error:  # noqa: BLE001 - any filesystem's not-found becomes InputError
+        if not FileSystems.exists(path):
+            raise InputError(f"missing file {path}") from error
+        raise InputError(f"cannot read {path}: {error}") from error
+
+
+def data_root(input_root: str) -> str:
+    """The folder holding ``<seq>/train_meta.json``: ``<input>/data`` if present, else ``<input>``."""
+    candidate = FileSystems.join(input_root, "data")
+    return (
+        candidate
+        if FileSystems.match([FileSystems.join(candidate, "*", "train_meta.json")])[0].metadata_list
+        else input_root
+    )
+
+
+def list_sequences(input_root: str) -> list[str]:
+    """Sequence names (folders with a train_meta.json), sorted."""
+    root = data_root(input_root)
+    matches = FileSystems.match([FileSystems.join(root, "*", "train_meta.json")])[0].metadata_list
+    names = sorted(m.path.rstrip("/").split("/")[-2] for m in matches)
+    if not names:
+        raise InputError(
+            f"no sequences: no {root}/<sequence>/train_meta.json; --input must hold Dynamic 3D "
+            "Gaussians' data/<sequence>/ folders (and output/<exp>/<sequence>/params.npz)"
+        )
+    return names
+
+
+def params_path(input_root: str, sequence: str, config: PstudioConfig) -> str:
+    """``<params_dir>/<seq>/params.npz``; params_dir defaults to the one experiment in <input>/output."""
+    if config.params_dir:
+        return FileSystems.join(config.params_dir, sequence, "params.npz")
+    pattern = FileSystems.join(input_root, "output", "*", sequence, "params.npz")
+    found = sorted(m.path for m in FileSystems.match([pattern])[0].metadata_list)
+    if len(found) != 1:
+        what = "no" if not found else f"{len(found)}"
+        raise InputError(
+            f"{sequence}: {what} params.npz matching {pattern}; set pstudio.params_dir to the folder "
+            "holding <sequence>/params.npz"
+        )
+    return found[0]
+
+
+def read_views(input_root: str, sequence: str) -> tuple[Views, dict]:
+    """The sequence's cameras from train_meta.json (checked static) and the raw metadata."""
+    path = FileSystems.join(data_root(input_root), sequence, "train_meta.json")
+    try:
+        meta = json.loads(_read(path))
+        width, height = int(meta["w"]), int(meta["h"])
+        k = np.asarray(meta["k"], dtype=np.float64)
+        w2c = np.asarray(meta["w2c"], dtype=np.float64)
+        camera_ids = np.asarray(meta["cam_id"], dtype=np.int64)
+        names = meta["fn"]
+    except InputError:
+        raise
+    except (KeyError, ValueError, TypeError) as error:
+        raise InputError(
+            f"{path}: not a Dynamic 3D Gaussians train_meta.json ({type(error).__name__}: {error})"
+        ) from error
+    frames = len(names)
+    if (
+        k.shape[:1] != (frames,)
+        or k.shape[2:] != (3, 3)
+        or w2c.shape[2:] != (4, 4)
+        or camera_ids.shape[0] != frames
+    ):
+        raise InputError(
+            f"{path}: k, w2c, fn and cam_id disagree in shape ({k.shape}, {w2c.shape}, {camera_ids.shape})"
+        )
+    if not (np.isfinite(k).all() and np.isfinite(w2c).all()):
+        raise InputError(f"{path}: k or w2c holds non-finite values")
+    if (camera_ids != camera_ids[0]).any():
+        raise InputError(f"{path}: the camera list changes between frames")
+    if np.abs(k - k[0]).max() > 1e-6 or np.abs(w2c - w2c[0]).max() > 1e-6:
+        raise InputError(f"{path}: cameras move between frames; Panoptic Studio clips assume static cameras")
+    intrinsics = np.stack([k[0, :, 0, 0], k[0, :, 1, 1], k[0, :, 0, 2], k[0, :, 1, 2]], axis=1)
+    return Views(camera_ids[0], intrinsics, w2c[0], width, height), meta
+
+
+def read_gaussians(path: str, frames: int) -> Gaussians:
+    """The Gaussians of params.npz (no pickled objects), checked against T = ``frames``."""
+    try:
+        with FileSystems.open(path, compression_type=CompressionTypes.UNCOMPRESSED) as handle:
+            archive = np.load(handle, allow_pickle=False)
+            arrays = {}
+            for name in PARAMS_SHAPES:
+                if name not in archive.files:
+                    raise InputError(f"{path}: no {name!r} member (has {sorted(archive.files)})")
+                try:
+                    arrays[name] = archive[name]
+                except ValueError as error:
+                    raise InputError(f"{path}: member {name!r} is a pickled object array; refused") from error
+    except InputError:
+        raise
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as error:
+        if not FileSystems.exists(path):
+            raise InputError(f"missing file {path}") from error
+        raise InputError(f"{path}: unreadable npz ({type(error).__name__}: {error})") from error
+    count = arrays["means3D"].shape[1] if arrays["means3D"].ndim == 3 else -1
+    for name, shape in PARAMS_SHAPES.items():
+        expected = tuple({"T": frames, "N": count}.get(d, d) for d in shape)
+        if arrays[name].shape != expected:
+            raise InputError(
+                f"{path}: {name} has shape {arrays[name].shape}, expected {expected} "
+                f"(T = {frames} frames in train_meta.json, N = {count} Gaussians in means3D)"
+            )
+        if arrays[name].dtype.kind != "f" or not np.isfinite(arrays[name]).all():
+            raise InputError(f"{path}: {name} must hold finite floats")
+    return Gaussians(
+        means=arrays["means3D"],
+        quaternions=arrays["unnorm_rotations"],
+        scales=np.exp(arrays["log_scales"].astype(np.float64)),
+        opacities=1.0 / (1.0 + np.exp(-arrays["logit_opacities"][:, 0].astype(np.float64))),
+        foreground=arrays["seg_colors"][:, 0] > 0.5,
+    )
+
+
+class SequenceFiles:
+    """Images and masks of one sequence, by (camera column, frame) as train_meta's ``fn`` names them."""
+
+    def __init__(self, input_root: str, sequence: str, meta: dict, views: Views):
+        self.folder = FileSystems.join(data_root(input_root), sequence)
+        self.names = meta["fn"]
+        self.views = views
+
+    def image(self, view: int, t: int) -> bytes:
+        path = FileSystems.join(self.folder, "ims", self.names[t][view])
+        data = _read(path)
+        check_jpeg(data, self.views.width, self.views.height, path)
+        return data
+
+    def mask(self, view: int, t: int) -> np.ndarray:
+        """Foreground mask [H, W] bool (seg PNG, non-zero = foreground)."""
+        path = FileSystems.join(self.folder, "seg", self.names[t][view].rsplit(".", 1)[0] + ".png")
+        image = cv2.imdecode(np.frombuffer(_read(path), np.uint8), cv2.IMREAD_GRAYSCALE)
+        if image is None:
+            raise InputError(f"{path}: corrupt PNG")
+        if image.shape != (self.views.height, self.views.width):
+            raise InputError(
+                f"{path}: mask is {image.shape[1]}x{image.shape[0]}, "
+                f"expected {self.views.width}x{self.views.height}"
+            )
+        return image > 0

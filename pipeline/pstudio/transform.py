@@ -1,0 +1,60 @@
+"""Beam edge of the Panoptic Studio source: list (sequence, camera) units and annotate them."""
+
+from __future__ import annotations
+
+from pipeline.core.clip import ClipRecord
+from pipeline.core.config import RunConfig
+from pipeline.core.errors import InputError
+from pipeline.graph import AnnotateDoFn
+from pipeline.pstudio.annotate import UnitInput, annotate_unit
+from pipeline.pstudio.reader import SequenceFiles, list_sequences, params_path, read_gaussians, read_views
+
+
+def list_units(input_root: str, config: RunConfig) -> list[tuple[str, int]]:
+    """Every (sequence, camera) pair: the cameras of train_meta.json, or ``pstudio.cameras``."""
+    units = []
+    for sequence in list_sequences(input_root):
+        if config.pstudio.cameras:
+            cameras = config.pstudio.cameras
+        else:
+            cameras = [int(c) for c in read_views(input_root, sequence)[0].camera_ids]
+        units += [(sequence, camera) for camera in sorted(cameras)]
+    return units
+
+
+def unit_name(unit: tuple[str, int]) -> str:
+    return f"{unit[0]}/camera_{unit[1]}"
+
+
+def load_unit(input_root: str, sequence: str, camera: int, config: RunConfig) -> UnitInput:
+    """Read the unit's cameras, frames and Gaussians; masks are read when annotate asks."""
+    views, meta = read_views(input_root, sequence)
+    if camera not in views.camera_ids:
+        raise InputError(
+            f"{sequence}: camera {camera} is not in train_meta.json (cameras {views.camera_ids.tolist()}); "
+            "held-out test cameras have no training masks"
+        )
+    files = SequenceFiles(input_root, sequence, meta, views)
+    view = views.index(camera)
+    frames = [files.image(view, t) for t in range(len(meta["fn"]))]
+    gaussians = read_gaussians(params_path(input_root, sequence, config.pstudio), len(meta["fn"]))
+    return UnitInput(sequence, camera, views, gaussians, frames, files.mask)
+
+
+class AnnotatePstudio(AnnotateDoFn):
+    """(sequence, camera) -> one candidate clip ``<sequence>_<camera>``."""
+
+    unit_name = staticmethod(unit_name)
+
+    def annotate(self, unit: tuple[str, int]) -> list[ClipRecord]:
+        return annotate_unit(load_unit(self.input_root, *unit, self.config), self.config)
+
+
+def sample_input(folder: str) -> str:
+    """Write (once) the embedded sample world in Dynamic 3D Gaussians' layout; returns its path."""
+    from pipeline.samples import load_fixture_module
+
+    return load_fixture_module("dynamic3dgs_files").write_sample(folder)
+
+
+ANNOTATOR = AnnotatePstudio

@@ -1,0 +1,229 @@
+"""ADT geometry on synthetic arrays with analytic truth: the upright rotation, rigid attachment,
+depth-test visibility with the hand term, and a whole chunk through ``annotate_chunk``."""
+
+import numpy as np
+import pytest
+
+from pipeline.adt.annotate import (
+    Chunk,
+    Frame,
+    Instances,
+    annotate_chunk,
+    attach,
+    carry,
+    draw_query_pixels,
+    frame_visibility,
+    sample_depth,
+)
+from pipeline.adt.rectify import (
+    CAM_ROT_FROM_CAM,
+    rotate_cw,
+    rotate_pixels_cw,
+    stored_cam_from_world,
+    unrotate_pixels_cw,
+)
+from pipeline.core.config import RunConfig, with_overrides
+
+S, F = 512, 280.0
+K = np.array([F, F, S / 2, S / 2])
+
+
+def rot_z(angle):
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+
+
+def pose(rotation, translation):
+    out = np.eye(4)
+    out[:3, :3], out[:3, 3] = rotation, translation
+    return out
+
+
+def pinhole(points):
+    return np.stack([F * points[:, 0] / points[:, 2] + S / 2, F * points[:, 1] / points[:, 2] + S / 2], 1)
+
+
+def test_rotate_cw_moves_pixels_clockwise():
+    image = np.zeros((S, S), np.int32)
+    image[10, 300] = 1  # row 10, column 300: near the top edge
+    rotated = rotate_cw(image)
+    # Clockwise: the top edge becomes the right edge; (row v, col u) -> (row u, col S-1-v).
+    assert rotated[300, S - 1 - 10] == 1 and rotated.sum() == 1
+    corners = np.zeros((4, 4), int)
+    corners[0, 0] = 1  # top-left goes to top-right under a clockwise quarter turn
+    assert rotate_cw(corners)[0, 3] == 1
+
+
+def test_rotated_camera_projects_onto_rotated_pixels():
+    rng = np.random.default_rng(0)
+    points = rng.uniform([-1, -1, 0.5], [1, 1, 4], size=(200, 3))
+    rotated_points = points @ CAM_ROT_FROM_CAM[:3, :3].T
+    # The same intrinsics serve the rotated camera: the rotation maps the image onto itself.
+    expected = rotate_pixels_cw(pinhole(points), S)
+    np.testing.assert_allclose(pinhole(rotated_points), expected, atol=1e-9)
+    np.testing.assert_allclose(unrotate_pixels_cw(expected, S), pinhole(points), atol=1e-9)
+    # Pixel contents agree: mark the pixel under each point in the unrotated image, rotate the
+    # image, and the rotated camera's projection falls in the marked pixel.
+    image = np.zeros((S, S), np.int32)
+    uv = pinhole(points)
+    keep = (uv >= 0).all(1) & (uv < S).all(1)
+    image[np.floor(uv[keep, 1]).astype(int), np.floor(uv[keep, 0]).astype(int)] = np.arange(1, keep.sum() + 1)
+    rotated = rotate_cw(image)
+    xy = pinhole(rotated_points[keep])
+    assert (
+        rotated[np.floor(xy[:, 1]).astype(int), np.floor(xy[:, 0]).astype(int)]
+        == np.arange(1, keep.sum() + 1)
+    ).all()
+
+
+def test_stored_extrinsics_compose_camera_pose_and_rotation():
+    world_from_camera = pose(rot_z(0.3), [1.0, 2.0, 3.0])
+    point_world = np.array([1.5, 2.5, 4.0])
+    in_camera = world_from_camera[:3, :3].T @ (point_world - world_from_camera[:3, 3])
+    expected = np.array([-in_camera[1], in_camera[0], in_camera[2]])  # X' = -Y, Y' = X
+    got = stored_cam_from_world(world_from_camera) @ np.append(point_world, 1.0)
+    np.testing.assert_allclose(got[:3], expected, atol=1e-12)
+
+
+def test_attach_then_carry_follows_the_object_pose():
+    rng = np.random.default_rng(1)
+    points_object = rng.uniform(-0.2, 0.2, size=(50, 3))
+    obj_q, obj_t = pose(rot_z(0.2), [0.1, -0.1, 2.0]), pose(rot_z(0.9), [0.4, 0.1, 2.5])
+    cam_q = np.linalg.inv(pose(rot_z(0.05), [0.0, 0.0, -0.3]))
+    cam_t = np.linalg.inv(pose(rot_z(-0.1), [0.2, 0.0, -0.1]))
+    # Truth: explicit composition, point by point.
+    truth_q = np.array([(cam_q @ obj_q @ np.append(p, 1))[:3] for p in points_object])
+    truth_t = np.array([(cam_t @ obj_t @ np.append(p, 1))[:3] for p in points_object])
+    xy, depth = pinhole(truth_q), truth_q[:, 2]
+    poses_q = np.repeat(obj_q[None], 50, axis=0)
+    recovered = attach(xy, depth, K, cam_q, poses_q)
+    np.testing.assert_allclose(recovered, points_object, atol=1e-9)
+    moved = carry(recovered, cam_t, np.repeat(obj_t[None], 50, axis=0))
+    np.testing.assert_allclose(moved, truth_t, atol=1e-9)
+
+
+def test_sample_depth_is_exact_at_centres_and_bilinear_between():
+    cols = np.arange(S, dtype=np.float32)
+    depth = np.tile(1.0 + 0.001 * cols, (S, 1)).astype(np.float32)  # depth grows 1 mm per column
+    at_centre = sample_depth(depth, np.array([[100.5, 7.5]]))
+    assert at_centre[0] == pytest.approx(depth[7, 100])
+    between = sample_depth(depth, np.array([[100.75, 7.5]]))  # a quarter of the way to column 101
+    assert between[0] == pytest.approx(1.0 + 0.001 * 100.25, abs=1e-6)
+    depth[7, 101] = 0.0  # a neighbour without surface: the containing pixel's value
+    assert sample_depth(depth, np.array([[100.75, 7.5]]))[0] == pytest.approx(depth[7, 100])
+    depth[7, 100] = 0.0
+    assert np.isnan(sample_depth(depth, np.array([[100.25, 7.25]]))[0])
+
+
+def visibility_scene():
+    """Wall (id 1) at z = 2; an occluder (id 2) at z = 1 on columns 100-199; the wearer's hand
+    (id 9) at z = 0.5 on columns 300-399, rows 0-255."""
+    depth = np.full((S, S), 2.0, np.float32)
+    ids = np.ones((S, S), np.uint64)
+    depth[:, 100:200], ids[:, 100:200] = 1.0, 2
+    depth[:256, 300:400], ids[:256, 300:400] = 0.5, 9
+    return depth, ids
+
+
+def on_wall(x, y, z=2.0):
+    return np.array([(x - S / 2) * z / F, (y - S / 2) * z / F, z])
+
+
+def test_visibility_depth_test_hand_term_and_frustum():
+    depth, ids = visibility_scene()
+    delta = 0.02
+    points = np.array(
+        [
+            on_wall(50.5, 50.5),  # open wall: visible
+            on_wall(150.5, 50.5),  # wall behind the occluder: hidden by depth
+            on_wall(350.5, 100.5),  # wall behind the hand: hidden by depth and hand
+            on_wall(350.5, 100.5, 0.5),  # on the hand's surface: depth agrees, hand term hides it
+            on_wall(50.5, 50.5, 2.0 + 0.5 * delta),  # within delta of the surface: visible
+            on_wall(50.5, 50.5, 2.0 + 1.5 * delta),  # beyond delta: hidden
+            on_wall(600.0, 50.5),  # outside the image
+            [0.1, 0.1, -2.0],  # behind the camera
+            on_wall(150.5, 300.5, 1.0),  # on the occluder, id 2
+        ]
+    )
+    object_ids = np.array([1, 1, 1, 1, 1, 1, 1, 1, 2], np.uint64)
+    visible, on_own = frame_visibility(points, object_ids, depth, ids, frozenset({9}), K, delta)
+    assert visible.tolist() == [True, False, False, False, True, False, False, False, True]
+    assert on_own.tolist() == [True, False, False, False, True, True, False, False, True]
+
+
+def test_query_draw_honours_the_dynamic_share():
+    rng = np.random.default_rng(0)
+    dynamic, static = np.arange(1000), np.arange(1000, 3000)
+    chosen = draw_query_pixels(dynamic, static, 100, 0.25, rng)
+    assert len(set(chosen.tolist())) == 100 and (chosen < 1000).sum() == 25
+    few = draw_query_pixels(np.arange(10), static, 100, 0.5, rng)
+    assert (few < 10).sum() == 10 and len(few) == 100
+    none = draw_query_pixels(np.arange(0), static, 100, 0.5, rng)
+    assert (none >= 1000).all() and len(none) == 100
+
+
+class CardWorld:
+    """Static camera (world = unrotated camera frame), a wall (id 1, static) at z = 3, a card
+    (id 2, dynamic) at z = 1.5 sliding along +x by 4 cm per frame, and the wearer's hand
+    (id 9) at z = 0.8 over image rows 400-511 (stored camera). Depth and ids are rendered
+    analytically per stored pixel centre."""
+
+    WALL, CARD, HAND = 1, 2, 9
+    HALF, STEP = 0.25, 0.04
+
+    def card_pose(self, t):
+        return pose(np.eye(3), [self.STEP * t, 0.0, 1.5])
+
+    def frame(self, t):
+        cam_from_world = CAM_ROT_FROM_CAM.copy()  # world = unrotated camera
+        rows, cols = np.mgrid[0:S, 0:S]
+        ray = np.stack([(cols + 0.5 - S / 2) / F, (rows + 0.5 - S / 2) / F], -1)  # stored camera
+        # stored X' = -Y, Y' = X  =>  world X = Y', world Y = -X'
+        world_x_card, world_y_card = ray[..., 1] * 1.5, -ray[..., 0] * 1.5
+        on_card = (np.abs(world_x_card - self.STEP * t) < self.HALF) & (np.abs(world_y_card) < self.HALF)
+        depth = np.where(on_card, 1.5, 3.0).astype(np.float32)
+        ids = np.where(on_card, self.CARD, self.WALL).astype(np.uint64)
+        depth[400:], ids[400:] = 0.8, self.HAND
+        return Frame(depth, ids, cam_from_world, {self.WALL: np.eye(4), self.CARD: self.card_pose(t)}, t)
+
+    def instances(self, ids):
+        present = set(ids.tolist())
+        return Instances(frozenset({self.HAND} & present), frozenset({self.CARD} & present))
+
+
+def test_annotate_chunk_matches_the_card_world():
+    world = CardWorld()
+    config = with_overrides(RunConfig(), ["adt.tracks_per_clip=100", "adt.oversample=2"])
+    clip = annotate_chunk(
+        Chunk("card_0", "card/chunk_0", np.arange(4)), world.frame, lambda t: b"jpeg", world.instances, config
+    )
+    n = clip.num_tracks
+    assert n == 200 and clip.tracks_xyz.shape == (4, n, 3)
+    t_q = clip.queries_xyt[:, 2].astype(int)
+    object_ids = clip.track_stats["object_id"]
+    assert set(object_ids.tolist()) <= {1, 2}  # never the hand
+    on_card = object_ids == 2
+    assert clip.track_stats["dynamic"].tolist() == on_card.tolist()
+    assert 0.3 < on_card.mean() < 0.7  # the dynamic share, 0.5 by default
+    # Truth: wall points stay put; card points slide by STEP per frame along world x = stored y.
+    for t in range(4):
+        shift = np.where(on_card, world.STEP * (t - t_q), 0.0)
+        expected = clip.tracks_xyz[t_q, np.arange(n)] + np.stack([0 * shift, shift, 0 * shift], 1)
+        np.testing.assert_allclose(clip.tracks_xyz[t], expected, atol=1e-9)
+    # Queries are pixel centres whose track projects back onto them at the query frame.
+    at_query = clip.tracks_xyz[t_q, np.arange(n)]
+    np.testing.assert_allclose(pinhole(at_query), clip.queries_xyt[:, :2], atol=1e-6)
+    assert clip.visibility[t_q, np.arange(n)].all()
+    # Visibility truth: a wall point is hidden exactly when the card covers it (or off-image).
+    for t in range(4):
+        points = clip.tracks_xyz[t]
+        truth_frame = world.frame(t)
+        uv = pinhole(points)
+        rows, cols = np.floor(uv[:, 1]).astype(int), np.floor(uv[:, 0]).astype(int)
+        inside = (uv >= 0).all(1) & (uv < S).all(1)
+        covered = np.zeros(n, bool)
+        covered[inside] = truth_frame.ids[rows[inside], cols[inside]] != object_ids[inside]
+        assert (clip.visibility[t] == (inside & ~covered)).all()
+    agreement = clip.track_stats["mask_agreement"]
+    assert np.allclose(agreement, 1.0)  # visible points always sit on their own id here
+    np.testing.assert_allclose(clip.extrinsics_w2c, np.repeat(CAM_ROT_FROM_CAM[None], 4, 0))
