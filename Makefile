@@ -4,6 +4,8 @@ PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
 OUT ?= out/demo
+# The real ADT excerpt shipped beside the project (read in place, never copied).
+ADT_EXCERPT ?= ../shared/data/adt_sample/aria_digital_twin_test_data
 
 .PHONY: setup demo test bench
 
@@ -22,6 +24,11 @@ $(VENV)/.installed: pyproject.toml
 
 demo: setup
 	$(PY) -m pipeline.run --source drivetrack --runner DirectRunner --output $(OUT)
+	$(PY) -m pipeline.run --source pstudio --runner DirectRunner --output $(OUT)
+	@if [ -d "$(ADT_EXCERPT)" ]; then \
+	  $(PY) -m pipeline.run --source adt --runner DirectRunner --output $(OUT) --input $(ADT_EXCERPT) \
+	    --set adt.chunk_frames=2 --set adt.min_frames=2 --set adt.max_gt_offset_ms=40; \
+	else echo "no ADT excerpt at $(ADT_EXCERPT): ADT skipped (python -m pipeline.run --source adt says how to get ADT)"; fi
 	$(PY) -m pipeline.validate $(OUT)
 
 test: setup
@@ -30,3 +37,5 @@ test: setup
 
 bench: setup
 	$(PY) -m pipeline.bench drivetrack
+	$(PY) -m pipeline.bench pstudio
+	$(PY) -m pipeline.bench adt

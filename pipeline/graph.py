@@ -2,8 +2,10 @@
 
 list units -> Reshuffle -> annotate (per source) -> filter tracks -> write clips -> finalize
 
-Failures of any unit or clip become records, written to ``failures.jsonl``; the rest of the
-run goes on. Finalize writes the manifests, ``failures.jsonl`` and ``run.json``.
+Failures of any unit or clip become records, written to ``failures_<source>.jsonl``; the rest
+of the run goes on. Finalize writes the manifests (over every source in the output folder),
+``failures_<source>.jsonl`` and ``run_<source>.json``, so the three sources can share one
+output folder without overwriting each other's records.
 """
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ def progress(message: str) -> None:
 
 
 def failure(unit: str, stage: str, error: BaseException) -> dict:
-    """A failures.jsonl record; unexpected errors keep their innermost frame for debugging."""
+    """A failures_<source>.jsonl record; unexpected errors keep their innermost frame for debugging."""
     record = {"unit": unit, "stage": stage, "error": f"{type(error).__name__}: {error}"}
     if not isinstance(error, InputError):
         frame = traceback.extract_tb(error.__traceback__)[-1]
@@ -129,7 +131,7 @@ def summarize(reports: list[dict], failures: list[dict], units: int) -> dict:
 
 
 class Finalize(beam.DoFn):
-    """Runs once after every clip is written: failures.jsonl, manifests, run.json."""
+    """Runs once after every clip is written: failures, manifests, provenance."""
 
     def __init__(self, output: str, config: RunConfig, provenance: dict):
         self.output = output.rstrip("/")
@@ -139,7 +141,8 @@ class Finalize(beam.DoFn):
     def process(self, _, reports, failures):
         failures = sorted(failures, key=lambda f: (f["unit"], f["stage"], f["error"]))
         lines = "".join(json.dumps(f, sort_keys=True) + "\n" for f in failures)
-        write_atomic(f"{self.output}/failures.jsonl", lines.encode())
+        source = self.provenance["source"]
+        write_atomic(f"{self.output}/failures_{source}.jsonl", lines.encode())
         clips = {
             source: [p.rsplit("/", 1)[-1] for p in list_files(f"{self.output}/{source}/*.npz")]
             for source in SOURCES
@@ -155,7 +158,9 @@ class Finalize(beam.DoFn):
         summary = summarize(sorted(reports, key=lambda r: r["clip"]), failures, len(self.provenance["units"]))
         summary["manifests"] = {"minival": len(minival), "full_test": len(full_test)}
         record = dict(self.provenance, summary=summary)
-        write_atomic(f"{self.output}/run.json", json.dumps(record, indent=2, sort_keys=True).encode())
+        write_atomic(
+            f"{self.output}/run_{source}.json", json.dumps(record, indent=2, sort_keys=True).encode()
+        )
         yield summary
 
 

@@ -76,10 +76,10 @@ def print_summary(summary: dict, output: str, source: str) -> None:
         f"manifests: minival {summary['manifests']['minival']}, full_test "
         f"{summary['manifests']['full_test']} clip(s)\n"
         f"clips in {output}/{source}/, manifests in {output}/manifests/, "
-        f"provenance in {output}/run.json"
+        f"provenance in {output}/run_{source}.json"
     )
     if summary["failures"]:
-        print(f"{summary['failures']} failure(s): see {output}/failures.jsonl", file=sys.stderr)
+        print(f"{summary['failures']} failure(s): see {output}/failures_{source}.jsonl", file=sys.stderr)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -134,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
     annotate = module.ANNOTATOR(input_root, config)
     with beam.Pipeline(options=options) as p:
         graph.build(p, units, annotate, output, config, provenance)
-    summary = json.loads(read_bytes(f"{output}/run.json"))["summary"]
+    summary = json.loads(read_bytes(f"{output}/run_{args.source}.json"))["summary"]
     print_summary(summary, output, args.source)
     print(f"finished in {time.monotonic() - started:.1f} s")
     return 1 if summary["failures"] else 0

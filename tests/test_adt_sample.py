@@ -162,7 +162,7 @@ def test_clip_is_valid_and_named_after_the_v1_sequence(sample_run):
     assert sorted(os.listdir(out / "adt")) == ["aria_digital_twin_test_data_0.npz"]
     assert clip["tracks_XYZ"].shape == (2, 1024, 3)
     np.testing.assert_array_equal(clip["fx_fy_cx_cy"], [280, 280, 256, 256])
-    record = json.loads((out / "run.json").read_text())
+    record = json.loads((out / "run_adt.json").read_text())
     assert record["config"]["adt"]["depth_delta_m"] == 0.02 and record["summary"]["failures"] == 0
 
 
@@ -282,7 +282,7 @@ def test_bad_input_fails_its_units_only(tmp_path):
     code = run_main(["--source", "adt", "--input", str(root), "--output", str(out), *SETTINGS])
     assert code == 1
     failures = {
-        f["unit"]: f["error"] for f in map(json.loads, (out / "failures.jsonl").read_text().splitlines())
+        f["unit"]: f["error"] for f in map(json.loads, (out / "failures_adt.jsonl").read_text().splitlines())
     }
     assert set(failures) == {"no_vrs/chunk_0", "no_window/chunk_0", "no_pose/chunk_0"}
     assert "no_vrs/chunk_0: missing video.vrs" in failures["no_vrs/chunk_0"]

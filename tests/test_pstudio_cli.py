@@ -43,7 +43,7 @@ def test_run_writes_valid_clips(direct_run):
     out, result = direct_run
     assert clip_files(out) == ["dome_16.npz", "dome_21.npz", "dome_3.npz", "dome_8.npz"]
     assert validate_main([out]) == 0
-    summary = json.load(open(os.path.join(out, "run.json")))["summary"]
+    summary = json.load(open(os.path.join(out, "run_pstudio.json")))["summary"]
     assert summary["clips_written"] == 4 and summary["clips_below_target"] == 0
     assert summary["dropped_by_filter"]["mask"] > 0  # the floaters
     with np.load(os.path.join(out, "pstudio", "dome_3.npz"), allow_pickle=True) as clip:
@@ -98,7 +98,7 @@ def test_bad_input_fails_its_units_only(pstudio_sample, tmp_path):
     out = str(tmp_path / "out")
     result = run_cli("--input", root, "--output", out, "--set", "pstudio.cameras=3,99")
     assert result.returncode == 1, result.stderr[-3000:]
-    failures = [json.loads(line) for line in open(os.path.join(out, "failures.jsonl"))]
+    failures = [json.loads(line) for line in open(os.path.join(out, "failures_pstudio.jsonl"))]
     by_unit = {f["unit"]: f["error"] for f in failures}
     assert sorted(by_unit) == sorted(
         [f"{seq}/camera_99" for seq in ("bad_shapes", "dome", "missing_mask", "pickled")]

@@ -45,11 +45,11 @@ def test_run_writes_valid_clips_manifests_and_provenance(direct_run):
     minival = open(os.path.join(out, "manifests", "minival.txt")).read().split()
     full_test = open(os.path.join(out, "manifests", "full_test.txt")).read().split()
     assert sorted(minival + full_test) == sorted(f"drivetrack/{n}" for n in npz_files(out))
-    record = json.load(open(os.path.join(out, "run.json")))
+    record = json.load(open(os.path.join(out, "run_drivetrack.json")))
     assert record["config"]["flicker"]["max_fraction"] == 0.1
     assert record["summary"]["clips_written"] == 4 and record["summary"]["failures"] == 0
     assert len(record["units"]) == 3
-    assert open(os.path.join(out, "failures.jsonl")).read() == ""
+    assert open(os.path.join(out, "failures_drivetrack.jsonl")).read() == ""
     # the summary printed at the end names the filters
     assert "dropped by filter: never_visible" in result.stdout
     audit = pq.read_table(os.path.join(out, "audit", "drivetrack"))
@@ -118,7 +118,7 @@ def test_bad_input_fails_its_units_only(split_copy, tmp_path):
     out = str(tmp_path / "out")
     result = run_cli("--input", split_copy, "--output", out)
     assert result.returncode == 1
-    failures = [json.loads(line) for line in open(os.path.join(out, "failures.jsonl"))]
+    failures = [json.loads(line) for line in open(os.path.join(out, "failures_drivetrack.jsonl"))]
     by_unit = {f["unit"]: f["error"] for f in failures}
     assert "missing component file lidar/bad_missing_lidar.parquet" in by_unit["bad_missing_lidar/camera_1"]
     assert "corrupt JPEG" in by_unit["bad_corrupt_jpeg/camera_1"]
