@@ -5,25 +5,16 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
 from pipeline.validate import main as validate_main
-
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+from tests.cli import run_pipeline
 
 
 def run_cli(*args):
-    return subprocess.run(
-        [sys.executable, "-m", "pipeline.run", "--source", "pstudio", *args],
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
+    return run_pipeline("pstudio", *args)
 
 
 def clip_files(out):

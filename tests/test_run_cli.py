@@ -2,8 +2,6 @@
 
 import json
 import os
-import subprocess
-import sys
 
 import numpy as np
 import pyarrow as pa
@@ -11,19 +9,12 @@ import pyarrow.parquet as pq
 import pytest
 
 from pipeline.validate import main as validate_main
+from tests.cli import run_pipeline
 from tests.fixtures.waymo_world import SEGMENT, clone_segment
-
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 def run_cli(*args):
-    return subprocess.run(
-        [sys.executable, "-m", "pipeline.run", "--source", "drivetrack", *args],
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
+    return run_pipeline("drivetrack", *args)
 
 
 def npz_files(folder):
