@@ -187,3 +187,19 @@ def _replace_path(node, path: list[str], text: str, key: str, root):
     else:
         value = _parse_value(text, hints[name], key)
     return dataclasses.replace(node, **{name: value})
+
+
+def config_from_dict(kind, values: dict):
+    """Rebuild a config dataclass of type ``kind`` from ``to_dict()`` output (e.g. a run.json)."""
+    hints = typing.get_type_hints(kind)
+    fields = {}
+    for field in dataclasses.fields(kind):
+        if field.name not in values:
+            continue
+        value = values[field.name]
+        if dataclasses.is_dataclass(hints[field.name]):
+            value = config_from_dict(hints[field.name], value)
+        elif typing.get_origin(hints[field.name]) is tuple:
+            value = tuple(value)
+        fields[field.name] = value
+    return kind(**fields)

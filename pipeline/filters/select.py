@@ -42,16 +42,40 @@ class FilterOutcome:
 
     def dropped_by(self) -> dict[str, int]:
         """Tracks rejected per filter, each counted against the first filter that rejects it."""
-        alive = np.ones(self.candidates, bool)
-        counts = {}
-        for name in FILTER_ORDER:
-            counts[name] = int((alive & ~self.verdicts[name]).sum())
-            alive &= self.verdicts[name]
-        return counts
+        return count_dropped(self.verdicts)
 
     @property
     def passed(self) -> int:
         return int(np.logical_and.reduce(list(self.verdicts.values())).sum())
+
+
+def count_dropped(verdicts: dict[str, np.ndarray]) -> dict[str, int]:
+    """Tracks rejected per filter in FILTER_ORDER, each counted against the first that rejects it."""
+    alive = np.ones(len(next(iter(verdicts.values()))), bool)
+    counts = {}
+    for name in FILTER_ORDER:
+        counts[name] = int((alive & ~verdicts[name]).sum())
+        alive &= verdicts[name]
+    return counts
+
+
+def verdicts_from_stats(
+    stats: dict[str, np.ndarray], num_frames: int, source: str, config: RunConfig
+) -> dict[str, np.ndarray]:
+    """Verdict per filter [N] bool from recorded statistics [N]: the filter stage's only rule,
+    also replayed by ``pipeline.audit sweep`` at other thresholds."""
+    count = len(stats["visible_frames"])
+    verdicts = {
+        "never_visible": np.asarray(stats["visible_frames"]) > 0,
+        "flicker": passes_flicker(
+            np.asarray(stats["visibility_flips"]), num_frames, config.flicker.max_fraction
+        ),
+        "mask": np.ones(count, bool),
+    }
+    if "mask_agreement" in stats:
+        score = np.asarray(stats["mask_agreement"], dtype=np.float64)
+        verdicts["mask"] = np.isnan(score) | (score >= getattr(config, source).mask_min_agreement)
+    return verdicts
 
 
 def decide(clip: ClipRecord, config: RunConfig) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
@@ -59,16 +83,7 @@ def decide(clip: ClipRecord, config: RunConfig) -> tuple[dict[str, np.ndarray], 
     stats = dict(clip.track_stats)
     stats["visibility_flips"] = visibility_flips(clip.visibility)
     stats.setdefault("visible_frames", clip.visibility.sum(axis=0).astype(np.int64))
-    verdicts = {
-        "never_visible": stats["visible_frames"] > 0,
-        "flicker": passes_flicker(stats["visibility_flips"], clip.num_frames, config.flicker.max_fraction),
-    }
-    if "mask_agreement" in stats:
-        score = stats["mask_agreement"]
-        verdicts["mask"] = np.isnan(score) | (score >= getattr(config, clip.source).mask_min_agreement)
-    else:
-        verdicts["mask"] = np.ones(clip.num_tracks, bool)
-    return verdicts, stats
+    return verdicts_from_stats(stats, clip.num_frames, clip.source, config), stats
 
 
 def apply_filters(clip: ClipRecord, config: RunConfig) -> tuple[ClipRecord, FilterOutcome]:

@@ -1,0 +1,282 @@
+"""``python -m pipeline.audit sweep``: replay the filter stage at other thresholds.
+
+The filter stage records every candidate track's statistics in ``<out>/audit/<source>/*.parquet``
+(one table per clip). The sweep reads them (running the pipeline first when a run's records are
+missing) and evaluates every combination of the ``--grid`` thresholds with the filter stage's
+own rule (``verdicts_from_stats``), without annotating again. It writes ``report.md`` (a table
+per combination, statistic summaries), ``sweep.parquet`` (the same table) and two PNGs:
+the survival curve of each filter and the histogram of each statistic.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import os
+import sys
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from pipeline.core.config import RunConfig, config_from_dict, with_overrides
+from pipeline.export.files import list_files, read_bytes, write_atomic
+from pipeline.filters.select import FILTER_ORDER, count_dropped, verdicts_from_stats
+
+SWEEPABLE = (
+    "flicker.max_fraction",
+    "adt.mask_min_agreement",
+    "drivetrack.mask_min_agreement",
+    "pstudio.mask_min_agreement",
+)
+
+
+def load_statistics(output: str, source: str) -> list[dict]:
+    """Per clip: {"clip", "num_frames", "target_tracks", "stats": {name: [N] array}}."""
+    clips = []
+    for path in list_files(f"{output}/audit/{source}/*.parquet"):
+        table = pq.read_table(path)
+        columns = {name: table.column(name).to_numpy(zero_copy_only=False) for name in table.column_names}
+        clips.append(
+            {
+                "clip": str(columns["clip"][0]) if len(columns["clip"]) else os.path.basename(path)[:-8],
+                "num_frames": int(columns["num_frames"][0]) if len(columns["num_frames"]) else 0,
+                "target_tracks": int(columns["target_tracks"][0]) if len(columns["target_tracks"]) else 0,
+                "stats": {
+                    name: values
+                    for name, values in columns.items()
+                    if not name.startswith("pass_")
+                    and name
+                    not in ("source", "clip", "num_frames", "target_tracks", "candidate", "output_index")
+                },
+            }
+        )
+    return clips
+
+
+def evaluate(clips: list[dict], source: str, config: RunConfig) -> dict:
+    """The filter stage's totals at ``config``: candidates, dropped per filter, passed, clips
+    with a survivor, and those that would fall below their target track count."""
+    dropped = dict.fromkeys(FILTER_ORDER, 0)
+    candidates = passed = written = below = 0
+    for clip in clips:
+        verdicts = verdicts_from_stats(clip["stats"], clip["num_frames"], source, config)
+        for name, count in count_dropped(verdicts).items():
+            dropped[name] += count
+        survivors = int(np.logical_and.reduce([verdicts[name] for name in FILTER_ORDER]).sum())
+        candidates += len(clip["stats"]["visible_frames"])
+        passed += survivors
+        written += survivors > 0
+        below += 0 < survivors < clip["target_tracks"]
+    return {
+        "candidates": candidates,
+        "dropped": dropped,
+        "passed": passed,
+        "clips_written": written,
+        "clips_below_target": below,
+    }
+
+
+def parse_grid(assignments: list[str]) -> dict[str, list[str]]:
+    """``key=v1,v2`` -> {key: [v1, v2]}; only thresholds the filter stage reads can be swept."""
+    grid = {}
+    for assignment in assignments:
+        key, sep, values = assignment.partition("=")
+        key = key.strip()
+        if not sep or not values:
+            raise ValueError(f"--grid {assignment!r}: expected key=v1,v2,...")
+        if key not in SWEEPABLE:
+            raise ValueError(
+                f"--grid {key}: the sweep replays the filter stage only ({', '.join(SWEEPABLE)}); "
+                "a setting that changes annotation needs a new run (python -m pipeline.run --set ...)"
+            )
+        grid[key] = [v.strip() for v in values.split(",") if v.strip()]
+    return grid
+
+
+def survival_figure(clips: list[dict], source: str, config: RunConfig, path: str) -> None:
+    """Share of candidates each filter keeps as its threshold varies (default marked)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    flips = np.concatenate([c["stats"]["visibility_flips"] / max(c["num_frames"], 1) for c in clips])
+    figure, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+    grid = np.linspace(0, 0.5, 201)
+    axes[0].plot(grid, [(flips <= g + 1e-12).mean() for g in grid])
+    axes[0].axvline(config.flicker.max_fraction, color="k", linestyle="--", label="default")
+    axes[0].set(xlabel="flicker.max_fraction (flips / T)", ylabel="share of candidates kept", title="flicker")
+    agreement = [c["stats"]["mask_agreement"] for c in clips if "mask_agreement" in c["stats"]]
+    if agreement:
+        score = np.concatenate(agreement).astype(np.float64)
+        grid = np.linspace(0, 1, 201)
+        axes[1].plot(grid, [(np.isnan(score) | (score >= g)).mean() for g in grid])
+        axes[1].axvline(
+            getattr(config, source).mask_min_agreement, color="k", linestyle="--", label="default"
+        )
+    axes[1].set(xlabel=f"{source}.mask_min_agreement", ylabel="share of candidates kept", title="mask")
+    for ax in axes:
+        ax.set_ylim(0, 1.02)
+        ax.grid(alpha=0.3)
+        ax.legend()
+    figure.suptitle(
+        f"{source}: survival per filter ({sum(len(c['stats']['visible_frames']) for c in clips)} candidates)"
+    )
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+
+
+def histogram_figure(statistics: dict[str, np.ndarray], source: str, path: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = sorted(statistics)
+    figure, axes = plt.subplots(1, len(names), figsize=(3.6 * len(names), 3.2), squeeze=False)
+    for ax, name in zip(axes[0], names, strict=True):
+        values = statistics[name][np.isfinite(statistics[name])]
+        ax.hist(values, bins=40, color="tab:blue")
+        ax.set(title=name, ylabel="candidate tracks")
+    figure.suptitle(f"{source}: statistics of all candidate tracks")
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+
+
+def numeric_statistics(clips: list[dict]) -> dict[str, np.ndarray]:
+    """Every numeric statistic over all candidates, flips as a fraction of T."""
+    names = sorted(set.intersection(*(set(c["stats"]) for c in clips)))
+    result = {}
+    for name in names:
+        parts = [np.asarray(c["stats"][name]) for c in clips]
+        if all(p.dtype.kind in "fiu" for p in parts) and name not in ("gaussian_index", "object_id"):
+            result[name] = np.concatenate(parts).astype(np.float64)
+    result["flip_fraction"] = np.concatenate(
+        [c["stats"]["visibility_flips"] / max(c["num_frames"], 1) for c in clips]
+    )
+    return result
+
+
+def report_markdown(source: str, rows: list[dict], run_summary: dict | None, statistics: dict) -> str:
+    keys = list(rows[0]["values"])
+    lines = [f"# Threshold sweep: {source}", ""]
+    if run_summary is not None:
+        matches = rows[0]["matches_run"]
+        lines += [
+            f"First row = the run's own thresholds; it {'reproduces' if matches else 'DOES NOT reproduce'} "
+            "the run's counts (run_<source>.json summary).",
+            "",
+        ]
+    header = (
+        keys + ["candidates"] + [f"dropped: {n}" for n in FILTER_ORDER] + ["passed", "clips", "below target"]
+    )
+    lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for row in rows:
+        r = row["result"]
+        cells = [row["values"][k] for k in keys] + [r["candidates"]] + [r["dropped"][n] for n in FILTER_ORDER]
+        cells += [r["passed"], r["clips_written"], r["clips_below_target"]]
+        lines.append("| " + " | ".join(str(c) for c in cells) + " |")
+    lines += ["", "## Statistics over all candidates", "", "| statistic | min | 5% | median | 95% | max |"]
+    lines.append("|---|---|---|---|---|---|")
+    for name, values in sorted(statistics.items()):
+        finite = values[np.isfinite(values)]
+        if len(finite):
+            q = np.percentile(finite, [0, 5, 50, 95, 100])
+            lines.append(f"| {name} | " + " | ".join(f"{v:.4g}" for v in q) + " |")
+    lines += ["", "![survival](survival.png)", "", "![histograms](histograms.png)", ""]
+    return "\n".join(lines)
+
+
+def run_summary_and_config(output: str, source: str, overrides: list[str]) -> tuple[dict | None, RunConfig]:
+    path = f"{output}/run_{source}.json"
+    if not os.path.exists(path) and "://" not in output:
+        return None, with_overrides(RunConfig(), overrides)
+    record = json.loads(read_bytes(path))
+    return record["summary"], with_overrides(config_from_dict(RunConfig, record["config"]), overrides)
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="python -m pipeline.audit sweep", description=__doc__)
+    parser.add_argument("--source", required=True, choices=("adt", "drivetrack", "pstudio"))
+    parser.add_argument("--input", help="source data, for a run when --output holds none yet")
+    parser.add_argument(
+        "--output", default="tapvid3d_out", help="the run's output folder (default %(default)s)"
+    )
+    parser.add_argument("--grid", action="append", default=[], metavar="KEY=V1,V2,...")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
+    parser.add_argument("--report", help="report folder (default <output>/sweep_<source>)")
+    args = parser.parse_args(argv)
+    try:
+        grid = parse_grid(args.grid)
+    except ValueError as error:
+        print(error, file=sys.stderr)
+        return 2
+    output = os.path.abspath(args.output) if "://" not in args.output else args.output
+    if not list_files(f"{output}/audit/{args.source}/*.parquet"):
+        from pipeline import run
+
+        print(f"no recorded statistics in {output}/audit/{args.source}/: running the pipeline once")
+        command = ["--source", args.source, "--output", output] + (
+            ["--input", args.input] if args.input else []
+        )
+        code = run.main(command + [f"--set={o}" for o in args.overrides])
+        if code == 2:
+            return code
+    run_summary, base = run_summary_and_config(output, args.source, args.overrides)
+    clips = load_statistics(output, args.source)
+    if not clips:
+        print(f"no audit tables in {output}/audit/{args.source}/", file=sys.stderr)
+        return 1
+    keys = list(grid)
+    rows = [{"values": {k: _current(base, k) for k in keys}, "result": evaluate(clips, args.source, base)}]
+    for values in itertools.product(*grid.values()) if keys else []:
+        config = with_overrides(base, [f"{k}={v}" for k, v in zip(keys, values, strict=True)])
+        rows.append(
+            {"values": dict(zip(keys, values, strict=True)), "result": evaluate(clips, args.source, config)}
+        )
+    if run_summary is not None:
+        rows[0]["matches_run"] = matches_run(rows[0]["result"], run_summary)
+    report = args.report or f"{output}/sweep_{args.source}"
+    os.makedirs(report, exist_ok=True)
+    statistics = numeric_statistics(clips)
+    survival_figure(clips, args.source, base, f"{report}/survival.png")
+    histogram_figure(statistics, args.source, f"{report}/histograms.png")
+    markdown = report_markdown(args.source, rows, run_summary, statistics)
+    write_atomic(f"{report}/report.md", markdown.encode())
+    write_atomic(f"{report}/sweep.parquet", _rows_parquet(rows))
+    print(markdown.split("\n## Statistics")[0])
+    print(f"report: {report}/report.md (with survival.png, histograms.png, sweep.parquet)")
+    return 0 if rows[0].get("matches_run", True) else 1
+
+
+def _current(config: RunConfig, key: str) -> str:
+    section, field = key.split(".")
+    return str(getattr(getattr(config, section), field))
+
+
+def matches_run(result: dict, summary: dict) -> bool:
+    """Whether replayed counts equal the run's own summary."""
+    return (
+        result["candidates"] == summary["candidate_tracks"]
+        and result["dropped"] == summary["dropped_by_filter"]
+        and result["passed"] == summary["tracks_passing_filters"]
+        and result["clips_below_target"] == summary["clips_below_target"]
+    )
+
+
+def _rows_parquet(rows: list[dict]) -> bytes:
+    import io
+
+    columns: dict[str, list] = {key: [r["values"][key] for r in rows] for key in rows[0]["values"]}
+    columns["candidates"] = [r["result"]["candidates"] for r in rows]
+    for name in FILTER_ORDER:
+        columns[f"dropped_{name}"] = [r["result"]["dropped"][name] for r in rows]
+    for name in ("passed", "clips_written", "clips_below_target"):
+        columns[name] = [r["result"][name] for r in rows]
+    buffer = io.BytesIO()
+    pq.write_table(pa.table(columns), buffer)
+    return buffer.getvalue()

@@ -1,0 +1,105 @@
+"""``pipeline.audit sweep``: replayed thresholds equal what real runs at those thresholds count."""
+
+from __future__ import annotations
+
+import json
+
+import pyarrow.parquet as pq
+import pytest
+
+from pipeline.audit.__main__ import main as audit_main
+from pipeline.run import main as run_main
+
+
+def summary(out, source):
+    return json.loads((out / f"run_{source}.json").read_text())["summary"]
+
+
+@pytest.fixture(scope="module")
+def pstudio_run(pstudio_sample, tmp_path_factory):
+    out = tmp_path_factory.mktemp("sweep_pstudio")
+    assert run_main(["--source", "pstudio", "--input", pstudio_sample[0], "--output", str(out)]) == 0
+    return out
+
+
+def test_sweep_at_run_thresholds_reproduces_the_run(pstudio_run, capsys):
+    code = audit_main(
+        ["sweep", "--source", "pstudio", "--output", str(pstudio_run), "--grid", "flicker.max_fraction=0.1"]
+    )
+    assert code == 0
+    report = (pstudio_run / "sweep_pstudio" / "report.md").read_text()
+    assert "reproduces the run's counts" in report
+    run = summary(pstudio_run, "pstudio")
+    row = f"| 0.1 | {run['candidate_tracks']} | 0 | {run['dropped_by_filter']['flicker']} | "
+    assert row in report
+    for picture in ("survival.png", "histograms.png"):
+        assert (pstudio_run / "sweep_pstudio" / picture).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_sweep_predicts_a_rerun_at_other_thresholds(pstudio_sample, pstudio_run, tmp_path):
+    """The replay at mask 0.9 and flicker 0.05 counts exactly what a new run there counts."""
+    settings = ["pstudio.mask_min_agreement=0.9", "flicker.max_fraction=0.05"]
+    rerun = tmp_path / "rerun"
+    command = ["--source", "pstudio", "--input", pstudio_sample[0], "--output", str(rerun)]
+    assert run_main(command + [f"--set={s}" for s in settings]) == 0
+    expected = summary(rerun, "pstudio")
+    grid = ["--grid", "pstudio.mask_min_agreement=0.75,0.9", "--grid", "flicker.max_fraction=0.05,0.1"]
+    report_dir = tmp_path / "report"
+    assert (
+        audit_main(
+            ["sweep", "--source", "pstudio", "--output", str(pstudio_run), *grid, "--report", str(report_dir)]
+        )
+        == 0
+    )
+    rows = pq.read_table(report_dir / "sweep.parquet").to_pylist()
+    (row,) = [
+        r for r in rows if r["pstudio.mask_min_agreement"] == "0.9" and r["flicker.max_fraction"] == "0.05"
+    ]
+    assert row["dropped_mask"] == expected["dropped_by_filter"]["mask"] > 0
+    assert row["dropped_flicker"] == expected["dropped_by_filter"]["flicker"] > 0
+    assert row["passed"] == expected["tracks_passing_filters"]
+    assert row["clips_below_target"] == expected["clips_below_target"]
+    # Stricter thresholds never keep more.
+    loose = [
+        r for r in rows if r["pstudio.mask_min_agreement"] == "0.75" and r["flicker.max_fraction"] == "0.1"
+    ]
+    assert loose[0]["passed"] > row["passed"]
+
+
+def test_drivetrack_sweep_reproduces_its_run(sample_split, tmp_path):
+    out = tmp_path / "dt"
+    assert run_main(["--source", "drivetrack", "--input", sample_split[0], "--output", str(out)]) == 0
+    assert (
+        audit_main(
+            [
+                "sweep",
+                "--source",
+                "drivetrack",
+                "--output",
+                str(out),
+                "--grid",
+                "drivetrack.mask_min_agreement=0.5,0.8",
+            ]
+        )
+        == 0
+    )
+    report = (out / "sweep_drivetrack" / "report.md").read_text()
+    assert "reproduces the run's counts" in report
+
+
+def test_sweep_refuses_a_setting_that_needs_annotation(pstudio_run, capsys):
+    assert (
+        audit_main(
+            [
+                "sweep",
+                "--source",
+                "pstudio",
+                "--output",
+                str(pstudio_run),
+                "--grid",
+                "pstudio.depth_delta_m=0.1",
+            ]
+        )
+        == 2
+    )
+    assert "needs a new run" in capsys.readouterr().err
