@@ -8,6 +8,7 @@ options, ...). Without ``--input`` it runs on the embedded sample world.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import importlib
 import json
 import logging
@@ -46,6 +47,12 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
     parser.add_argument("--source", required=True, choices=graph.SOURCES)
     parser.add_argument("--input", help="source data (DriveTrack: a Waymo Open v2 split folder)")
     parser.add_argument("--output", default="tapvid3d_out", help="output folder (default %(default)s)")
+    parser.add_argument(
+        "--queries-from",
+        metavar="DIR",
+        help="re-annotate exactly the queries of the clips in DIR (<DIR>/<source>/<clip>.npz, matched "
+        "by name, e.g. the released files): tracks correspond one to one, filters report but drop none",
+    )
     parser.add_argument(
         "--set",
         dest="overrides",
@@ -92,6 +99,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         config = with_overrides(RunConfig(), args.overrides)
+        if args.queries_from:
+            folder = args.queries_from if "://" in args.queries_from else os.path.abspath(args.queries_from)
+            config = dataclasses.replace(config, queries_from=folder)
     except ValueError as error:
         print(error, file=sys.stderr)
         return 2

@@ -25,6 +25,7 @@ from pipeline.core.clip import ClipRecord
 from pipeline.core.config import AdtConfig, RunConfig
 from pipeline.core.errors import InputError
 from pipeline.core.geometry import in_image, invert_se3, project, unproject
+from pipeline.core.given_queries import given_queries
 from pipeline.core.sampling import rng_for
 
 
@@ -206,6 +207,18 @@ def check_object_poses(frame: Frame, instances: Instances, where: str) -> None:
             raise InputError(f"{where}: object {object_id} has no pose at t={frame.timestamp} ns")
 
 
+def check_given_queries(chunk, index, xy, depth, ids, instances: Instances, frame: Frame) -> None:
+    """Given queries [K] must land on an object's surface, or the correspondence is lost."""
+    bad = ~np.isfinite(depth) | (ids == 0) | np.isin(ids, list(instances.human) or [0])
+    bad |= ~np.isin(ids, list(frame.world_from_object) or [0])
+    if bad.any():
+        k = int(np.nonzero(bad)[0][0])
+        raise InputError(
+            f"{chunk.unit}: given query {int(index[k])} of {chunk.name} at ({xy[k, 0]:.1f}, {xy[k, 1]:.1f}) "
+            f"lands on no posed object surface (id {int(ids[k])}) in this re-annotation"
+        )
+
+
 # ------------------------------------------------------------------------------------ the chunk
 
 
@@ -236,13 +249,21 @@ def annotate_chunk(
     size = rules.image_size
     intrinsics = np.array([rules.focal, rules.focal, size / 2.0, size / 2.0])
     num_frames = len(chunk.timestamps)
-    total = rules.oversample * rules.tracks_per_clip
-    query_frames = rng_for(config.seed, f"{chunk.name}/query_frames").integers(0, num_frames, total)
+    given = given_queries(config.queries_from, "adt", chunk.name) if config.queries_from else None
+    if given is not None:
+        query_frames = given[:, 2].astype(np.int64)
+        if (query_frames < 0).any() or (query_frames >= num_frames).any():
+            raise InputError(
+                f"{chunk.unit}: a given query frame of {chunk.name} lies outside 0..{num_frames - 1}"
+            )
+    else:
+        total = rules.oversample * rules.tracks_per_clip
+        query_frames = rng_for(config.seed, f"{chunk.name}/query_frames").integers(0, num_frames, total)
     per_frame = np.bincount(query_frames, minlength=num_frames)
 
     # Pass 1: frames, queries, attachment.
     jpegs, extrinsics = [], []
-    q_xy, q_t, q_obj_points, q_ids = [], [], [], []
+    q_xy, q_t, q_obj_points, q_ids, q_index = [], [], [], [], []
     for t, timestamp in enumerate(chunk.timestamps.tolist()):
         jpegs.append(read_jpeg(timestamp))
         frame = read_frame(timestamp)
@@ -251,24 +272,34 @@ def annotate_chunk(
         check_object_poses(frame, instances, chunk.unit)
         if not per_frame[t]:
             continue
-        dynamic_pool, static_pool = query_pixel_pools(frame, instances)
-        rng = rng_for(config.seed, f"{chunk.name}/query_pixels/{t}")
-        flat = draw_query_pixels(dynamic_pool, static_pool, int(per_frame[t]), rules.dynamic_share, rng)
-        rows, cols = np.divmod(flat, size)
-        xy = pixel_centres(rows, cols)
+        if given is not None:
+            index = np.nonzero(query_frames == t)[0]
+            xy = given[index, :2]
+            rows, cols = pixel_at(xy, size)
+            depth = sample_depth(frame.depth, xy, max_spread=rules.depth_delta_m)
+            check_given_queries(chunk, index, xy, depth, frame.ids[rows, cols], instances, frame)
+        else:
+            dynamic_pool, static_pool = query_pixel_pools(frame, instances)
+            rng = rng_for(config.seed, f"{chunk.name}/query_pixels/{t}")
+            flat = draw_query_pixels(dynamic_pool, static_pool, int(per_frame[t]), rules.dynamic_share, rng)
+            rows, cols = np.divmod(flat, size)
+            xy = pixel_centres(rows, cols)
+            depth = frame.depth[rows, cols].astype(np.float64)
+            index = np.arange(len(flat))
         ids = frame.ids[rows, cols]
         poses = (
             np.stack([frame.world_from_object[i] for i in ids.tolist()]) if len(ids) else np.zeros((0, 4, 4))
         )
-        depth = frame.depth[rows, cols].astype(np.float64)
         q_obj_points.append(attach(xy, depth, intrinsics, frame.cam_from_world, poses))
         q_xy.append(xy)
-        q_t.append(np.full(len(flat), t, dtype=np.int64))
+        q_t.append(np.full(len(xy), t, dtype=np.int64))
         q_ids.append(ids)
+        q_index.append(index)
     if not q_xy or not sum(len(x) for x in q_xy):
         raise InputError(f"{chunk.unit}: no pixel with depth on an object in any frame; no query")
-    xy, t_q = np.concatenate(q_xy), np.concatenate(q_t)
-    points_object, object_ids = np.concatenate(q_obj_points), np.concatenate(q_ids)
+    order = np.argsort(np.concatenate(q_index), kind="stable") if given is not None else slice(None)
+    xy, t_q = np.concatenate(q_xy)[order], np.concatenate(q_t)[order]
+    points_object, object_ids = np.concatenate(q_obj_points)[order], np.concatenate(q_ids)[order]
     count = len(xy)
 
     # Pass 2: every track through every frame.
@@ -316,4 +347,5 @@ def annotate_chunk(
             "dynamic": dynamic,
         },
         target_tracks=rules.tracks_per_clip,
+        given_queries=given is not None,
     )

@@ -18,6 +18,7 @@ from pipeline.adt.rectify import Rectifier, stored_cam_from_world
 from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
 from pipeline.core.errors import InputError
+from pipeline.core.given_queries import given_queries
 from pipeline.graph import AnnotateDoFn, progress
 
 JPEG_QUALITY = 95
@@ -122,6 +123,8 @@ def _named(error: InputError, sequence: str, name: str) -> InputError:
 def annotate_unit(sequence: str, chunk: int, config: RunConfig) -> list[ClipRecord]:
     """One (sequence, chunk) unit -> its clip; InputError messages start with the unit's name."""
     name = unit_name((sequence, chunk))
+    if config.queries_from and given_queries(config.queries_from, "adt", clip_name(sequence, chunk)) is None:
+        return []  # --queries-from re-annotates only the clips it holds
     try:
         reader = open_reader(sequence, config)
         stamps = reader.frame_timestamps()

@@ -27,6 +27,8 @@ class ClipRecord:
       frame_ids: [T] int64 source frame identifiers (timestamps or indices).
       track_stats: per-track statistics the filters read, each [N].
       target_tracks: how many tracks the released clip keeps.
+      given_queries: the queries came from an existing clip (``--queries-from``): filters report
+        on every track but drop none, so old and new tracks correspond one to one.
     """
 
     source: str
@@ -42,6 +44,7 @@ class ClipRecord:
     frame_ids: np.ndarray
     track_stats: dict[str, np.ndarray]
     target_tracks: int
+    given_queries: bool = False
 
     @property
     def num_frames(self) -> int:

@@ -120,10 +120,15 @@ class PstudioConfig:
 
 @dataclasses.dataclass(frozen=True)
 class RunConfig:
-    """Everything that decides a run's output besides its input."""
+    """Everything that decides a run's output besides its input.
+
+    queries_from: a folder of existing clips whose queries are re-annotated instead of sampling
+      new ones (``--queries-from``); only clips found there are made.
+    """
 
     seed: int = 0
     splits_file: str = ""
+    queries_from: str = ""
     minival_per_source: int = 50
     flicker: FlickerConfig = dataclasses.field(default_factory=FlickerConfig)
     adt: AdtConfig = dataclasses.field(default_factory=AdtConfig)

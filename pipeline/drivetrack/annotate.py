@@ -16,6 +16,7 @@ from collections.abc import Callable, Iterable
 
 import numpy as np
 import open3d as o3d
+from scipy.spatial import cKDTree
 
 from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
@@ -27,6 +28,7 @@ from pipeline.core.geometry import (
     rigid_transform_problem,
     transform_points,
 )
+from pipeline.core.given_queries import given_queries
 from pipeline.core.images import check_jpeg
 from pipeline.core.sampling import queries_from_tracks, rng_for, sample_query_frames
 from pipeline.core.visibility import in_view, passes_relative_depth_test
@@ -272,6 +274,34 @@ def clip_name(segment: str, camera: int, object_id: str) -> str:
     return f"tapvid3d_{segment}_{camera}_{object_id}"
 
 
+def match_given_queries(
+    pool: np.ndarray, queries: np.ndarray, cam_from_box: np.ndarray, fx_fy_cx_cy: np.ndarray, clip: str
+) -> np.ndarray:
+    """Index into the object's lidar points [P, 3] (box frame) of each given query [N, 3]: the
+    point whose projection at the query's frame (camera poses [T, 4, 4]) is nearest (x, y);
+    it must lie within half a pixel, as the release's queries are such projections."""
+    frames = queries[:, 2].astype(np.int64)
+    if (frames < 0).any() or (frames >= len(cam_from_box)).any():
+        raise InputError(f"{clip}: a given query frame lies outside 0..{len(cam_from_box) - 1}")
+    chosen = np.empty(len(queries), np.int64)
+    for t in np.unique(frames):
+        rows = np.nonzero(frames == t)[0]
+        points = transform_points(cam_from_box[t], pool)
+        front = np.nonzero(points[:, 2] > 0)[0]
+        if not len(front):
+            raise InputError(f"{clip}: no lidar point of the object is in front of the camera at frame {t}")
+        distance, nearest = cKDTree(project(points[front], fx_fy_cx_cy)).query(queries[rows, :2])
+        if distance.max() > 0.5:
+            k = int(np.argmax(distance))
+            x, y = queries[rows[k], :2]
+            raise InputError(
+                f"{clip}: given query {int(rows[k])} at ({x:.1f}, {y:.1f}, t={t}) is {distance[k]:.2f} px "
+                "from the nearest lidar point of the object"
+            )
+        chosen[rows] = front[nearest]
+    return chosen
+
+
 def track_object(
     unit: UnitInput,
     run: ObjectRun,
@@ -292,12 +322,18 @@ def track_object(
     pool = np.concatenate([evidence.body_points[run.object_id][t] for t in frames_with_points])
     normals = np.concatenate([evidence.body_normals[run.object_id][t] for t in frames_with_points])
     rng = rng_for(config.seed, name)
-    count = min(len(pool), rules.oversample * rules.tracks_per_clip)
-    chosen = np.sort(rng.choice(len(pool), size=count, replace=False))
-    body, body_normals = pool[chosen], normals[chosen]
-
     frames = range(run.start, run.stop)
     cam_from_box = cam_from_world[run.start : run.stop] @ run.world_from_box
+    given = given_queries(config.queries_from, "drivetrack", name) if config.queries_from else None
+    if config.queries_from and given is None:
+        return None  # --queries-from re-annotates only the clips it holds
+    if given is not None:
+        chosen = match_given_queries(pool, given, cam_from_box, calibration.fx_fy_cx_cy, name)
+    else:
+        count = min(len(pool), rules.oversample * rules.tracks_per_clip)
+        chosen = np.sort(rng.choice(len(pool), size=count, replace=False))
+    body, body_normals = pool[chosen], normals[chosen]
+    count = len(chosen)
     tracks = np.einsum("tij,nj->tni", cam_from_box[:, :3, :3], body) + cam_from_box[:, None, :3, 3]
     visibility = in_view(tracks, calibration.fx_fy_cx_cy, calibration.width, calibration.height)
     if rules.facing_test:
@@ -322,7 +358,7 @@ def track_object(
     on_object = np.stack(
         [on_mask(mask, uv[i]) if mask is not None else np.zeros(count, bool) for i, mask in enumerate(masks)]
     )
-    query_frames = sample_query_frames(visibility, rng)
+    query_frames = sample_query_frames(visibility, rng) if given is None else given[:, 2].astype(np.int64)
     queries = queries_from_tracks(tracks, np.maximum(query_frames, 0), calibration.fx_fy_cx_cy)
     queries[query_frames < 0] = np.nan
     return ClipRecord(
@@ -342,6 +378,7 @@ def track_object(
             "mask_agreement": agreement(on_object, visibility, has_mask),
         },
         target_tracks=rules.tracks_per_clip,
+        given_queries=given is not None,
     )
 
 

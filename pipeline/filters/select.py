@@ -87,11 +87,14 @@ def decide(clip: ClipRecord, config: RunConfig) -> tuple[dict[str, np.ndarray], 
 
 
 def apply_filters(clip: ClipRecord, config: RunConfig) -> tuple[ClipRecord, FilterOutcome]:
-    """Keep the tracks every filter passes, then draw the clip's target count (seeded)."""
+    """Keep the tracks every filter passes, then draw the clip's target count (seeded); a clip of
+    given queries keeps every track, in order (the verdicts are still recorded)."""
     verdicts, stats = decide(clip, config)
     survivors = np.nonzero(np.logical_and.reduce([verdicts[name] for name in FILTER_ORDER]))[0]
     rng = rng_for(config.seed, f"{clip.name}/subsample")
     selected = survivors[choose_subset(len(survivors), clip.target_tracks, rng)]
+    if clip.given_queries:
+        selected = np.arange(clip.num_tracks)
     outcome = FilterOutcome(
         clip=clip.name,
         source=clip.source,

@@ -21,7 +21,9 @@ from scipy.spatial import cKDTree
 
 from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
+from pipeline.core.errors import InputError
 from pipeline.core.geometry import invert_se3, project, transform_points, unproject
+from pipeline.core.given_queries import given_queries
 from pipeline.core.sampling import rng_for
 from pipeline.core.visibility import in_view
 from pipeline.pstudio.render import render_depth_at
@@ -134,6 +136,49 @@ def attach_queries(
     return frames[keep], gaussian[keep], distance[keep]
 
 
+def match_given_queries(unit: UnitInput, queries: np.ndarray, config: RunConfig) -> np.ndarray:
+    """The foreground Gaussian behind each given query [N, 3] (x, y, t): among the centres that
+    project within half a pixel of (x, y) at t, the one whose depth is nearest the rendered
+    depth there (the release moved each query onto its centre's projection); failing that, the
+    centre nearest the unprojected query point. Returns Gaussian indices [N]."""
+    view = unit.views.index(unit.camera_id)
+    intrinsics = unit.views.fx_fy_cx_cy[view]
+    world_from_cam = invert_se3(unit.views.w2c[view])
+    foreground = np.nonzero(unit.gaussians.foreground)[0]
+    frames = queries[:, 2].astype(np.int64)
+    if (frames < 0).any() or (frames >= unit.gaussians.num_frames).any():
+        raise InputError(
+            f"{unit.clip_name}: a given query frame lies outside 0..{unit.gaussians.num_frames - 1}"
+        )
+    chosen = np.empty(len(queries), np.int64)
+    for t in np.unique(frames):
+        rows = np.nonzero(frames == t)[0]
+        pixels = queries[rows, :2]
+        depth, _ = render_depth_at(
+            splats_in_view(unit, view, int(t), pixels), pixels, config.pstudio.min_alpha
+        )
+        centres = transform_points(
+            unit.views.w2c[view], unit.gaussians.means[t, foreground].astype(np.float64)
+        )
+        projected = project(centres, intrinsics)
+        tree = cKDTree(unit.gaussians.means[t, foreground].astype(np.float64))
+        for row, pixel, surface in zip(rows, pixels, depth, strict=True):
+            near = np.nonzero((centres[:, 2] > 0) & (np.linalg.norm(projected - pixel, axis=1) <= 0.5))[0]
+            if len(near) and np.isfinite(surface):
+                chosen[row] = foreground[near[np.argmin(np.abs(centres[near, 2] - surface))]]
+            elif np.isfinite(surface):
+                point = transform_points(
+                    world_from_cam, unproject(pixel[None], np.array([surface]), intrinsics)
+                )
+                chosen[row] = foreground[tree.query(point[0])[1]]
+            else:
+                raise InputError(
+                    f"{unit.clip_name}: given query {row} at ({pixel[0]:.1f}, {pixel[1]:.1f}, t={t}) "
+                    "has no splat surface and no foreground centre within half a pixel"
+                )
+    return chosen
+
+
 def track_visibility(
     unit: UnitInput, gaussians: np.ndarray, config: RunConfig
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -181,9 +226,18 @@ def annotate_unit(unit: UnitInput, config: RunConfig) -> list[ClipRecord]:
     """One candidate clip (oversampled tracks with their statistics) for the unit."""
     settings = config.pstudio
     wanted = settings.tracks_per_clip * settings.oversample
-    query_frames, gaussians, distance = attach_queries(unit, 2 * wanted, config)
-    tracks, visible = track_visibility(unit, gaussians, config)
-    valid = np.nonzero(visible[query_frames, np.arange(len(gaussians))])[0][:wanted]
+    queries = given_queries(config.queries_from, "pstudio", unit.clip_name) if config.queries_from else None
+    if config.queries_from and queries is None:
+        return []
+    if queries is not None:
+        gaussians = match_given_queries(unit, queries, config)
+        query_frames, distance = queries[:, 2].astype(np.int64), np.full(len(queries), np.nan)
+        tracks, visible = track_visibility(unit, gaussians, config)
+        valid = np.arange(len(gaussians))
+    else:
+        query_frames, gaussians, distance = attach_queries(unit, 2 * wanted, config)
+        tracks, visible = track_visibility(unit, gaussians, config)
+        valid = np.nonzero(visible[query_frames, np.arange(len(gaussians))])[0][:wanted]
     query_frames, gaussians, distance = query_frames[valid], gaussians[valid], distance[valid]
     tracks, visible = tracks[:, valid], visible[:, valid]
     view = unit.views.index(unit.camera_id)
@@ -207,5 +261,6 @@ def annotate_unit(unit: UnitInput, config: RunConfig) -> list[ClipRecord]:
             "gaussian_index": gaussians.astype(np.int64),
         },
         target_tracks=settings.tracks_per_clip,
+        given_queries=queries is not None,
     )
     return [clip]

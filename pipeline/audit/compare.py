@@ -1,0 +1,206 @@
+"""``python -m pipeline.audit compare REF_DIR NEW_DIR [--out PREFIX]``: TAPVid-3D metrics of NEW against REF.
+
+Clips are matched by ``<source>/<clip>.npz``; NEW's tracks are the prediction, REF's the ground
+truth, and tracks correspond by index. Per clip: 3D-AJ and APD under each rescaling of
+``pipeline.audit.metrics.SCALINGS``, OA (which is the visibility agreement: the fraction of
+(frame, track) pairs whose two visibility flags agree) and the median 3D error in metres. Per source
+and over all sources: means over the scored clips. Writes ``PREFIX.md`` and ``PREFIX.json``
+(default prefix ``NEW_DIR/compare``). Pickled members (the JPEG frames) are never unpickled: the
+frame size that sets the evaluation scale is read from the raw bytes of the first JPEG's header.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import math
+import sys
+import zipfile
+
+import numpy as np
+
+from pipeline.audit.metrics import SCALINGS, eval_intrinsics, median_error, tapvid3d_metrics
+from pipeline.export.files import list_files, read_bytes, write_atomic
+from pipeline.export.validator import jpeg_size
+
+NUMERIC_KEYS = ("queries_xyt", "tracks_XYZ", "visibility", "fx_fy_cx_cy")
+FRAMES_MEMBER = "images_jpeg_bytes.npy"
+HEADER_READ_BYTES = 1 << 20
+SUMMARY_KEYS = (
+    *(f"{key}_{scaling}" for scaling in SCALINGS for key in ("aj", "apd")),
+    "oa",
+    "median_error_m",
+)
+
+
+class ClipError(Exception):
+    """A clip pair that cannot be scored (unreadable, missing keys, different N or T)."""
+
+
+def clip_keys(root: str) -> dict[str, str]:
+    """``<source>/<clip>.npz`` -> path, for every clip under ``root/<source>/``."""
+    paths = list_files(f"{root.rstrip('/')}/*/*.npz")
+    return {"/".join(path.replace("\\", "/").split("/")[-2:]): path for path in paths}
+
+
+def first_frame_size(data: bytes) -> tuple[int, int]:
+    """(height, width) of a clip's first frame, from its JPEG header inside the pickled frames member.
+
+    A pickled ``bytes`` object is stored verbatim, so the first JPEG start-of-image marker in the
+    member is the first frame's; nothing is unpickled.
+    """
+    with zipfile.ZipFile(io.BytesIO(data)) as archive, archive.open(FRAMES_MEMBER) as member:
+        head = member.read(HEADER_READ_BYTES)
+    start = head.find(b"\xff\xd8\xff")
+    size = jpeg_size(head[start:]) if start >= 0 else None
+    if size is None:
+        raise ClipError("no readable JPEG header in the first frame")
+    return size
+
+
+def read_clip(path: str) -> tuple[dict[str, np.ndarray], tuple[int, int]]:
+    """The numeric arrays of a clip (loaded with ``allow_pickle=False``) and its frame (height, width)."""
+    try:
+        data = read_bytes(path)
+        with np.load(io.BytesIO(data), allow_pickle=False) as archive:
+            missing = [key for key in NUMERIC_KEYS if key not in archive.files]
+            if missing:
+                raise ClipError(f"{path}: missing {missing}")
+            arrays = {key: archive[key] for key in NUMERIC_KEYS}
+        return arrays, first_frame_size(data)
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile) as error:
+        raise ClipError(f"{path}: unreadable ({error})") from error
+
+
+def compare_clip(ref: dict[str, np.ndarray], new: dict[str, np.ndarray], height: int, width: int) -> dict:
+    """Metrics of NEW's tracks [T, N, 3] / visibility [T, N] against REF's (REF's queries and intrinsics)."""
+    gt_tracks, pred_tracks = ref["tracks_XYZ"], new["tracks_XYZ"]
+    gt_visible, pred_visible = ref["visibility"].astype(bool), new["visibility"].astype(bool)
+    if gt_tracks.shape != pred_tracks.shape or gt_visible.shape != pred_visible.shape:
+        raise ClipError(
+            f"shapes differ: REF tracks {gt_tracks.shape} visibility {gt_visible.shape}, "
+            f"NEW tracks {pred_tracks.shape} visibility {pred_visible.shape}"
+        )
+    num_frames, num_tracks = gt_visible.shape
+    query_frames = np.round(ref["queries_xyt"][:, 2]).astype(np.int64)
+    if query_frames.shape != (num_tracks,) or not ((query_frames >= 0) & (query_frames < num_frames)).all():
+        raise ClipError("REF query frames are not frame indices of its tracks")
+    intrinsics = eval_intrinsics(ref["fx_fy_cx_cy"], height, width)
+    row = {"frames": num_frames, "tracks": num_tracks}
+    for scaling in SCALINGS:
+        scores = tapvid3d_metrics(
+            gt_tracks, gt_visible, pred_tracks, pred_visible, intrinsics, query_frames, scaling
+        )
+        row[f"aj_{scaling}"] = scores["average_jaccard"]
+        row[f"apd_{scaling}"] = scores["average_pts_within"]
+    row["oa"] = scores["occlusion_accuracy"]
+    row["median_error_m"] = median_error(gt_tracks, gt_visible, pred_tracks)
+    return row
+
+
+def score_pair(key: str, ref_path: str, new_path: str) -> dict:
+    """One per-clip row: metrics, or ``error`` saying why the pair could not be scored."""
+    source, clip = key.split("/")
+    try:
+        ref, (height, width) = read_clip(ref_path)
+        new, _ = read_clip(new_path)
+        return {"source": source, "clip": clip, **compare_clip(ref, new, height, width)}
+    except ClipError as error:
+        return {"source": source, "clip": clip, "error": str(error)}
+
+
+def mean_row(rows: list[dict], source: str) -> dict:
+    """Means over the scored clips of ``rows`` (NaN-valued clips skipped per metric)."""
+    scored = [row for row in rows if "error" not in row]
+    summary = {"source": source, "clips": len(scored), "errors": len(rows) - len(scored)}
+    for key in SUMMARY_KEYS:
+        values = [row[key] for row in scored if math.isfinite(row[key])]
+        summary[key] = float(np.mean(values)) if values else float("nan")
+    return summary
+
+
+def summarise(rows: list[dict]) -> list[dict]:
+    """One row per source, then ``all``: the mean of the source means (as the official evaluation)."""
+    sources = sorted({row["source"] for row in rows})
+    per_source = [mean_row([row for row in rows if row["source"] == source], source) for source in sources]
+    overall = {"source": "all", "clips": sum(r["clips"] for r in per_source)}
+    overall["errors"] = sum(r["errors"] for r in per_source)
+    for key in SUMMARY_KEYS:
+        values = [r[key] for r in per_source if math.isfinite(r[key])]
+        overall[key] = float(np.mean(values)) if values else float("nan")
+    return [*per_source, overall]
+
+
+def json_ready(value):
+    """``value`` with every non-finite float replaced by None (strict JSON has no NaN)."""
+    if isinstance(value, dict):
+        return {key: json_ready(item) for key, item in value.items()}
+    if isinstance(value, list):
+        return [json_ready(item) for item in value]
+    return None if isinstance(value, float) and not math.isfinite(value) else value
+
+
+def _cell(value) -> str:
+    return f"{value:.4f}" if isinstance(value, float) else str(value)
+
+
+def markdown(report: dict) -> str:
+    """The report as markdown: per-source table, per-clip table, unmatched clips."""
+    header = " | ".join(SUMMARY_KEYS)
+    lines = [
+        f"# TAPVid-3D metrics of `{report['new']}` against `{report['ref']}`",
+        "",
+        "aj/apd = 3D-AJ/APD under median, per-trajectory and no rescaling; oa = occlusion accuracy "
+        "(= visibility agreement); median_error_m = unscaled median 3D error over REF-visible points.",
+        "",
+        f"| source | clips | errors | {header} |",
+        "|" + "---|" * (3 + len(SUMMARY_KEYS)),
+    ]
+    for row in report["sources"]:
+        cells = [row["source"], row["clips"], row["errors"], *(row[key] for key in SUMMARY_KEYS)]
+        lines.append("| " + " | ".join(_cell(c) for c in cells) + " |")
+    lines += ["", f"| source | clip | frames | tracks | {header} | error |"]
+    lines.append("|" + "---|" * (5 + len(SUMMARY_KEYS)))
+    for row in report["clips"]:
+        metrics = [row.get(key, "") for key in SUMMARY_KEYS]
+        cells = [row["source"], row["clip"], row.get("frames", ""), row.get("tracks", ""), *metrics]
+        lines.append("| " + " | ".join(_cell(c) for c in [*cells, row.get("error", "")]) + " |")
+    for side in ("only_in_ref", "only_in_new"):
+        if report[side]:
+            lines += ["", f"{side}: {len(report[side])} clip(s): " + ", ".join(report[side])]
+    return "\n".join(lines) + "\n"
+
+
+def compare_dirs(ref_dir: str, new_dir: str) -> dict:
+    """The full report (JSON-ready) of NEW_DIR's clips against REF_DIR's."""
+    ref, new = clip_keys(ref_dir), clip_keys(new_dir)
+    common = sorted(ref.keys() & new.keys())
+    rows = [score_pair(key, ref[key], new[key]) for key in common]
+    return {
+        "ref": ref_dir,
+        "new": new_dir,
+        "clips": rows,
+        "sources": summarise(rows),
+        "only_in_ref": sorted(ref.keys() - new.keys()),
+        "only_in_new": sorted(new.keys() - ref.keys()),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    """The ``compare`` subcommand; exit 1 when the two folders have no clip in common."""
+    parser = argparse.ArgumentParser(prog="python -m pipeline.audit compare", description=__doc__)
+    parser.add_argument("ref_dir", help="reference output folder (<dir>/<source>/<clip>.npz): ground truth")
+    parser.add_argument("new_dir", help="output folder to score as the prediction")
+    parser.add_argument("--out", help="write OUT.md and OUT.json (default NEW_DIR/compare)")
+    args = parser.parse_args(argv)
+    report = compare_dirs(args.ref_dir.rstrip("/"), args.new_dir.rstrip("/"))
+    text = markdown(report)
+    print(text, end="")
+    prefix = args.out or f"{args.new_dir.rstrip('/')}/compare"
+    write_atomic(f"{prefix}.md", text.encode())
+    write_atomic(f"{prefix}.json", json.dumps(json_ready(report), indent=1, allow_nan=False).encode())
+    if not report["clips"]:
+        print(f"no clip in common between {args.ref_dir} and {args.new_dir}", file=sys.stderr)
+        return 1
+    return 0
