@@ -21,6 +21,7 @@ from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
 from pipeline.core.errors import InputError
 from pipeline.export.audit_table import encode_parquet, outcome_table
+from pipeline.export.depth_export import encode_depth
 from pipeline.export.files import list_files, read_bytes, write_atomic
 from pipeline.export.manifests import load_official_splits, split_clips
 from pipeline.export.npz_writer import clip_arrays, encode_npz
@@ -77,8 +78,8 @@ class AnnotateDoFn(beam.DoFn):
 
 
 class WriteClip(beam.DoFn):
-    """Write a filtered clip's audit table, then its .npz (atomically, in that order, so an
-    existing .npz always has its audit table). Emits a small report dict."""
+    """Write a filtered clip's audit table, its exported depth if any, then its .npz (atomically,
+    in that order, so an existing .npz always has its companions). Emits a small report dict."""
 
     def __init__(self, output: str):
         self.output = output.rstrip("/")
@@ -90,6 +91,10 @@ class WriteClip(beam.DoFn):
                 f"{self.output}/audit/{kept.source}/{kept.name}.parquet",
                 encode_parquet(outcome_table(outcome)),
             )
+            if kept.num_tracks and kept.depth_export is not None:
+                write_atomic(
+                    f"{self.output}/depth/{kept.source}/{kept.name}.npz", encode_depth(kept.depth_export)
+                )
             if kept.num_tracks:
                 write_atomic(f"{self.output}/{kept.source}/{kept.name}.npz", encode_npz(clip_arrays(kept)))
             else:

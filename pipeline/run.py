@@ -54,6 +54,12 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
         "by name, e.g. the released files): tracks correspond one to one, filters report but drop none",
     )
     parser.add_argument(
+        "--export-depth",
+        action="store_true",
+        help="also write the depth each visibility test read to <out>/depth/<source>/<clip>.npz "
+        "(dense uint16 mm for adt and pstudio, sparse lidar points for drivetrack)",
+    )
+    parser.add_argument(
         "--set",
         dest="overrides",
         action="append",
@@ -99,6 +105,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         config = with_overrides(RunConfig(), args.overrides)
+        if args.export_depth:
+            config = dataclasses.replace(config, export_depth=True)
         if args.queries_from:
             folder = args.queries_from if "://" in args.queries_from else os.path.abspath(args.queries_from)
             config = dataclasses.replace(config, queries_from=folder)

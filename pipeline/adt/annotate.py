@@ -27,6 +27,7 @@ from pipeline.core.errors import InputError
 from pipeline.core.geometry import in_image, invert_se3, project, unproject
 from pipeline.core.given_queries import given_queries
 from pipeline.core.sampling import rng_for
+from pipeline.export.depth_export import dense_depth_mm, dense_record
 
 
 @dataclasses.dataclass
@@ -306,6 +307,7 @@ def annotate_chunk(
     tracks = np.zeros((num_frames, count, 3))
     visibility = np.zeros((num_frames, count), bool)
     agree = np.zeros(count, np.int64)
+    depth_maps = []
     unique_ids, track_object = np.unique(object_ids, return_inverse=True)
     for t, timestamp in enumerate(chunk.timestamps.tolist()):
         frame = read_frame(timestamp)
@@ -320,6 +322,8 @@ def annotate_chunk(
         )
         tracks[t], visibility[t] = points, visible
         agree += visible & on_own
+        if config.export_depth:
+            depth_maps.append(dense_depth_mm(frame.depth))
 
     visible_frames = visibility.sum(axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -348,4 +352,5 @@ def annotate_chunk(
         },
         target_tracks=rules.tracks_per_clip,
         given_queries=given is not None,
+        depth_export=dense_record(depth_maps, chunk.timestamps) if config.export_depth else None,
     )

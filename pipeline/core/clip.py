@@ -27,6 +27,8 @@ class ClipRecord:
       frame_ids: [T] int64 source frame identifiers (timestamps or indices).
       track_stats: per-track statistics the filters read, each [N].
       target_tracks: how many tracks the released clip keeps.
+      depth_export: with ``--export-depth``, the depth the visibility test read
+        (pipeline/export/depth_export.py), written beside the clip; else None.
       given_queries: the queries came from an existing clip (``--queries-from``): filters report
         on every track but drop none, so old and new tracks correspond one to one.
     """
@@ -45,6 +47,7 @@ class ClipRecord:
     track_stats: dict[str, np.ndarray]
     target_tracks: int
     given_queries: bool = False
+    depth_export: dict[str, np.ndarray] | None = None
 
     @property
     def num_frames(self) -> int:

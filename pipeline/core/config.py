@@ -124,11 +124,13 @@ class RunConfig:
 
     queries_from: a folder of existing clips whose queries are re-annotated instead of sampling
       new ones (``--queries-from``); only clips found there are made.
+    export_depth: also write the depth each visibility test read (``--export-depth``).
     """
 
     seed: int = 0
     splits_file: str = ""
     queries_from: str = ""
+    export_depth: bool = False
     minival_per_source: int = 50
     flicker: FlickerConfig = dataclasses.field(default_factory=FlickerConfig)
     adt: AdtConfig = dataclasses.field(default_factory=AdtConfig)

@@ -42,6 +42,7 @@ from pipeline.drivetrack.reader import (
     LidarCalibration,
     LidarFrame,
 )
+from pipeline.export.depth_export import sparse_record
 from pipeline.filters.mask import agreement, on_mask, read_mask_png, silhouette_mask
 
 log = logging.getLogger(__name__)
@@ -379,6 +380,15 @@ def track_object(
         },
         target_tracks=rules.tracks_per_clip,
         given_queries=given is not None,
+        depth_export=(
+            sparse_record(
+                [evidence.depth_uv[t] for t in frames],
+                [evidence.depth_z[t] for t in frames],
+                unit.frames.timestamps[run.start : run.stop],
+            )
+            if config.export_depth
+            else None
+        ),
     )
 
 

@@ -33,12 +33,15 @@ def clip_arrays(clip: ClipRecord) -> dict[str, np.ndarray]:
     return arrays
 
 
-def encode_npz(arrays: dict[str, np.ndarray]) -> bytes:
-    """A deterministic ``.npz`` (stored, uncompressed, like ``np.savez``) readable by np.load."""
+def encode_npz(arrays: dict[str, np.ndarray], compress: bool = False) -> bytes:
+    """A deterministic ``.npz`` readable by np.load: stored like ``np.savez``, or deflated like
+    ``np.savez_compressed`` with ``compress``."""
     buffer = io.BytesIO()
-    with zipfile.ZipFile(buffer, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as archive:
+    method = zipfile.ZIP_DEFLATED if compress else zipfile.ZIP_STORED
+    with zipfile.ZipFile(buffer, "w", compression=method, allowZip64=True) as archive:
         for key in sorted(arrays):
             info = zipfile.ZipInfo(f"{key}.npy", date_time=FIXED_ZIP_TIME)
+            info.compress_type = method
             info.external_attr = 0o644 << 16
             member = io.BytesIO()
             np.lib.format.write_array(member, np.asanyarray(arrays[key]), allow_pickle=True)

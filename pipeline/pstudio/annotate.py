@@ -26,7 +26,8 @@ from pipeline.core.geometry import invert_se3, project, transform_points, unproj
 from pipeline.core.given_queries import given_queries
 from pipeline.core.sampling import rng_for
 from pipeline.core.visibility import in_view
-from pipeline.pstudio.render import render_depth_at
+from pipeline.export.depth_export import dense_depth_mm, dense_record
+from pipeline.pstudio.render import render_depth_at, render_depth_image
 from pipeline.pstudio.splats import Splats2D, project_splats
 
 
@@ -181,17 +182,23 @@ def match_given_queries(unit: UnitInput, queries: np.ndarray, config: RunConfig)
 
 def track_visibility(
     unit: UnitInput, gaussians: np.ndarray, config: RunConfig
-) -> tuple[np.ndarray, np.ndarray]:
-    """Tracks [T, K, 3] (camera frame) of Gaussian centres [K] and their visibility [T, K]."""
+) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+    """Tracks [T, K, 3] (camera frame) of Gaussian centres [K] and their visibility [T, K]; with
+    ``export_depth``, also each frame's full depth map as uint16 millimetres [H, W] (else [])."""
     view = unit.views.index(unit.camera_id)
     intrinsics = unit.views.fx_fy_cx_cy[view]
     frames = unit.gaussians.num_frames
     tracks = np.empty((frames, len(gaussians), 3))
     visible = np.zeros((frames, len(gaussians)), bool)
+    depth_maps = []
     for t in range(frames):
         tracks[t] = transform_points(
             unit.views.w2c[view], unit.gaussians.means[t, gaussians].astype(np.float64)
         )
+        if config.export_depth:
+            depth_maps.append(
+                dense_depth_mm(render_depth_image(splats_in_view(unit, view, t), config.pstudio.min_alpha)[0])
+            )
         seen = in_view(tracks[t], intrinsics, unit.views.width, unit.views.height)
         if not seen.any():
             continue
@@ -199,7 +206,7 @@ def track_visibility(
         depth, _ = render_depth_at(splats_in_view(unit, view, t, pixels), pixels, config.pstudio.min_alpha)
         with np.errstate(invalid="ignore"):
             visible[t, seen] = np.abs(tracks[t, seen, 2] - depth) < config.pstudio.depth_delta_m
-    return tracks, visible
+    return tracks, visible, depth_maps
 
 
 def multiview_mask_fraction(unit: UnitInput, gaussians: np.ndarray) -> np.ndarray:
@@ -232,17 +239,18 @@ def annotate_unit(unit: UnitInput, config: RunConfig) -> list[ClipRecord]:
     if queries is not None:
         gaussians = match_given_queries(unit, queries, config)
         query_frames, distance = queries[:, 2].astype(np.int64), np.full(len(queries), np.nan)
-        tracks, visible = track_visibility(unit, gaussians, config)
+        tracks, visible, depth_maps = track_visibility(unit, gaussians, config)
         valid = np.arange(len(gaussians))
     else:
         query_frames, gaussians, distance = attach_queries(unit, 2 * wanted, config)
-        tracks, visible = track_visibility(unit, gaussians, config)
+        tracks, visible, depth_maps = track_visibility(unit, gaussians, config)
         valid = np.nonzero(visible[query_frames, np.arange(len(gaussians))])[0][:wanted]
     query_frames, gaussians, distance = query_frames[valid], gaussians[valid], distance[valid]
     tracks, visible = tracks[:, valid], visible[:, valid]
     view = unit.views.index(unit.camera_id)
     intrinsics = unit.views.fx_fy_cx_cy[view]
     query_xy = project(tracks[query_frames, np.arange(len(valid))], intrinsics)
+    frame_ids = np.arange(unit.gaussians.num_frames, dtype=np.int64)
     clip = ClipRecord(
         source="pstudio",
         name=unit.clip_name,
@@ -254,7 +262,7 @@ def annotate_unit(unit: UnitInput, config: RunConfig) -> list[ClipRecord]:
         tracks_xyz=tracks,
         visibility=visible,
         queries_xyt=np.concatenate([query_xy, query_frames[:, None].astype(np.float64)], axis=1),
-        frame_ids=np.arange(unit.gaussians.num_frames, dtype=np.int64),
+        frame_ids=frame_ids,
         track_stats={
             "mask_agreement": multiview_mask_fraction(unit, gaussians),
             "attach_distance_m": distance,
@@ -262,5 +270,6 @@ def annotate_unit(unit: UnitInput, config: RunConfig) -> list[ClipRecord]:
         },
         target_tracks=settings.tracks_per_clip,
         given_queries=queries is not None,
+        depth_export=dense_record(depth_maps, frame_ids) if config.export_depth else None,
     )
     return [clip]
