@@ -1,0 +1,115 @@
+"""Dataset statistics over ``<DIR>/<source>/*.npz``: per-source histograms and a printed table."""
+
+from __future__ import annotations
+
+import glob
+import os
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from pipeline.viz.clip_figure import load_clip, world_tracks
+
+STATIC_MAX_DISPLACEMENT_M = 0.01
+
+
+def track_motion(clip: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, str]:
+    """Per-track max displacement from frame 0 [N] and mean step length [N] (metres per frame).
+
+    World coordinates when the clip has ``extrinsics_w2c``, else camera coordinates (named
+    in the third value). The step length is NaN for a one-frame clip.
+    """
+    tracks = clip["tracks_XYZ"].astype(np.float64)
+    if "extrinsics_w2c" in clip:
+        points, frame = world_tracks(tracks, clip["extrinsics_w2c"]), "world"
+    else:
+        points, frame = tracks, "camera"
+    displacement = np.linalg.norm(points - points[:1], axis=-1).max(axis=0)
+    steps = np.linalg.norm(np.diff(points, axis=0), axis=-1)
+    speed = steps.mean(axis=0) if len(steps) else np.full(points.shape[1], np.nan)
+    return displacement, speed, frame
+
+
+def dataset_stats(directory: str) -> dict[str, dict]:
+    """Statistics per source folder of ``directory`` holding clips, sources and clips in name order.
+
+    Each value: ``clips`` (names), ``frames`` [C] and ``tracks`` [C] (int), ``static_share`` [C]
+    (share of tracks moving less than 1 cm), ``mean_speed`` [total tracks] (metres per frame)
+    and ``coordinates`` ("world", "camera" or "mixed": where the motion was measured).
+    """
+    stats: dict[str, dict] = {}
+    for source in sorted(os.listdir(directory)):
+        paths = sorted(glob.glob(os.path.join(directory, source, "*.npz")))
+        if not paths:
+            continue
+        frames, tracks, static_share, speeds, coordinates = [], [], [], [], set()
+        for path in paths:
+            clip = load_clip(path, with_images=False)
+            displacement, speed, frame = track_motion(clip)
+            frames.append(clip["tracks_XYZ"].shape[0])
+            tracks.append(clip["tracks_XYZ"].shape[1])
+            static_share.append(float(np.mean(displacement < STATIC_MAX_DISPLACEMENT_M)))
+            speeds.append(speed)
+            coordinates.add(frame)
+        stats[source] = {
+            "clips": [os.path.splitext(os.path.basename(path))[0] for path in paths],
+            "frames": np.array(frames),
+            "tracks": np.array(tracks),
+            "static_share": np.array(static_share),
+            "mean_speed": np.concatenate(speeds),
+            "coordinates": coordinates.pop() if len(coordinates) == 1 else "mixed",
+        }
+    if not stats:
+        raise ValueError(f"no clips found in {directory}/<source>/*.npz")
+    return stats
+
+
+def format_table(stats: dict[str, dict]) -> str:
+    """The statistics as a fixed-width text table, one row per source."""
+    header = (
+        f"{'source':<12}{'clips':>6}{'frames min/med/max':>20}{'tracks min/med/max':>20}"
+        f"{'static share':>14}{'speed med (m/frame)':>21}  coordinates"
+    )
+    rows = [header, "-" * len(header)]
+    for source, entry in stats.items():
+        frames, tracks, speed = entry["frames"], entry["tracks"], entry["mean_speed"]
+        speed_text = f"{np.nanmedian(speed):.4f}" if np.isfinite(speed).any() else "n/a"
+        rows.append(
+            f"{source:<12}{len(frames):>6}"
+            f"{f'{frames.min()}/{np.median(frames):g}/{frames.max()}':>20}"
+            f"{f'{tracks.min()}/{np.median(tracks):g}/{tracks.max()}':>20}"
+            f"{entry['static_share'].mean():>14.3f}{speed_text:>21}  {entry['coordinates']}"
+        )
+    return "\n".join(rows)
+
+
+def write_stats_figure(stats: dict[str, dict], out: str) -> None:
+    """A PNG with one row per source: histograms of frames/clip, tracks/clip, static share, mean speed."""
+    figure = Figure(figsize=(16, 3.2 * len(stats)), dpi=100, layout="constrained")
+    FigureCanvasAgg(figure)
+    axes = figure.subplots(len(stats), 4, squeeze=False)
+    for row, (source, entry) in zip(axes, stats.items(), strict=True):
+        speed = entry["mean_speed"][np.isfinite(entry["mean_speed"])]
+        panels = (
+            (entry["frames"], "auto", "frames per clip", "clips"),
+            (entry["tracks"], "auto", "tracks per clip", "clips"),
+            (
+                entry["static_share"],
+                np.linspace(0, 1, 21),
+                f"share of static tracks ({entry['coordinates']} coords)",
+                "clips",
+            ),
+            (speed, 30, "mean speed per track (metres per frame)", "tracks"),
+        )
+        for ax, (values, bins, label, unit) in zip(row, panels, strict=True):
+            if len(values):
+                ax.hist(values, bins=bins, color="tab:blue", edgecolor="white")
+            ax.set_xlabel(label)
+            ax.set_ylabel(unit)
+        row[0].set_title(f"{source}: {len(entry['frames'])} clips", loc="left", fontweight="bold")
+    figure.suptitle(
+        f"static = max displacement from frame 0 < {STATIC_MAX_DISPLACEMENT_M * 100:g} cm, measured in world "
+        "coordinates for clips with extrinsics_w2c, else camera coordinates"
+    )
+    figure.savefig(out)
