@@ -11,6 +11,7 @@ the survival curve of each filter and the histogram of each statistic.
 from __future__ import annotations
 
 import argparse
+import io
 import itertools
 import json
 import os
@@ -95,13 +96,19 @@ def parse_grid(assignments: list[str]) -> dict[str, list[str]]:
     return grid
 
 
-def survival_figure(clips: list[dict], source: str, config: RunConfig, path: str) -> None:
-    """Share of candidates each filter keeps as its threshold varies (default marked)."""
+def _pyplot():
+    """matplotlib's pyplot on the file-only Agg backend (imported when a figure is drawn)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    return plt
+
+
+def survival_figure(clips: list[dict], source: str, config: RunConfig, path: str) -> None:
+    """Share of candidates each filter keeps as its threshold varies (default marked)."""
+    plt = _pyplot()
     flips = np.concatenate([c["stats"]["visibility_flips"] / max(c["num_frames"], 1) for c in clips])
     figure, axes = plt.subplots(1, 2, figsize=(10, 3.8))
     grid = np.linspace(0, 0.5, 201)
@@ -130,11 +137,8 @@ def survival_figure(clips: list[dict], source: str, config: RunConfig, path: str
 
 
 def histogram_figure(statistics: dict[str, np.ndarray], source: str, path: str) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    """One histogram per statistic [N] over all candidates."""
+    plt = _pyplot()
     names = sorted(statistics)
     figure, axes = plt.subplots(1, len(names), figsize=(3.6 * len(names), 3.2), squeeze=False)
     for ax, name in zip(axes[0], names, strict=True):
@@ -269,8 +273,6 @@ def matches_run(result: dict, summary: dict) -> bool:
 
 
 def _rows_parquet(rows: list[dict]) -> bytes:
-    import io
-
     columns: dict[str, list] = {key: [r["values"][key] for r in rows] for key in rows[0]["values"]}
     columns["candidates"] = [r["result"]["candidates"] for r in rows]
     for name in FILTER_ORDER:
