@@ -195,15 +195,15 @@ def track_visibility(
         tracks[t] = transform_points(
             unit.views.w2c[view], unit.gaussians.means[t, gaussians].astype(np.float64)
         )
-        if config.export_depth:
-            depth_maps.append(
-                dense_depth_mm(render_depth_image(splats_in_view(unit, view, t), config.pstudio.min_alpha)[0])
-            )
         seen = in_view(tracks[t], intrinsics, unit.views.width, unit.views.height)
+        pixels = project(tracks[t, seen], intrinsics)
+        # Exporting needs every splat for the full frame; the same projection serves the tracks.
+        splats = splats_in_view(unit, view, t, None if config.export_depth else pixels)
+        if config.export_depth:
+            depth_maps.append(dense_depth_mm(render_depth_image(splats, config.pstudio.min_alpha)[0]))
         if not seen.any():
             continue
-        pixels = project(tracks[t, seen], intrinsics)
-        depth, _ = render_depth_at(splats_in_view(unit, view, t, pixels), pixels, config.pstudio.min_alpha)
+        depth, _ = render_depth_at(splats, pixels, config.pstudio.min_alpha)
         with np.errstate(invalid="ignore"):
             visible[t, seen] = np.abs(tracks[t, seen, 2] - depth) < config.pstudio.depth_delta_m
     return tracks, visible, depth_maps
