@@ -1,6 +1,12 @@
 """The Beam graph every source shares:
 
-list units -> Reshuffle -> annotate (per source) -> filter tracks -> write clips -> finalize
+list units -> Reshuffle -> process each unit -> gather under one key -> finalize
+
+Processing a unit does all of its work in one step: skip it when an earlier run with the same
+settings finished it (pipeline/resume.py), else annotate it (per source), filter each clip's
+tracks, write the clips, then the unit's record. One step per unit keeps the graph to
+transforms every Beam runner executes alike (including the Dask runner, which has no
+multi-output ParDo), and makes the unit record a true commit point.
 
 Failures of any unit or clip become records, written to ``failures_<source>.jsonl``; the rest
 of the run goes on. Finalize writes the manifests (over every source in the output folder),
@@ -19,16 +25,26 @@ import apache_beam as beam
 
 from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
-from pipeline.core.errors import InputError
+from pipeline.core.errors import InputError, OutputError
 from pipeline.export.audit_table import encode_parquet, outcome_table
 from pipeline.export.depth_export import encode_depth
 from pipeline.export.files import list_files, read_bytes, write_atomic
+from pipeline.export.layout import audit_path, check_clip_name, clip_path, depth_path
 from pipeline.export.manifests import load_official_splits, split_clips
 from pipeline.export.npz_writer import clip_arrays, encode_npz
 from pipeline.filters.select import FILTER_ORDER, FilterOutcome, apply_filters
+from pipeline.resume import (
+    finished_reports,
+    read_unit_record,
+    remove_stale_clips,
+    run_fingerprint,
+    sha256,
+    write_unit_record,
+)
 
-FAILURES = "failures"
 SOURCES = ("adt", "drivetrack", "pstudio")
+# Kinds of the (kind, value) pairs a unit emits.
+REPORT, FAILURE, RESUMED, START = "report", "failure", "resumed", "start"
 
 
 def progress(message: str) -> None:
@@ -40,18 +56,14 @@ def progress(message: str) -> None:
 def failure(unit: str, stage: str, error: BaseException) -> dict:
     """A failures_<source>.jsonl record; unexpected errors keep their innermost frame for debugging."""
     record = {"unit": unit, "stage": stage, "error": f"{type(error).__name__}: {error}"}
-    if not isinstance(error, InputError):
+    if not isinstance(error, (InputError, OutputError)):
         frame = traceback.extract_tb(error.__traceback__)[-1]
         record["where"] = f"{frame.filename}:{frame.lineno}"
     return record
 
 
-class AnnotateDoFn(beam.DoFn):
-    """Base of each source's annotate stage: a unit in, its clips out, or one failure record.
-
-    A unit's clips are emitted only after the whole unit succeeded, so a unit that fails
-    half-way contributes nothing but its failure line.
-    """
+class Annotator:
+    """Base of each source's annotator: a unit in, its clips out (raising InputError on bad input)."""
 
     def __init__(self, input_root: str, config: RunConfig):
         self.input_root = input_root
@@ -64,65 +76,102 @@ class AnnotateDoFn(beam.DoFn):
     def annotate(self, unit) -> list[ClipRecord]:
         raise NotImplementedError
 
+
+
+def _write(path: str, data: bytes) -> None:
+    try:
+        write_atomic(path, data)
+    except OSError as error:
+        raise OutputError(f"cannot write {path}: {error}") from error
+
+
+def write_clip(output: str, kept: ClipRecord, outcome: FilterOutcome) -> tuple[dict, str | None]:
+    """Write a filtered clip's audit table, its exported depth if any, then its .npz (each
+    atomically, in that order, so an existing .npz always has its companions). Returns the clip's
+    report and the SHA-256 of its .npz (None when no track survived and nothing was written)."""
+    source, name = kept.source, check_clip_name(kept.name)
+    _write(audit_path(output, source, name), encode_parquet(outcome_table(outcome)))
+    digest = None
+    if kept.num_tracks:
+        if kept.depth_export is not None:
+            _write(depth_path(output, source, name), encode_depth(kept.depth_export))
+        data = encode_npz(clip_arrays(kept))
+        _write(clip_path(output, source, name), data)
+        digest = sha256(data)
+        progress(f"clip {name}: {kept.num_tracks} of {outcome.candidates} candidate tracks written")
+    else:
+        progress(f"clip {name}: no track survived the filters; not written")
+    report = {
+        "clip": name,
+        "source": source,
+        "unit": kept.unit,
+        "frames": kept.num_frames,
+        "candidates": outcome.candidates,
+        "dropped": outcome.dropped_by(),
+        "passed": outcome.passed,
+        "written_tracks": kept.num_tracks,
+        "target_tracks": kept.target_tracks,
+    }
+    return report, digest
+
+
+class ProcessUnit(beam.DoFn):
+    """One unit, whole. Emits ("resumed", unit) when an earlier run finished it, a ("report", dict)
+    per clip, and a ("failure", dict) per failed unit or clip. A unit's record is written only
+    when every clip of it was written, so a unit with a failed clip is redone by a rerun."""
+
+    def __init__(self, annotator: Annotator, source: str, output: str, resume: bool):
+        self.annotator = annotator
+        self.source = source
+        self.output = output.rstrip("/")
+        self.resume = resume
+
     def process(self, unit):
-        name = self.unit_name(unit)
+        name, source, config = self.annotator.unit_name(unit), self.source, self.annotator.config
+        fingerprint = run_fingerprint(source, config)
+        record = read_unit_record(self.output, source, name)
+        if self.resume:
+            reports = finished_reports(record, self.output, source, fingerprint, config.export_depth)
+            if reports is not None:
+                progress(f"unit {name}: finished by an earlier run with these settings; skipped")
+                yield RESUMED, name
+                yield from ((REPORT, report) for report in reports)
+                return
         started = time.monotonic()
         try:
-            clips = self.annotate(unit)
+            clips = self.annotator.annotate(unit)
         except Exception as error:  # noqa: BLE001 - every failure becomes data
             progress(f"unit {name} FAILED: {error}")
-            yield beam.pvalue.TaggedOutput(FAILURES, failure(name, "annotate", error))
+            yield FAILURE, failure(name, "annotate", error)
             return
         progress(f"unit {name}: {len(clips)} clip(s) in {time.monotonic() - started:.1f} s")
-        yield from clips
+        reports, digests = [], {}
+        for clip in clips:
+            try:
+                report, digest = write_clip(self.output, *apply_filters(clip, config))
+            except Exception as error:  # noqa: BLE001
+                progress(f"clip {clip.name} FAILED: {error}")
+                yield FAILURE, failure(f"{name} ({clip.name})", "clip", error)
+                continue
+            reports.append(report)
+            if digest:
+                digests[report["clip"]] = digest
+        if len(reports) == len(clips):
+            try:
+                remove_stale_clips(record, self.output, source, {r["clip"] for r in reports})
+                write_unit_record(self.output, source, name, fingerprint, reports, digests)
+            except OSError as error:
+                unrecorded = OutputError(f"cannot record the finished unit: {error}")
+                yield FAILURE, failure(name, "record", unrecorded)
+        yield from ((REPORT, report) for report in reports)
 
 
-class WriteClip(beam.DoFn):
-    """Write a filtered clip's audit table, its exported depth if any, then its .npz (atomically,
-    in that order, so an existing .npz always has its companions). Emits a small report dict."""
-
-    def __init__(self, output: str):
-        self.output = output.rstrip("/")
-
-    def process(self, element: tuple[ClipRecord, FilterOutcome]):
-        kept, outcome = element
-        try:
-            write_atomic(
-                f"{self.output}/audit/{kept.source}/{kept.name}.parquet",
-                encode_parquet(outcome_table(outcome)),
-            )
-            if kept.num_tracks and kept.depth_export is not None:
-                write_atomic(
-                    f"{self.output}/depth/{kept.source}/{kept.name}.npz", encode_depth(kept.depth_export)
-                )
-            if kept.num_tracks:
-                write_atomic(f"{self.output}/{kept.source}/{kept.name}.npz", encode_npz(clip_arrays(kept)))
-            else:
-                progress(f"clip {kept.name}: no track survived the filters; not written")
-        except Exception as error:  # noqa: BLE001
-            progress(f"clip {kept.name} FAILED: {error}")
-            unit = f"{kept.unit} ({kept.name})"
-            yield beam.pvalue.TaggedOutput(FAILURES, failure(unit, "write", error))
-            return
-        progress(f"clip {kept.name}: {kept.num_tracks} of {outcome.candidates} candidate tracks written")
-        yield {
-            "clip": kept.name,
-            "source": kept.source,
-            "unit": kept.unit,
-            "frames": kept.num_frames,
-            "candidates": outcome.candidates,
-            "dropped": outcome.dropped_by(),
-            "passed": outcome.passed,
-            "written_tracks": kept.num_tracks,
-            "target_tracks": kept.target_tracks,
-        }
-
-
-def summarize(reports: list[dict], failures: list[dict], units: int) -> dict:
+def summarize(reports: list[dict], failures: list[dict], units: int, resumed: int) -> dict:
     """Run totals: units, clips, tracks kept and dropped by each filter, failures."""
     written = [r for r in reports if r["written_tracks"] > 0]
     return {
         "units": units,
+        "units_resumed": resumed,
         "units_failed": len({f["unit"] for f in failures if f["stage"] == "annotate"}),
         "clips_annotated": len(reports),
         "clips_written": len(written),
@@ -136,15 +185,22 @@ def summarize(reports: list[dict], failures: list[dict], units: int) -> dict:
 
 
 class Finalize(beam.DoFn):
-    """Runs once after every clip is written: failures, manifests, provenance."""
+    """Runs once, on every unit's (kind, value) pairs: failures, manifests, provenance."""
 
     def __init__(self, output: str, config: RunConfig, provenance: dict):
         self.output = output.rstrip("/")
         self.config = config
         self.provenance = provenance
 
-    def process(self, _, reports, failures):
-        failures = sorted(failures, key=lambda f: (f["unit"], f["stage"], f["error"]))
+    def process(self, keyed):
+        _, outcomes = keyed
+        outcomes = list(outcomes)
+        reports = sorted((value for kind, value in outcomes if kind == REPORT), key=lambda r: r["clip"])
+        failures = sorted(
+            (value for kind, value in outcomes if kind == FAILURE),
+            key=lambda f: (f["unit"], f["stage"], f["error"]),
+        )
+        resumed = sum(kind == RESUMED for kind, _ in outcomes)
         lines = "".join(json.dumps(f, sort_keys=True) + "\n" for f in failures)
         source = self.provenance["source"]
         write_atomic(f"{self.output}/failures_{source}.jsonl", lines.encode())
@@ -160,7 +216,7 @@ class Finalize(beam.DoFn):
         for name, entries in (("minival", minival), ("full_test", full_test)):
             text = "".join(entry + "\n" for entry in entries)
             write_atomic(f"{self.output}/manifests/{name}.txt", text.encode())
-        summary = summarize(sorted(reports, key=lambda r: r["clip"]), failures, len(self.provenance["units"]))
+        summary = summarize(reports, failures, len(self.provenance["units"]), resumed)
         summary["manifests"] = {"minival": len(minival), "full_test": len(full_test)}
         record = dict(self.provenance, summary=summary)
         write_atomic(
@@ -169,34 +225,30 @@ class Finalize(beam.DoFn):
         yield summary
 
 
+def under_one_key(outcome: tuple[str, object]) -> tuple[None, tuple[str, object]]:
+    return None, outcome
+
+
 def build(
     pipeline: beam.Pipeline,
     units: list,
-    annotate: AnnotateDoFn,
-    output: str,
+    process_unit: ProcessUnit,
     config: RunConfig,
     provenance: dict,
 ) -> None:
-    """Attach the whole run to ``pipeline``."""
-    annotated = (
+    """Attach the whole run to ``pipeline``. Finalize sees the outcome of every unit through one
+    GroupByKey (plus a start marker, so it runs even when no unit emits anything)."""
+    outcomes = (
         pipeline
         | "ListUnits" >> beam.Create(units)
         | "Reshuffle" >> beam.Reshuffle()
-        | "Annotate" >> beam.ParDo(annotate).with_outputs(FAILURES, main="clips")
+        | "ProcessUnits" >> beam.ParDo(process_unit)
     )
-    written = (
-        annotated.clips
-        | "FilterTracks" >> beam.Map(apply_filters, config)
-        | "WriteClips" >> beam.ParDo(WriteClip(output)).with_outputs(FAILURES, main="reports")
-    )
-    failures = (annotated[FAILURES], written[FAILURES]) | "AllFailures" >> beam.Flatten()
+    start = pipeline | "Start" >> beam.Create([(START, None)])
     _ = (
-        pipeline
-        | "Once" >> beam.Create([None])
-        | "Finalize"
-        >> beam.ParDo(
-            Finalize(output, config, provenance),
-            reports=beam.pvalue.AsList(written.reports),
-            failures=beam.pvalue.AsList(failures),
-        )
+        (outcomes, start)
+        | "AllOutcomes" >> beam.Flatten()
+        | "UnderOneKey" >> beam.Map(under_one_key)
+        | "Gather" >> beam.GroupByKey()
+        | "Finalize" >> beam.ParDo(Finalize(process_unit.output, config, provenance))
     )

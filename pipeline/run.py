@@ -19,14 +19,16 @@ import time
 
 import apache_beam as beam
 import numpy as np
+from apache_beam.io.filesystems import FileSystems
 from apache_beam.options.pipeline_options import PipelineOptions
 
 import pipeline
 from pipeline import graph
 from pipeline.core.config import RunConfig, with_overrides
 from pipeline.core.errors import InputError
-from pipeline.export.files import read_bytes
+from pipeline.export.files import read_bytes, write_atomic
 from pipeline.filters.select import FILTER_ORDER
+from pipeline.resume import remove_partial_files
 
 # Each source module provides list_units, unit_name, ANNOTATOR and sample_input.
 SOURCE_MODULES = {
@@ -34,6 +36,8 @@ SOURCE_MODULES = {
     "drivetrack": "pipeline.drivetrack.transform",
     "pstudio": "pipeline.pstudio.transform",
 }
+
+DASK_RUNNER = "apache_beam.runners.dask.dask_runner.DaskRunner"
 
 log = logging.getLogger("pipeline")
 
@@ -60,6 +64,12 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
         "(dense uint16 mm for adt and pstudio, sparse lidar points for drivetrack)",
     )
     parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="re-annotate every unit; by default a unit an earlier run finished with the same settings "
+        "(its clips on disk, intact and valid) is skipped",
+    )
+    parser.add_argument(
         "--set",
         dest="overrides",
         action="append",
@@ -81,7 +91,8 @@ def configure_logging() -> None:
 def print_summary(summary: dict, output: str, source: str) -> None:
     dropped = ", ".join(f"{name} {summary['dropped_by_filter'][name]}" for name in FILTER_ORDER)
     print(
-        f"\n{source}: {summary['units']} unit(s), {summary['units_failed']} failed; "
+        f"\n{source}: {summary['units']} unit(s), {summary['units_resumed']} finished earlier, "
+        f"{summary['units_failed']} failed; "
         f"{summary['clips_written']} clip(s) written ({summary['clips_below_target']} below "
         f"their target track count)\n"
         f"tracks: {summary['candidate_tracks']} candidates, dropped by filter: {dropped}; "
@@ -93,6 +104,28 @@ def print_summary(summary: dict, output: str, source: str) -> None:
     )
     if summary["failures"]:
         print(f"{summary['failures']} failure(s): see {output}/failures_{source}.jsonl", file=sys.stderr)
+
+
+def runner_args(beam_args: list[str]) -> list[str]:
+    """Beam options with our defaults: the DirectRunner when none is named; ``DaskRunner`` as a
+    short name for Beam's Dask runner, whose units go one per partition unless told otherwise (its
+    default packs 128 elements in a partition, i.e. the whole run on one worker)."""
+    args = [a.replace("DaskRunner", DASK_RUNNER) if a.endswith("DaskRunner") else a for a in beam_args]
+    if not any(a.startswith("--runner") for a in args):
+        args = ["--runner", "DirectRunner", *args]
+    on_dask = DASK_RUNNER in args or f"--runner={DASK_RUNNER}" in args
+    if on_dask and not any(
+        a.startswith(("--dask_npartitions", "--dask_partition_size")) for a in args
+    ):
+        args.append("--dask_partition_size=1")
+    return args
+
+
+def check_writable(output: str) -> None:
+    """Raise OSError unless a file can be written (and removed) in ``output``."""
+    probe = f"{output}/.write_probe-{os.getpid()}"
+    write_atomic(probe, b"")
+    FileSystems.delete([probe])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -115,6 +148,11 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     module = importlib.import_module(SOURCE_MODULES[args.source])
     output = os.path.abspath(args.output) if "://" not in args.output else args.output
+    try:
+        check_writable(output)
+    except OSError as error:
+        print(f"cannot start: output folder {output} is not writable ({error})", file=sys.stderr)
+        return 2
     input_root = args.input
     if input_root is None:
         input_root = module.sample_input(f"{output}/sample_input/{args.source}")
@@ -128,8 +166,7 @@ def main(argv: list[str] | None = None) -> int:
     except (InputError, OSError) as error:
         print(f"cannot start: {error}", file=sys.stderr)
         return 2
-    if not any(a.startswith("--runner") for a in beam_args):
-        beam_args = ["--runner", "DirectRunner", *beam_args]
+    beam_args = runner_args(beam_args)
     options = PipelineOptions(beam_args)
     provenance = {
         "package": "tapvid3d-pipeline",
@@ -148,10 +185,15 @@ def main(argv: list[str] | None = None) -> int:
         "started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }
     print(f"{args.source}: {len(units)} unit(s) to annotate from {input_root}")
+    removed = remove_partial_files(output, args.source)
+    if removed:
+        print(f"removed {removed} partial file(s) an interrupted run left in {output}")
     started = time.monotonic()
-    annotate = module.ANNOTATOR(input_root, config)
+    process_unit = graph.ProcessUnit(
+        module.ANNOTATOR(input_root, config), args.source, output, resume=not args.overwrite
+    )
     with beam.Pipeline(options=options) as p:
-        graph.build(p, units, annotate, output, config, provenance)
+        graph.build(p, units, process_unit, config, provenance)
     summary = json.loads(read_bytes(f"{output}/run_{args.source}.json"))["summary"]
     print_summary(summary, output, args.source)
     print(f"finished in {time.monotonic() - started:.1f} s")

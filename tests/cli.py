@@ -1,4 +1,4 @@
-"""Run ``python -m pipeline.run`` in a subprocess, as a user would."""
+"""Run ``python -m pipeline.run`` in a subprocess, as a user would, and read what it wrote."""
 
 from __future__ import annotations
 
@@ -17,3 +17,13 @@ def run_pipeline(source: str, *args: str) -> subprocess.CompletedProcess:
         text=True,
         timeout=600,
     )
+
+
+def clip_bytes(out: str, source: str) -> dict[str, bytes]:
+    """clip file name -> bytes, for every clip of ``source`` in the output folder ``out``."""
+    folder = os.path.join(out, source)
+    return {
+        name: open(os.path.join(folder, name), "rb").read()
+        for name in sorted(os.listdir(folder))
+        if name.endswith(".npz")
+    }

@@ -6,6 +6,7 @@ import shutil
 
 import pytest
 
+from tests.cli import run_pipeline
 from tests.fixtures.driving_world import DrivingWorld
 from tests.fixtures.dynamic3dgs_files import write_sequence
 from tests.fixtures.waymo_world import write_split
@@ -38,3 +39,21 @@ def pstudio_sample(tmp_path_factory):
     root = tmp_path_factory.mktemp("pstudio") / "root"
     studio = write_sequence(str(root))
     return str(root), studio
+
+
+@pytest.fixture(scope="session")
+def reference_run(tmp_path_factory, sample_split, pstudio_sample):
+    """``reference_run(source)``: the output folder of one plain DirectRunner run on that source's
+    sample (drivetrack or pstudio), made on first use and shared by the tests that compare bytes."""
+    inputs = {"drivetrack": sample_split[0], "pstudio": pstudio_sample[0]}
+    made: dict[str, str] = {}
+
+    def run(source: str) -> str:
+        if source not in made:
+            out = str(tmp_path_factory.mktemp(f"reference_{source}"))
+            result = run_pipeline(source, "--input", inputs[source], "--output", out)
+            assert result.returncode == 0, result.stderr[-3000:]
+            made[source] = out
+        return made[source]
+
+    return run

@@ -7,15 +7,20 @@ Everything projectaria-tools returns is checked here and turned into NumPy; a pr
 Files of a sequence folder (SOURCES.md section 4): ``video.vrs`` (RGB stream 214-1),
 ``depth_images[_with_skeleton].vrs``, ``segmentations[_with_skeleton].vrs``,
 ``aria_trajectory.csv``, ``scene_objects.csv``, ``3d_bounding_box.csv``, ``instances.json``,
-``metadata.json``.
+``metadata.json``. They are checked before projectaria-tools opens them (``check_file``): it
+silently drops the records past the end of a truncated VRS file, reads an aria_trajectory.csv
+holding text or NaN as an empty trajectory and passes NaN poses on.
 """
 
 from __future__ import annotations
 
 import contextlib
+import csv
+import functools
 import json
 import os
 import re
+import struct
 
 import numpy as np
 
@@ -25,6 +30,22 @@ RGB_STREAM = "214-1"
 RGB_LABEL = "camera-rgb"
 # Files whose presence makes a folder an ADT sequence (any one of them).
 SEQUENCE_MARKERS = ("metadata.json", "video.vrs", "scene_objects.csv", "aria_trajectory.csv")
+# Ground-truth CSVs: the columns naming a row in messages, the translation and the quaternion
+# (w, x, y, z) of its pose. Every column but graph_uid must hold finite numbers.
+CSV_COLUMNS = {
+    "aria_trajectory.csv": (
+        ("tracking_timestamp_us",),
+        ("tx_world_device", "ty_world_device", "tz_world_device"),
+        ("qw_world_device", "qx_world_device", "qy_world_device", "qz_world_device"),
+    ),
+    "scene_objects.csv": (
+        ("object_uid", "timestamp[ns]"),
+        ("t_wo_x[m]", "t_wo_y[m]", "t_wo_z[m]"),
+        ("q_wo_w", "q_wo_x", "q_wo_y", "q_wo_z"),
+    ),
+    "3d_bounding_box.csv": (("object_uid", "timestamp[ns]"), (), ()),
+}
+TEXT_COLUMNS = ("graph_uid",)
 
 
 def required_files(with_skeleton: bool) -> tuple[str, ...]:
@@ -112,6 +133,115 @@ def quiet_native_output():
         os.close(devnull)
 
 
+def check_vrs(path: str) -> None:
+    """A VRS file must start with the VRS header and its records, each with a 32-byte header
+    giving its size and the previous record's, must chain to the exact end of the file."""
+    name, size = os.path.basename(path), os.path.getsize(path)
+    with open(path, "rb") as handle:
+        header = handle.read(80)
+        if len(header) < 80 or header[:8] != b"VisionRe" or header[72:76] != b"cord":
+            raise InputError(f"{name} is not a VRS file (no VRS file header in its first 80 bytes)")
+        record_header_size, _, description, first_record = struct.unpack_from("<Iqqq", header, 20)
+        offset, previous = first_record or description, None
+        if offset >= size:
+            raise InputError(f"{name} is truncated: its records start at byte {offset}, it has {size} bytes")
+        while offset < size:
+            handle.seek(offset)
+            fields = handle.read(8)
+            if len(fields) < 8:
+                raise InputError(f"{name} is truncated: it ends inside the record header at byte {offset}")
+            record_size, previous_size = struct.unpack("<II", fields)
+            if record_size < record_header_size or previous not in (None, previous_size):
+                raise InputError(f"{name} is corrupt: the record header at byte {offset} is not valid")
+            if offset + record_size > size:
+                raise InputError(
+                    f"{name} is truncated or corrupt: the record at byte {offset} takes {record_size} bytes, "
+                    f"the file ends {size - offset} bytes later"
+                )
+            offset, previous = offset + record_size, record_size
+
+
+def check_csv(path: str) -> None:
+    """A ground-truth CSV (``CSV_COLUMNS``) must have its columns, rows, finite numbers and unit
+    quaternions (any other is no rotation)."""
+    name = os.path.basename(path)
+    label, translation, quaternion = CSV_COLUMNS[name]
+    with open(path, newline="") as handle:
+        rows = list(csv.reader(handle))
+    header = rows[0] if rows else []
+    missing = [column for column in (*label, *translation, *quaternion) if column not in header]
+    if missing:
+        raise InputError(f"{name} has no column {', '.join(missing)}")
+    if len(rows) < 2:
+        raise InputError(f"{name} has no row below its header")
+    numeric = [i for i, column in enumerate(header) if column not in TEXT_COLUMNS]
+
+    def where(line: int) -> str:
+        row = rows[line - 1]
+        return f"{name} line {line} ({', '.join(f'{c}={row[header.index(c)]}' for c in label)})"
+
+    values = np.empty((len(rows) - 1, len(numeric)))
+    for line, row in enumerate(rows[1:], start=2):
+        if len(row) != len(header):
+            raise InputError(f"{name} line {line} has {len(row)} fields, the header {len(header)}")
+        try:
+            values[line - 2] = [float(row[i]) for i in numeric]
+        except ValueError:
+            i = next(i for i in numeric if not _is_number(row[i]))
+            raise InputError(f"{where(line)}: {header[i]} is {row[i]!r}, not a number") from None
+    bad = np.argwhere(~np.isfinite(values))
+    if len(bad):
+        line, i = int(bad[0, 0]) + 2, numeric[bad[0, 1]]
+        raise InputError(f"{where(line)}: {header[i]} is {rows[line - 1][i]!r}, not a finite number")
+    if quaternion:
+        norms = np.linalg.norm(values[:, [numeric.index(header.index(c)) for c in quaternion]], axis=1)
+        off = np.flatnonzero(np.abs(norms - 1) > 1e-3)
+        if len(off):
+            raise InputError(
+                f"{where(int(off[0]) + 2)}: the quaternion ({', '.join(quaternion)}) has norm "
+                f"{norms[off[0]]:.3g}, not 1: not a rotation"
+            )
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def check_json(path: str) -> None:
+    """A JSON file of the sequence must hold a non-empty JSON object."""
+    name = os.path.basename(path)
+    try:
+        with open(path, "rb") as handle:
+            value = json.load(handle)
+    except ValueError as error:
+        raise InputError(f"{name} is not valid JSON ({error})") from None
+    if not isinstance(value, dict) or not value:
+        raise InputError(f"{name} holds no JSON object with entries")
+
+
+@functools.lru_cache(maxsize=256)
+def _check_file_version(path: str, size: int, mtime_ns: int) -> None:
+    """``size`` and ``mtime_ns`` only key the cache: a changed file is checked again."""
+    name = os.path.basename(path)
+    if name.endswith(".vrs"):
+        check_vrs(path)
+    elif name.endswith(".json"):
+        check_json(path)
+    elif name in CSV_COLUMNS:
+        check_csv(path)
+
+
+def check_file(path: str) -> None:
+    """Check a VRS, JSON or ground-truth CSV file before projectaria-tools reads it (each version
+    of a file once per process)."""
+    stat = os.stat(path)
+    _check_file_version(path, stat.st_size, stat.st_mtime_ns)
+
+
 def _se3(transform) -> np.ndarray:
     return np.asarray(transform.to_matrix(), dtype=np.float64)
 
@@ -131,9 +261,17 @@ class SequenceReader:
         self.name = os.path.basename(self.folder)
         self.with_skeleton = with_skeleton
         self.max_offset_ns = int(max_offset_ns)
-        missing = [f for f in required_files(with_skeleton) if not os.path.isfile(os.path.join(folder, f))]
+        files = required_files(with_skeleton)
+        missing = [f for f in files if not os.path.isfile(os.path.join(folder, f))]
         if missing:
             raise InputError(f"{self.name}: missing {', '.join(missing)}")
+        try:
+            for file in files:
+                check_file(os.path.join(self.folder, file))
+        except OSError as error:
+            raise InputError(f"{self.name}: cannot read {error.filename} ({error.strerror})") from error
+        except InputError as error:
+            raise InputError(f"{self.name}: {error}") from error
         from projectaria_tools.core.stream_id import StreamId
         from projectaria_tools.projects import adt
 
@@ -153,8 +291,10 @@ class SequenceReader:
             raise InputError(f"{self.name}: projectaria-tools cannot open the sequence ({error})") from error
         if not self.provider.has_aria_data():
             raise InputError(f"{self.name}: video.vrs has no Aria data")
-        if not self.provider.has_depth_images() or not self.provider.has_segmentation_images():
-            raise InputError(f"{self.name}: no depth or segmentation images")
+        if not self.provider.has_depth_images():
+            raise InputError(f"{self.name}: {files[1]} has no depth images")
+        if not self.provider.has_segmentation_images():
+            raise InputError(f"{self.name}: {files[2]} has no segmentation images")
         calibration = self.provider.get_aria_camera_calibration(self.stream)
         if calibration is None:
             raise InputError(f"{self.name}: video.vrs has no {RGB_LABEL} calibration (stream {RGB_STREAM})")

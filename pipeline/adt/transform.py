@@ -19,7 +19,7 @@ from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
 from pipeline.core.errors import InputError
 from pipeline.core.given_queries import given_queries
-from pipeline.graph import AnnotateDoFn, progress
+from pipeline.graph import Annotator, progress
 
 JPEG_QUALITY = 95
 SHARED_EXCERPT = "../shared/data/adt_sample/aria_digital_twin_test_data"
@@ -142,7 +142,7 @@ def annotate_unit(sequence: str, chunk: int, config: RunConfig) -> list[ClipReco
         raise _named(error, sequence, name) from error
 
 
-class AnnotateAdt(AnnotateDoFn):
+class AnnotateAdt(Annotator):
     """(sequence, chunk) -> one candidate clip."""
 
     unit_name = staticmethod(unit_name)

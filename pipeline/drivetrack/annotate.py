@@ -89,27 +89,41 @@ def camera_from_world(frames: CameraFrames, calibration: CameraCalibration) -> n
 
 
 def frame_poses(unit: UnitInput) -> np.ndarray:
-    """world_from_vehicle at each camera frame's frame time [T, 4, 4], checked."""
+    """world_from_vehicle at each camera frame's frame time [T, 4, 4], checked; the camera must
+    have an image at every frame of the segment (every vehicle_pose timestamp)."""
+    segment, camera = unit.segment, unit.camera
     poses = []
     for index, timestamp in enumerate(unit.frames.timestamps.tolist()):
         pose = unit.world_from_vehicle.get(timestamp)
         if pose is None:
-            raise InputError(f"vehicle_pose/{unit.segment}: no pose for frame {timestamp}")
+            raise InputError(
+                f"camera_image/{segment} camera {camera} frame {timestamp}: "
+                "no vehicle_pose row at this timestamp"
+            )
         for what, matrix in (
-            ("vehicle_pose world_from_vehicle", pose),
-            (f"camera_image camera {unit.camera} pose", unit.frames.world_from_vehicle_at_exposure[index]),
+            (f"vehicle_pose/{segment} frame {timestamp}: world_from_vehicle", pose),
+            (
+                f"camera_image/{segment} camera {camera} frame {timestamp}: pose.transform",
+                unit.frames.world_from_vehicle_at_exposure[index],
+            ),
         ):
             problem = rigid_transform_problem(matrix)
             if problem:
-                raise InputError(f"{what}/{unit.segment} frame {timestamp}: {problem}")
+                raise InputError(f"{what} {problem}")
         poses.append(pose)
+    missing = sorted(set(unit.world_from_vehicle) - set(unit.frames.timestamps.tolist()))
+    if missing:
+        raise InputError(
+            f"camera_image/{segment} camera {camera}: no image for frame {missing[0]} "
+            f"({len(missing)} of {len(unit.world_from_vehicle)} frames)"
+        )
     for what, matrix in (
-        (f"camera_calibration camera {unit.camera} extrinsic", unit.calibration.camera_to_vehicle),
-        ("lidar_calibration TOP extrinsic", unit.lidar_calibration.lidar_to_vehicle),
+        (f"camera_calibration/{segment} camera {camera}: extrinsic", unit.calibration.camera_to_vehicle),
+        (f"lidar_calibration/{segment} TOP: extrinsic", unit.lidar_calibration.lidar_to_vehicle),
     ):
         problem = rigid_transform_problem(matrix)
         if problem:
-            raise InputError(f"{what}/{unit.segment}: {problem}")
+            raise InputError(f"{what} {problem}")
     return np.stack(poses)
 
 
@@ -143,8 +157,16 @@ def select_objects(
         assigned = min(votes, key=lambda cam: (-votes[cam], cam))
         if assigned != unit.camera:
             continue
-        if not np.isfinite(boxes.synced_boxes[rows]).all() or not np.isfinite(boxes.lidar_boxes[rows]).all():
-            raise InputError(f"lidar_box/{unit.segment} object {object_id}: NaN in a box")
+        for component, values in (
+            ("lidar_box", boxes.lidar_boxes),
+            ("lidar_camera_synced_box", boxes.synced_boxes),
+        ):
+            bad = ~np.isfinite(values[rows]).all(axis=1)
+            if bad.any():
+                raise InputError(
+                    f"{component}/{unit.segment} object {object_id} frame {boxes.timestamps[rows][bad][0]}: "
+                    "NaN or infinity in the box"
+                )
         num_frames = len(unit.frames.timestamps)
         synced = np.full((num_frames, 7), np.nan)
         lidar = np.full((num_frames, 7), np.nan)

@@ -9,15 +9,16 @@ from pipeline.core.geometry import rotation_from_roll_pitch_yaw
 from pipeline.drivetrack.reader import LidarCalibration
 
 
-def beam_inclinations(calibration: LidarCalibration, height: int) -> np.ndarray:
+def beam_inclinations(calibration: LidarCalibration, height: int, what: str = "lidar") -> np.ndarray:
     """Inclination per range-image row [H] in radians, row 0 the highest beam.
 
     Uses the stored per-beam values when present, else a uniform spread between min and max.
+    ``what`` names the range image in errors.
     """
     if calibration.inclinations is not None:
         if calibration.inclinations.shape != (height,):
             raise InputError(
-                f"lidar_calibration: {calibration.inclinations.size} beam inclinations "
+                f"{what}: lidar_calibration holds {calibration.inclinations.size} beam inclinations "
                 f"for a range image of {height} rows"
             )
         inclinations = calibration.inclinations
@@ -81,8 +82,10 @@ def top_lidar_world_points(
         raise InputError(
             f"{what}: lidar_pose shape {pixel_pose.shape[:2]} != range image {range_image.shape}"
         )
-    inclinations = beam_inclinations(calibration, range_image.shape[0])
+    inclinations = beam_inclinations(calibration, range_image.shape[0], what)
     points, kept = range_image_to_vehicle(range_image, calibration.lidar_to_vehicle, inclinations)
+    if not kept.any():
+        raise InputError(f"{what}: no returns (every range <= 0)")
     poses = pixel_pose[kept].astype(np.float64)
     if not np.isfinite(poses).all():
         raise InputError(f"{what}: per-pixel lidar pose contains NaN or infinity")

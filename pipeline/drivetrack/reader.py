@@ -126,6 +126,12 @@ class SegmentReader:
     def _path(self, component: str) -> str:
         return FileSystems.join(self.root, component, f"{self.segment}.parquet")
 
+    def check_components(self) -> None:
+        """Raise InputError naming the first of the segment's component files that is absent."""
+        for component in C.COMPONENTS:
+            if not FileSystems.exists(self._path(component)):
+                raise InputError(f"missing component file {component}/{self.segment}.parquet")
+
     def read(self, component: str, columns: list[str], filters=None) -> pa.Table:
         """Columns of one component file, optionally filtered; clear errors for bad files."""
         path = self._path(component)
@@ -210,6 +216,12 @@ class SegmentReader:
             C.LIDAR_CAMERA_SYNCED_BOX,
             [C.TIMESTAMP, C.OBJECT_ID, C.MOST_VISIBLE_CAMERA, *C.SYNCED_BOX_FIELDS],
         )
+        for component, table in ((C.LIDAR_BOX, boxes), (C.LIDAR_CAMERA_SYNCED_BOX, synced)):
+            if table.num_rows == 0:
+                raise InputError(
+                    f"{component}/{self.segment}.parquet: no 3D boxes (0 rows); DriveTrack needs a "
+                    "labelled segment (training or validation split)"
+                )
         synced_what = f"lidar_camera_synced_box/{self.segment}"
         synced_rows = {
             key: row

@@ -6,7 +6,7 @@ from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
 from pipeline.drivetrack.annotate import UnitInput, annotate_unit
 from pipeline.drivetrack.reader import SegmentReader, list_segments
-from pipeline.graph import AnnotateDoFn
+from pipeline.graph import Annotator
 
 
 def list_units(input_root: str, config: RunConfig) -> list[tuple[str, int]]:
@@ -17,6 +17,7 @@ def list_units(input_root: str, config: RunConfig) -> list[tuple[str, int]]:
 def load_unit(input_root: str, segment: str, camera: int) -> UnitInput:
     """Read what one unit needs; the TOP lidar is read once, when annotate asks for it."""
     reader = SegmentReader(input_root, segment)
+    reader.check_components()
     return UnitInput(
         segment=segment,
         camera=camera,
@@ -33,7 +34,7 @@ def unit_name(unit: tuple[str, int]) -> str:
     return f"{unit[0]}/camera_{unit[1]}"
 
 
-class AnnotateDriveTrack(AnnotateDoFn):
+class AnnotateDriveTrack(Annotator):
     """(segment, camera) -> one candidate clip per vehicle assigned to that camera."""
 
     unit_name = staticmethod(unit_name)

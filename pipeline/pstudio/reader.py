@@ -86,28 +86,49 @@ def read_views(input_root: str, sequence: str) -> tuple[Views, dict]:
         w2c = np.asarray(meta["w2c"], dtype=np.float64)
         camera_ids = np.asarray(meta["cam_id"], dtype=np.int64)
         names = meta["fn"]
+        frames = len(names)
     except InputError:
         raise
     except (KeyError, ValueError, TypeError) as error:
         raise InputError(
             f"{path}: not a Dynamic 3D Gaussians train_meta.json ({type(error).__name__}: {error})"
         ) from error
-    frames = len(names)
+    cameras = camera_ids.shape[1] if camera_ids.ndim == 2 else -1
     if (
-        k.shape[:1] != (frames,)
-        or k.shape[2:] != (3, 3)
-        or w2c.shape[2:] != (4, 4)
-        or camera_ids.shape[0] != frames
+        k.shape != (frames, cameras, 3, 3)
+        or w2c.shape != (frames, cameras, 4, 4)
+        or camera_ids.shape != (frames, cameras)
+        or any(not isinstance(row, list) or len(row) != cameras for row in names)
     ):
         raise InputError(
             f"{path}: k, w2c, fn and cam_id disagree in shape ({k.shape}, {w2c.shape}, {camera_ids.shape})"
         )
-    if not (np.isfinite(k).all() and np.isfinite(w2c).all()):
-        raise InputError(f"{path}: k or w2c holds non-finite values")
+    for row in names:
+        for name in row:
+            if not isinstance(name, str) or name.startswith("/") or "\\" in name or ".." in name.split("/"):
+                raise InputError(f"{path}: fn entry {name!r} is not a file inside the sequence's ims/ folder")
+    for key, matrices in (("k", k), ("w2c", w2c)):
+        finite = np.isfinite(matrices).all(axis=(0, 2, 3))
+        if not finite.all():
+            raise InputError(f"{path}: {key} of camera {camera_ids[0][~finite][0]} holds non-finite values")
     if (camera_ids != camera_ids[0]).any():
         raise InputError(f"{path}: the camera list changes between frames")
     if np.abs(k - k[0]).max() > 1e-6 or np.abs(w2c - w2c[0]).max() > 1e-6:
         raise InputError(f"{path}: cameras move between frames; Panoptic Studio clips assume static cameras")
+    rotations = w2c[0, :, :3, :3]
+    rigid = (
+        (np.abs(rotations @ rotations.transpose(0, 2, 1) - np.eye(3)).max(axis=(1, 2)) < 1e-3)
+        & (np.linalg.det(rotations) > 0)
+        & (np.abs(w2c[0, :, 3] - [0, 0, 0, 1]).max(axis=1) < 1e-6)
+    )
+    if not rigid.all():
+        raise InputError(
+            f"{path}: w2c of camera {camera_ids[0][~rigid][0]} is not a rigid transform "
+            "(rotation not orthonormal, or last row not 0 0 0 1)"
+        )
+    focal = (k[0, :, 0, 0] > 0) & (k[0, :, 1, 1] > 0)
+    if not focal.all():
+        raise InputError(f"{path}: k of camera {camera_ids[0][~focal][0]} has a non-positive focal length")
     intrinsics = np.stack([k[0, :, 0, 0], k[0, :, 1, 1], k[0, :, 0, 2], k[0, :, 1, 2]], axis=1)
     return Views(camera_ids[0], intrinsics, w2c[0], width, height), meta
 
@@ -117,6 +138,8 @@ def read_gaussians(path: str, frames: int) -> Gaussians:
     try:
         with FileSystems.open(path, compression_type=CompressionTypes.UNCOMPRESSED) as handle:
             archive = np.load(handle, allow_pickle=False)
+            if not isinstance(archive, np.lib.npyio.NpzFile):
+                raise InputError(f"{path}: a single .npy array, not an npz archive")
             arrays = {}
             for name in PARAMS_SHAPES:
                 if name not in archive.files:
@@ -130,6 +153,8 @@ def read_gaussians(path: str, frames: int) -> Gaussians:
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as error:
         if not FileSystems.exists(path):
             raise InputError(f"missing file {path}") from error
+        if isinstance(error, (zipfile.BadZipFile, EOFError)):
+            raise InputError(f"{path}: truncated or corrupt npz (zip) archive ({error})") from error
         raise InputError(f"{path}: unreadable npz ({type(error).__name__}: {error})") from error
     count = arrays["means3D"].shape[1] if arrays["means3D"].ndim == 3 else -1
     for name, shape in PARAMS_SHAPES.items():
@@ -139,8 +164,15 @@ def read_gaussians(path: str, frames: int) -> Gaussians:
                 f"{path}: {name} has shape {arrays[name].shape}, expected {expected} "
                 f"(T = {frames} frames in train_meta.json, N = {count} Gaussians in means3D)"
             )
-        if arrays[name].dtype.kind != "f" or not np.isfinite(arrays[name]).all():
-            raise InputError(f"{path}: {name} must hold finite floats")
+        if arrays[name].dtype.kind != "f":
+            raise InputError(f"{path}: {name} has dtype {arrays[name].dtype}, expected floats")
+        bad = np.count_nonzero(~np.isfinite(arrays[name]))
+        if bad:
+            raise InputError(f"{path}: {name} holds {bad} non-finite value(s) (NaN or inf)")
+    if not (arrays["seg_colors"][:, 0] > 0.5).any():
+        raise InputError(
+            f"{path}: no foreground Gaussians ({count} in all; foreground = seg_colors[:, 0] > 0.5)"
+        )
     return Gaussians(
         means=arrays["means3D"],
         quaternions=arrays["unnorm_rotations"],

@@ -5,9 +5,13 @@ from __future__ import annotations
 from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
 from pipeline.core.errors import InputError
-from pipeline.graph import AnnotateDoFn
+from pipeline.graph import Annotator
 from pipeline.pstudio.annotate import UnitInput, annotate_unit
 from pipeline.pstudio.reader import SequenceFiles, list_sequences, params_path, read_gaussians, read_views
+
+# The camera of the one unit listed for a sequence whose train_meta.json cannot be read: that
+# unit fails with the reason, and the other sequences still run.
+ALL_CAMERAS = -1
 
 
 def list_units(input_root: str, config: RunConfig) -> list[tuple[str, int]]:
@@ -17,13 +21,16 @@ def list_units(input_root: str, config: RunConfig) -> list[tuple[str, int]]:
         if config.pstudio.cameras:
             cameras = config.pstudio.cameras
         else:
-            cameras = [int(c) for c in read_views(input_root, sequence)[0].camera_ids]
+            try:
+                cameras = [int(c) for c in read_views(input_root, sequence)[0].camera_ids]
+            except InputError:
+                cameras = [ALL_CAMERAS]
         units += [(sequence, camera) for camera in sorted(cameras)]
     return units
 
 
 def unit_name(unit: tuple[str, int]) -> str:
-    return f"{unit[0]}/camera_{unit[1]}"
+    return f"{unit[0]}/all_cameras" if unit[1] == ALL_CAMERAS else f"{unit[0]}/camera_{unit[1]}"
 
 
 def load_unit(input_root: str, sequence: str, camera: int, config: RunConfig) -> UnitInput:
@@ -41,7 +48,7 @@ def load_unit(input_root: str, sequence: str, camera: int, config: RunConfig) ->
     return UnitInput(sequence, camera, views, gaussians, frames, files.mask)
 
 
-class AnnotatePstudio(AnnotateDoFn):
+class AnnotatePstudio(Annotator):
     """(sequence, camera) -> one candidate clip ``<sequence>_<camera>``."""
 
     unit_name = staticmethod(unit_name)

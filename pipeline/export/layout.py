@@ -1,0 +1,52 @@
+"""Where a run's files go, under one output folder shared by the three sources::
+
+<out>/<source>/<clip>.npz             the clips (released schema)
+<out>/audit/<source>/<clip>.parquet   every candidate track's filter statistics
+<out>/depth/<source>/<clip>.npz       the depth the visibility test read (--export-depth)
+<out>/units/<source>/<unit>.json      a finished unit's record, which lets a rerun skip it
+<out>/manifests/{minival,full_test}.txt
+<out>/run_<source>.json, <out>/failures_<source>.jsonl
+"""
+
+from __future__ import annotations
+
+import hashlib
+import re
+
+from pipeline.core.errors import InputError
+
+# A clip name becomes a file name on every filesystem Beam writes to: letters, digits, '_', '-',
+# '.', '+', not starting with '.' (no hidden files, no '..').
+CLIP_NAME = re.compile(r"[A-Za-z0-9_+-][A-Za-z0-9_.+-]*")
+
+
+def check_clip_name(name: str) -> str:
+    """``name`` when it is a plain file name, else an InputError naming the offending characters."""
+    if not CLIP_NAME.fullmatch(name):
+        bad = sorted({c for c in name if not re.fullmatch(r"[A-Za-z0-9_.+-]", c)})
+        cause = f"characters {bad}" if bad else "a leading '.'" if name else "an empty name"
+        raise InputError(
+            f"clip name {name!r} is not a plain file name ({cause}; path separators are refused): "
+            "rename the input"
+        )
+    return name
+
+
+def clip_path(output: str, source: str, clip: str) -> str:
+    return f"{output}/{source}/{clip}.npz"
+
+
+def audit_path(output: str, source: str, clip: str) -> str:
+    return f"{output}/audit/{source}/{clip}.parquet"
+
+
+def depth_path(output: str, source: str, clip: str) -> str:
+    return f"{output}/depth/{source}/{clip}.npz"
+
+
+def unit_record_path(output: str, source: str, unit: str) -> str:
+    """A unit name may hold '/' (``segment/camera_1``): the file name is a readable slug of it plus a
+    short hash of the whole name, so two units never share a record."""
+    slug = re.sub(r"[^A-Za-z0-9_.+-]+", "_", unit).strip("._")[:80]
+    digest = hashlib.sha256(unit.encode()).hexdigest()[:12]
+    return f"{output}/units/{source}/{slug}-{digest}.json"

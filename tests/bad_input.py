@@ -1,0 +1,48 @@
+"""What every bad-input run must show: each bad unit fails alone with its own clear error, the good
+units finish with valid clips, and no partial file is left behind."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+
+from pipeline.validate import main as validate_main
+
+
+def failures_by_unit(out: str, source: str) -> dict[str, str]:
+    """unit name -> error text, from ``failures_<source>.jsonl`` (one line per unit and stage)."""
+    with open(os.path.join(out, f"failures_{source}.jsonl")) as handle:
+        records = [json.loads(line) for line in handle]
+    errors: dict[str, str] = {}
+    for record in records:
+        errors[record["unit"]] = " | ".join(filter(None, (errors.get(record["unit"]), record["error"])))
+    return errors
+
+
+def partial_files(out: str) -> list[str]:
+    """Leftovers of interrupted writes anywhere under ``out``."""
+    found = (os.path.join(folder, name) for folder, _, names in os.walk(out) for name in names)
+    return sorted(path for path in found if ".partial" in os.path.basename(path))
+
+
+def assert_isolated_failures(
+    result: subprocess.CompletedProcess, out: str, source: str, expected: dict[str, list[str]]
+) -> dict[str, str]:
+    """Check a run over good and bad units.
+
+    ``expected`` maps each bad unit's name to substrings its error must contain (case-sensitive).
+    Every failure must be an InputError (a clear message, not a crash), no unit outside
+    ``expected`` may fail, every written clip must validate, and no partial file may remain.
+    Returns the failures by unit for further checks.
+    """
+    assert result.returncode == 1, result.stderr[-3000:]
+    errors = failures_by_unit(out, source)
+    assert set(errors) == set(expected), f"failed units {sorted(errors)} != expected {sorted(expected)}"
+    for unit, needles in expected.items():
+        assert errors[unit].startswith("InputError"), f"{unit}: {errors[unit]}"
+        for needle in needles:
+            assert needle in errors[unit], f"{unit}: {needle!r} not in {errors[unit]!r}"
+    assert partial_files(out) == []
+    assert validate_main([out]) == 0
+    return errors
