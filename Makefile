@@ -36,6 +36,4 @@ test: setup
 	$(PY) -m pytest -q
 
 bench: setup
-	$(PY) -m pipeline.bench drivetrack
-	$(PY) -m pipeline.bench pstudio
-	$(PY) -m pipeline.bench adt
+	$(PY) -m pipeline.bench all

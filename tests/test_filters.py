@@ -5,7 +5,7 @@ import numpy as np
 from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig, with_overrides
 from pipeline.filters.flicker import passes_flicker, visibility_flips
-from pipeline.filters.mask import agreement, on_mask, silhouette_mask
+from pipeline.filters.mask import adaptive_closing_px, agreement, on_mask, silhouette_mask
 from pipeline.filters.select import apply_filters
 
 
@@ -36,6 +36,38 @@ def test_silhouette_closes_scan_line_gaps():
     assert mask[42:59, 32:68].all()
     assert not mask[:30].any() and not mask[:, 85:].any()
     assert on_mask(mask, np.array([[50.5, 50.5], [5.0, 5.0], [-3.0, 50.0]])).tolist() == [True, False, False]
+
+
+def test_silhouette_equals_closing_the_whole_image():
+    # Scan-line clusters at image corners and edges, and in the middle; the mask is computed on
+    # the points' bounding box only, and must equal closing and growing the whole image.
+    import cv2
+
+    rng = np.random.default_rng(3)
+    width, height = 320, 200
+    for centre, closing in (((5, 5), 9), ((315, 100), 0), ((160, 195), 7), ((100, 80), 0)):
+        cols, rows = np.meshgrid(np.arange(-20.0, 21.0, 1.0), np.arange(-12.0, 13.0, 3.0))
+        points = np.stack([cols.ravel() + centre[0], rows.ravel() + centre[1]], 1)
+        points += rng.uniform(-0.4, 0.4, points.shape)
+        mask = silhouette_mask(points, width, height, closing_px=closing)
+        whole = np.zeros((height, width), np.uint8)
+        pixels = np.floor(points).astype(int)
+        pixels = pixels[
+            (pixels[:, 0] >= 0) & (pixels[:, 0] < width) & (pixels[:, 1] >= 0) & (pixels[:, 1] < height)
+        ]
+        whole[pixels[:, 1], pixels[:, 0]] = 1
+        size = closing or mask_kernel_size(points, width, height)
+        closed = cv2.morphologyEx(
+            whole, cv2.MORPH_CLOSE, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+        )
+        grow = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size // 2 | 1, size // 2 | 1))
+        np.testing.assert_array_equal(mask, cv2.dilate(closed, grow).astype(bool))
+        assert mask.sum() > len(pixels)
+
+
+def mask_kernel_size(points, width, height):
+    inside = (points[:, 0] >= 0) & (points[:, 0] < width) & (points[:, 1] >= 0) & (points[:, 1] < height)
+    return adaptive_closing_px(points[inside])
 
 
 def _clip(visibility, mask_agreement, target):

@@ -19,6 +19,9 @@ from apache_beam.io.filesystems import FileSystems
 from pipeline.core.errors import InputError
 from pipeline.drivetrack import columns as C
 
+# Rows decoded at a time: a TOP lidar row is a few MB of range image, a camera row one JPEG.
+BATCH_ROWS = 8
+
 
 @dataclasses.dataclass(frozen=True)
 class CameraCalibration:
@@ -132,27 +135,34 @@ class SegmentReader:
             if not FileSystems.exists(self._path(component)):
                 raise InputError(f"missing component file {component}/{self.segment}.parquet")
 
-    def read(self, component: str, columns: list[str], filters=None) -> pa.Table:
-        """Columns of one component file, optionally filtered; clear errors for bad files."""
+    def batches(self, component: str, columns: list[str]) -> Iterator[pa.RecordBatch]:
+        """Columns of one component file, ``BATCH_ROWS`` rows at a time (a segment's lidar files
+        decode to several GiB; only the rows a unit keeps are ever held); clear errors for bad files."""
         path = self._path(component)
         label = f"{component}/{self.segment}.parquet"
         if not FileSystems.exists(path):
             raise InputError(f"missing component file {label}")
         try:
             with FileSystems.open(path, compression_type=CompressionTypes.UNCOMPRESSED) as handle:
-                parquet = pq.ParquetFile(handle)
+                parquet = pq.ParquetFile(handle, pre_buffer=False)
                 present = set(parquet.schema_arrow.names)
                 missing = [name for name in columns if name not in present]
                 if missing:
                     raise InputError(f"{label}: missing column(s) {missing}")
-                table = parquet.read(columns=columns)
+                yield from parquet.iter_batches(batch_size=BATCH_ROWS, columns=columns)
         except InputError:
             raise
         except (pa.ArrowException, OSError, ValueError) as error:
             raise InputError(f"{label}: unreadable Parquet ({error})") from error
+
+    def read(self, component: str, columns: list[str], filters=None) -> pa.Table:
+        """The rows of one component file that pass ``filters`` (a pyarrow expression), as a table."""
+        parts = [pa.Table.from_batches([batch]) for batch in self.batches(component, columns)]
         if filters is not None:
-            table = table.filter(filters)
-        return table
+            parts = [part.filter(filters) for part in parts]
+        if not parts:
+            return pa.table({name: pa.array([]) for name in columns})
+        return pa.concat_tables(parts).combine_chunks()
 
     def camera_calibration(self, camera: int) -> CameraCalibration:
         names = [C.CAMERA_NAME, *C.CAM_INTRINSICS, *C.CAM_DISTORTION, C.CAM_EXTRINSIC]
@@ -254,37 +264,51 @@ class SegmentReader:
         )
 
     def top_lidar_frames(self, timestamps: list[int]) -> Iterator[LidarFrame]:
-        """TOP lidar first-return range images with per-pixel poses and camera projections."""
-        wanted = pc.field(C.LASER_NAME) == C.TOP_LASER
-        key = [C.TIMESTAMP, C.LASER_NAME]
-        tables = {
-            C.LIDAR: self.read(C.LIDAR, key + [C.LIDAR_RANGE_VALUES, C.LIDAR_RANGE_SHAPE], wanted),
-            C.LIDAR_POSE: self.read(C.LIDAR_POSE, key + [C.LIDAR_POSE_VALUES, C.LIDAR_POSE_SHAPE], wanted),
-            C.LIDAR_CAMERA_PROJECTION: self.read(
-                C.LIDAR_CAMERA_PROJECTION, key + [C.PROJECTION_VALUES, C.PROJECTION_SHAPE], wanted
-            ),
-        }
-        rows = {
-            name: {ts: i for i, ts in enumerate(table.column(C.TIMESTAMP).to_pylist())}
-            for name, table in tables.items()
-        }
-        for timestamp in timestamps:
-            arrays = []
+        """TOP lidar first-return range images with per-pixel poses and camera projections, in the
+        order of ``timestamps``. The three files are streamed side by side and each frame is handed
+        on as soon as its three parts are read, so memory holds a few frames, not the segment
+        (rows out of time order are buffered until asked for)."""
+        parts = {
+            name: self._top_images(name, values, shape, channels, timestamps)
             for name, values, shape, channels in (
                 (C.LIDAR, C.LIDAR_RANGE_VALUES, C.LIDAR_RANGE_SHAPE, 4),
                 (C.LIDAR_POSE, C.LIDAR_POSE_VALUES, C.LIDAR_POSE_SHAPE, 6),
                 (C.LIDAR_CAMERA_PROJECTION, C.PROJECTION_VALUES, C.PROJECTION_SHAPE, 6),
-            ):
-                what = f"{name}/{self.segment} TOP frame {timestamp}"
-                row = rows[name].get(timestamp)
-                if row is None:
-                    raise InputError(f"{what}: no row for this frame")
-                arrays.append(_range_image(tables[name], row, values, shape, channels, what))
-            yield LidarFrame(timestamp, arrays[0][..., 0], arrays[1], arrays[2])
+            )
+        }
+        pending: dict[str, dict[int, np.ndarray]] = {name: {} for name in parts}
+        for timestamp in timestamps:
+            arrays = []
+            for name, stream in parts.items():
+                buffer = pending[name]
+                while timestamp not in buffer:
+                    row = next(stream, None)
+                    if row is None:
+                        what = f"{name}/{self.segment} TOP frame {timestamp}"
+                        raise InputError(f"{what}: no row for this frame")
+                    buffer[row[0]] = row[1]
+                arrays.append(buffer.pop(timestamp))
+            yield LidarFrame(timestamp, arrays[0][..., 0].copy(), arrays[1], arrays[2])
 
+    def _top_images(
+        self, component: str, values: str, shape: str, channels: int, timestamps: list[int]
+    ) -> Iterator[tuple[int, np.ndarray]]:
+        """(timestamp, range image [H, W, channels]) of each TOP row at one of ``timestamps``."""
+        wanted = pa.array(sorted(set(timestamps)), pa.int64())
+        columns = [C.TIMESTAMP, C.LASER_NAME, values, shape]
+        for batch in self.batches(component, columns):
+            keep = pc.and_(
+                pc.equal(batch.column(C.LASER_NAME), C.TOP_LASER),
+                pc.is_in(batch.column(C.TIMESTAMP), value_set=wanted),
+            )
+            rows = batch.filter(keep)
+            for row, timestamp in enumerate(rows.column(C.TIMESTAMP).to_pylist()):
+                what = f"{component}/{self.segment} TOP frame {timestamp}"
+                image = _range_image(rows, row, values, shape, channels, what)
+                yield timestamp, image.copy()  # a copy: the batch's buffers are let go
 
 def _range_image(
-    table: pa.Table, row: int, values_name: str, shape_name: str, channels: int, what: str
+    table: pa.Table | pa.RecordBatch, row: int, values_name: str, shape_name: str, channels: int, what: str
 ) -> np.ndarray:
     shape_cell = table.column(shape_name)[row]
     values_cell = table.column(values_name)[row]

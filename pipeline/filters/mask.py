@@ -36,12 +36,19 @@ def silhouette_mask(points_uv: np.ndarray, width: int, height: int, closing_px: 
     inside &= pixels[:, 1] < height
     if not inside.any():
         return mask.astype(bool)
-    mask[pixels[inside, 1], pixels[inside, 0]] = 1
+    xs, ys = pixels[inside, 0], pixels[inside, 1]
+    mask[ys, xs] = 1
     size = closing_px or adaptive_closing_px(points_uv[inside])
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
-    mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, kernel)
     grow = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size // 2 | 1, size // 2 | 1))
-    return cv2.dilate(mask, grow).astype(bool)
+    # Only the points' bounding box, padded beyond the reach of both kernels, can change: working
+    # on it alone gives the same mask as the whole image (a vehicle is a small part of a frame).
+    pad = 2 * size
+    x0, x1 = max(xs.min() - pad, 0), min(xs.max() + pad + 1, width)
+    y0, y1 = max(ys.min() - pad, 0), min(ys.max() + pad + 1, height)
+    box = mask[y0:y1, x0:x1]
+    mask[y0:y1, x0:x1] = cv2.dilate(cv2.morphologyEx(box, cv2.MORPH_CLOSE, kernel), grow)
+    return mask.astype(bool)
 
 
 def on_mask(mask: np.ndarray, track_uv: np.ndarray) -> np.ndarray:

@@ -42,54 +42,66 @@ def _quaternion_z(normals: np.ndarray, yaw: float = 0.0) -> np.ndarray:
     )
 
 
-def synthetic_scene(seed: int = 0) -> tuple[Gaussians, Views]:
-    """The 300,000-Gaussian scene: means [150, N, 3] and quaternions as float32, like params.npz."""
+def synthetic_scene(
+    seed: int = 0,
+    frames: int = FRAMES,
+    per_person: int = PER_PERSON,
+    floor_count: int = FLOOR,
+    wall_count: int = WALL,
+    cameras: int = CAMERAS,
+) -> tuple[Gaussians, Views]:
+    """The 300,000-Gaussian scene: means [150, N, 3] and quaternions as float32, like params.npz.
+
+    The sizes are parameters (the defaults give that scene); with more than 4 cameras they
+    stand at three heights around the dome, like Panoptic Studio's (27 training cameras)."""
     rng = np.random.default_rng(seed)
     axes = np.array([0.22, 0.16, 0.85])
-    unit = _sphere(PER_PERSON, rng)
+    unit = _sphere(per_person, rng)
     local, local_normals = unit * axes, unit / axes
     local_normals /= np.linalg.norm(local_normals, axis=1, keepdims=True)
-    floor = np.concatenate([rng.uniform(-4, 4, (FLOOR, 2)), np.zeros((FLOOR, 1))], axis=1)
-    angle = rng.uniform(0, 2 * np.pi, WALL)
-    wall = np.stack([4.5 * np.cos(angle), 4.5 * np.sin(angle), rng.uniform(0, 3, WALL)], axis=1)
+    floor = np.concatenate([rng.uniform(-4, 4, (floor_count, 2)), np.zeros((floor_count, 1))], axis=1)
+    angle = rng.uniform(0, 2 * np.pi, wall_count)
+    wall = np.stack([4.5 * np.cos(angle), 4.5 * np.sin(angle), rng.uniform(0, 3, wall_count)], axis=1)
     wall_normals = -wall * [1, 1, 0] / 4.5
     background = np.concatenate([floor, wall])
     background_q = np.concatenate(
-        [_quaternion_z(np.tile([0.0, 0.0, 1.0], (FLOOR, 1))), _quaternion_z(wall_normals)]
+        [_quaternion_z(np.tile([0.0, 0.0, 1.0], (floor_count, 1))), _quaternion_z(wall_normals)]
     )
-    count = PEOPLE * PER_PERSON + FLOOR + WALL
-    means = np.empty((FRAMES, count, 3), np.float32)
-    quaternions = np.empty((FRAMES, count, 4), np.float32)
-    means[:, PEOPLE * PER_PERSON :] = background
-    quaternions[:, PEOPLE * PER_PERSON :] = background_q
-    for t in range(FRAMES):
+    people = PEOPLE * per_person
+    count = people + floor_count + wall_count
+    means = np.empty((frames, count, 3), np.float32)
+    quaternions = np.empty((frames, count, 4), np.float32)
+    means[:, people:] = background
+    quaternions[:, people:] = background_q
+    for t in range(frames):
         for p in range(PEOPLE):
-            phase = 2 * np.pi * (p / PEOPLE + t / FRAMES / 2)
+            phase = 2 * np.pi * (p / PEOPLE + t / frames / 2)
             yaw = phase + np.pi / 2
             c, s = np.cos(yaw), np.sin(yaw)
             rotation = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
             centre = [1.6 * np.cos(phase), 1.6 * np.sin(phase), 0.9]
-            block = slice(p * PER_PERSON, (p + 1) * PER_PERSON)
+            block = slice(p * per_person, (p + 1) * per_person)
             means[t, block] = local @ rotation.T + centre
             quaternions[t, block] = _quaternion_z(local_normals, yaw)
     scales = np.concatenate(
         [
-            np.tile([0.006, 0.006, 0.001], (PEOPLE * PER_PERSON, 1)),
-            np.tile([0.018, 0.018, 0.002], (FLOOR, 1)),
-            np.tile([0.024, 0.024, 0.002], (WALL, 1)),
+            np.tile([0.006, 0.006, 0.001], (people, 1)),
+            np.tile([0.018, 0.018, 0.002], (floor_count, 1)),
+            np.tile([0.024, 0.024, 0.002], (wall_count, 1)),
         ]
     )
     opacities = np.full(count, 0.9)
-    foreground = np.arange(count) < PEOPLE * PER_PERSON
-    views = _cameras()
+    foreground = np.arange(count) < people
+    views = _cameras(cameras)
     return Gaussians(means, quaternions, scales, opacities, foreground), views
 
 
-def _cameras() -> Views:
+def _cameras(count: int = CAMERAS) -> Views:
     w2c = []
-    for k in range(CAMERAS):
-        a = 2 * np.pi * k / CAMERAS + 0.3
-        eye = np.array([3.8 * np.cos(a), 3.8 * np.sin(a), 1.7])
+    for k in range(count):
+        a = 2 * np.pi * k / count + 0.3
+        height = 1.7 if count <= CAMERAS else (1.7, 1.1, 2.3)[k % 3]
+        eye = np.array([3.8 * np.cos(a), 3.8 * np.sin(a), height])
         forward = -eye * [1, 1, 0] / np.linalg.norm(eye[:2]) + [0, 0, -0.25]
         forward /= np.linalg.norm(forward)
         right = np.cross(forward, [0, 0, 1.0])
@@ -98,8 +110,8 @@ def _cameras() -> Views:
         transform = np.eye(4)
         transform[:3, :3], transform[:3, 3] = rotation, -rotation @ eye
         w2c.append(transform)
-    intrinsics = np.tile([420.0, 420.0, 320.0, 180.0], (CAMERAS, 1))
-    return Views(np.arange(CAMERAS), intrinsics, np.stack(w2c), WIDTH, HEIGHT)
+    intrinsics = np.tile([420.0, 420.0, 320.0, 180.0], (count, 1))
+    return Views(np.arange(count), intrinsics, np.stack(w2c), WIDTH, HEIGHT)
 
 
 def _mask_function(gaussians: Gaussians, views: Views):

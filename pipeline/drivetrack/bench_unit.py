@@ -1,0 +1,123 @@
+"""DriveTrack benchmark unit: one synthetic Waymo Open v2 segment at the real sensors' sizes, written
+in the real Parquet schema by the sample world's writer (``tests/fixtures/waymo_world.py``).
+
+Full size: 199 frames (20 s at 10 Hz); FRONT, FRONT_LEFT and FRONT_RIGHT cameras at 1920x1280
+(focal 2055 px; the scene is ray cast at 480x320, resized up and given film grain so the JPEGs
+weigh about what photographs do; the pipeline only passes them through); TOP lidar range image
+64 x 2650 with per-pixel poses and camera projections; and, as in real ``lidar`` and
+``lidar_camera_projection`` files, the four short-range lidars (FRONT, SIDE_LEFT, SIDE_RIGHT,
+REAR, 200 x 600 each, no returns) in the same files. Real segments also hold SIDE_LEFT and
+SIDE_RIGHT camera images (not written here: about 400 more JPEGs in ``camera_image``).
+
+The street: the ego drives 158 m on a nearly straight road past traffic in both directions
+and parked cars, so the FRONT camera's unit yields several clips (the release's FRONT units
+average 6.3 clips; every unit 3.3).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+
+import numpy as np
+
+from pipeline.bench_units import UnitSetup
+from pipeline.samples import load_fixture_module
+
+SEGMENT = "1000000000000000001_0_000_20_000"
+FULL = {"frames": 199, "width": 1920, "height": 1280, "columns": 2650, "short_range": (200, 600), "scale": 4}
+QUICK = {"frames": 30, "width": 480, "height": 320, "columns": 900, "short_range": (20, 60), "scale": 2}
+FOCAL_AT_1920 = 2055.0
+IMAGE_NOISE = 6.0
+VERSION = "1"
+# TAPVid-3D's 2457 DriveTrack clips come from 250 Waymo segments (542 of their 750
+# (segment, camera) pairs hold a released clip); the pipeline runs every (segment, camera) pair.
+SEGMENTS = 250
+CAMERAS = 3
+
+
+def bench_world():
+    """A street for 20 s: same-direction traffic, oncoming traffic, parked cars, a pedestrian."""
+    driving = load_fixture_module("driving_world")
+    actor = driving.Actor
+    grey = (0.55, 0.55, 0.6)
+    vehicles = [
+        # id (22 characters like Waymo's), start (x, y), heading, speed m/s
+        ("lead_same_lane_AAAAAAA", (20.0, 0.0), 0.0, 8.0),
+        ("left_lane_slower_BBBBB", (14.0, 3.6), 0.0, 7.6),
+        ("right_lane_faster_CCCC", (30.0, -3.6), 0.0, 9.0),
+        ("left_lane_far_DDDDDDDD", (48.0, 3.6), 0.0, 6.5),
+        ("oncoming_first_EEEEEEE", (95.0, 7.4), np.pi, 10.0),
+        ("oncoming_second_FFFFFF", (190.0, 7.2), np.pi, 9.0),
+        ("oncoming_third_GGGGGGG", (255.0, 7.4), np.pi, 8.0),
+        ("parked_right_1_HHHHHHH", (45.0, -7.0), 0.02, 0.0),
+        ("parked_right_2_IIIIIII", (85.0, -7.2), -0.03, 0.0),
+        ("parked_right_3_JJJJJJJ", (125.0, -7.0), 0.0, 0.0),
+        ("parked_left_1_KKKKKKKK", (70.0, 10.5), 0.01, 0.0),
+        ("parked_left_2_LLLLLLLL", (140.0, 10.8), 0.0, 0.0),
+    ]
+    actors = [
+        actor(name, 1, start, heading, speed, tuple(np.roll(grey, i) * (0.6 + 0.04 * i)))
+        for i, (name, start, heading, speed) in enumerate(vehicles)
+    ]
+    actors.append(actor("pedestrian_walker_MMMM", 2, (60.0, -5.5), np.pi / 2, 1.2, (0.9, 0.5, 0.4), True))
+    return driving.DrivingWorld(actors=actors, ego=driving.Ego(speed=8.0, yaw_rate=0.001))
+
+
+def prepare(workdir: str, quick: bool) -> UnitSetup:
+    sizes = QUICK if quick else FULL
+    waymo = load_fixture_module("waymo_world")
+    write_once = load_fixture_module("write_once").write_once
+    focal = FOCAL_AT_1920 * sizes["width"] / 1920
+    models = waymo.camera_models(
+        sizes["width"], sizes["height"], np.array([focal, focal, sizes["width"] / 2, sizes["height"] / 2])
+    )
+    tag = "quick" if quick else "full"
+    folder = os.path.join(workdir, f"segment_{tag}")
+    if not os.path.exists(os.path.join(folder, f".complete-v{VERSION}")):
+        print(f"writing the {tag} segment (once; later runs reuse it) ...", flush=True)
+    started = time.perf_counter()
+    write_once(
+        folder,
+        VERSION,
+        lambda staging: waymo.write_split(
+            staging,
+            SEGMENT,
+            sizes["frames"],
+            bench_world(),
+            models=models,
+            lidar_columns=sizes["columns"],
+            short_range_lidars=sizes["short_range"],
+            render_scale=sizes["scale"],
+            image_noise=IMAGE_NOISE,
+            keep_points=False,
+        ),
+    )
+    written = time.perf_counter() - started
+    jpeg_mib = os.path.getsize(os.path.join(folder, "camera_image", f"{SEGMENT}.parquet")) / 2**20
+    jpeg_kib = jpeg_mib * 1024 / (3 * sizes["frames"])
+    files_mib = (
+        sum(os.path.getsize(os.path.join(root, name)) for root, _, names in os.walk(folder) for name in names)
+        / 2**20
+    )
+    short = "x".join(map(str, sizes["short_range"]))
+    return UnitSetup(
+        source="drivetrack",
+        input_root=folder,
+        units=[[SEGMENT, 1]],
+        overrides=[],
+        frames=sizes["frames"],
+        description=[
+            f"one Waymo v2 segment, {sizes['frames']} frames; cameras FRONT, FRONT_LEFT, FRONT_RIGHT at "
+            f"{sizes['width']}x{sizes['height']} (camera_image file {jpeg_mib:.0f} MiB, {jpeg_kib:.0f} KiB "
+            f"per JPEG); TOP lidar "
+            f"64x{sizes['columns']} + 4 short-range lidars {short} (no returns); {files_mib:.0f} MiB of "
+            f"Parquet" + (f"; written in {written:.0f} s" if written > 1 else ""),
+            "unit = (segment, FRONT camera); the scaling set repeats it (same input, separate outputs)",
+        ],
+        full_units=SEGMENTS * CAMERAS,
+        full_units_note=(
+            f"{SEGMENTS} segments x {CAMERAS} cameras: the release's 2457 clips come from 250 segments; "
+            "each unit priced like this FRONT unit, whose clip count is above the all-unit mean of 3.3"
+        ),
+    )
