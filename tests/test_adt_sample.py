@@ -8,7 +8,6 @@ own re-rendering of depth and ids (built here), and the clip's own frames.
 import csv
 import json
 import os
-import pathlib
 
 import cv2
 import numpy as np
@@ -17,22 +16,13 @@ import pytest
 from pipeline.export.validator import load_clip
 from pipeline.run import main as run_main
 from pipeline.validate import main as validate_main
+from tests.adt_excerpt import SAMPLE, SETTINGS, needs_excerpt
 
-SAMPLE = (
-    pathlib.Path(__file__).resolve().parents[2]
-    / "shared"
-    / "data"
-    / "adt_sample"
-    / "aria_digital_twin_test_data"
-)
-SETTINGS = ["--set", "adt.chunk_frames=2", "--set", "adt.min_frames=2", "--set", "adt.max_gt_offset_ms=40"]
 S, F = 512, 280.0
 # Stored camera from the unrotated pinhole camera: X' = -Y, Y' = X (90 degrees clockwise).
 ROTATION = np.array([[0.0, -1, 0, 0], [1, 0, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
 
-pytestmark = pytest.mark.skipif(
-    not SAMPLE.is_dir(), reason=f"the real ADT excerpt is not at {SAMPLE} (../shared/data beside the repo)"
-)
+pytestmark = needs_excerpt
 
 
 def quaternion_pose(qw, qx, qy, qz, tx, ty, tz):

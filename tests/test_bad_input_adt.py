@@ -36,27 +36,16 @@ import functools
 import os
 import pathlib
 
-import pytest
-
+from tests.adt_excerpt import SAMPLE, SETTINGS, needs_excerpt
 from tests.bad_input import assert_isolated_failures
 from tests.cli import run_pipeline
 
-SAMPLE = (
-    pathlib.Path(__file__).resolve().parents[2]
-    / "shared"
-    / "data"
-    / "adt_sample"
-    / "aria_digital_twin_test_data"
-)
-SETTINGS = ["--set", "adt.chunk_frames=2", "--set", "adt.min_frames=2", "--set", "adt.max_gt_offset_ms=40"]
 VIDEO, DEPTH, IDS = "video.vrs", "depth_images_with_skeleton.vrs", "segmentations_with_skeleton.vrs"
 TRAJECTORY, OBJECTS = "aria_trajectory.csv", "scene_objects.csv"
 TRAJECTORY_Q = ("qw_world_device", "qx_world_device", "qy_world_device", "qz_world_device")
 OBJECTS_Q = ("q_wo_w", "q_wo_x", "q_wo_y", "q_wo_z")
 
-pytestmark = pytest.mark.skipif(
-    not SAMPLE.is_dir(), reason=f"the real ADT excerpt is not at {SAMPLE} (../shared/data beside the repo)"
-)
+pytestmark = needs_excerpt
 
 
 def replaced(name, content):

@@ -31,14 +31,14 @@ import pytest
 from pipeline.core.errors import InputError
 from pipeline.export.layout import check_clip_name
 from pipeline.graph import SOURCES
+from tests.adt_excerpt import SAMPLE as ADT_EXCERPT
+from tests.adt_excerpt import SETTINGS as ADT_SETTINGS
+from tests.adt_excerpt import needs_excerpt
 from tests.bad_input import failures_by_unit, partial_files
 from tests.cli import run_pipeline
 from tests.fixtures.waymo_world import SEGMENT
 
-ADT_SAMPLE = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "data", "adt_sample")
-ADT_SEQUENCE = os.path.join(ADT_SAMPLE, "aria_digital_twin_test_data")
-ADT_ARGS = ("--set", "adt.chunk_frames=2", "--set", "adt.min_frames=2", "--set", "adt.max_gt_offset_ms=40")
-needs_adt = pytest.mark.skipif(not os.path.isdir(ADT_SEQUENCE), reason="the shared ADT excerpt is absent")
+ADT_SEQUENCE = str(ADT_EXCERPT)
 UNSAFE = "is not a plain file name"
 
 
@@ -118,14 +118,14 @@ def test_plain_clip_names_pass():
         assert check_clip_name(name) == name
 
 
-@needs_adt
+@needs_excerpt
 def test_adt_unsafe_sequence_name_fails_its_unit_only(tmp_path):
     folder = tmp_path / "sequences"
     folder.mkdir()
     os.symlink(os.path.abspath(ADT_SEQUENCE), folder / "good")
     os.symlink(os.path.abspath(ADT_SEQUENCE), folder / "seq\\evil")
     out = str(tmp_path / "out")
-    result = run_pipeline("adt", "--input", str(folder), "--output", out, *ADT_ARGS)
+    result = run_pipeline("adt", "--input", str(folder), "--output", out, *ADT_SETTINGS)
     assert result.returncode == 1, result.stderr[-3000:]
     errors = failures_by_unit(out, "adt")
     assert len(errors) == 1
@@ -178,7 +178,7 @@ def test_blocked_clip_folder_pstudio(pstudio_sample, tmp_path):
     assert set(errors) == {"dome/camera_3 (dome_3)", "dome/camera_8 (dome_8)"}
 
 
-@needs_adt
+@needs_excerpt
 def test_blocked_clip_folder_adt(tmp_path):
-    errors = blocked_run("adt", ADT_SEQUENCE, str(tmp_path / "out"), *ADT_ARGS)
+    errors = blocked_run("adt", ADT_SEQUENCE, str(tmp_path / "out"), *ADT_SETTINGS)
     assert len(errors) == 1
