@@ -22,6 +22,7 @@ import time
 import traceback
 
 import apache_beam as beam
+from apache_beam.io.filesystems import FileSystems
 
 from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
@@ -77,7 +78,6 @@ class Annotator:
         raise NotImplementedError
 
 
-
 def _write(path: str, data: bytes) -> None:
     try:
         write_atomic(path, data)
@@ -88,7 +88,8 @@ def _write(path: str, data: bytes) -> None:
 def write_clip(output: str, kept: ClipRecord, outcome: FilterOutcome) -> tuple[dict, str | None]:
     """Write a filtered clip's audit table, its exported depth if any, then its .npz (each
     atomically, in that order, so an existing .npz always has its companions). Returns the clip's
-    report and the SHA-256 of its .npz (None when no track survived and nothing was written)."""
+    report and the SHA-256 of its .npz (None when no track survived: then no .npz of that name
+    is left in the folder)."""
     source, name = kept.source, check_clip_name(kept.name)
     _write(audit_path(output, source, name), encode_parquet(outcome_table(outcome)))
     digest = None
@@ -100,6 +101,13 @@ def write_clip(output: str, kept: ClipRecord, outcome: FilterOutcome) -> tuple[d
         digest = sha256(data)
         progress(f"clip {name}: {kept.num_tracks} of {outcome.candidates} candidate tracks written")
     else:
+        stale = [
+            path
+            for path in (clip_path(output, source, name), depth_path(output, source, name))
+            if FileSystems.exists(path)
+        ]
+        if stale:  # an earlier run's clip of this name, under other settings
+            FileSystems.delete(stale)
         progress(f"clip {name}: no track survived the filters; not written")
     report = {
         "clip": name,

@@ -118,3 +118,15 @@ def test_sigkill_mid_run_then_rerun_completes_with_identical_bytes(reference_run
     assert clip_bytes(out, "pstudio") == expected
     assert partial_files(out) == []
     assert validate_main([out]) == 0
+
+
+def test_a_clip_left_without_tracks_by_new_settings_is_removed(finished_copy):
+    source_input, out = finished_copy
+    assert len(clip_bytes(out, "pstudio")) == 4
+    # No track can pass a mask threshold above 1: the earlier run's clips must not survive it.
+    result = run_pipeline(
+        "pstudio", "--input", source_input, "--output", out, "--set", "pstudio.mask_min_agreement=1.5"
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert clip_bytes(out, "pstudio") == {}
+    assert open(os.path.join(out, "manifests", "minival.txt")).read() == ""
