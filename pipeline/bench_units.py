@@ -245,9 +245,44 @@ def bench_source(source: str, args: argparse.Namespace) -> dict:
             many, many_wall = run_processes(
                 _specs(setup, scratch, f"w{args.workers}"), args.workers, scratch, args.pin
             )
+        beam_args = getattr(module, "beam_run_args", None)
+        if beam_args and args.workers > 1 and len(setup.units) > 1:
+            beam_scaling(setup, beam_args(setup.units), args.workers, scratch)
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
     return report(setup, one, one_wall, many, many_wall, args.workers, args.pin)
+
+
+def beam_scaling(setup: UnitSetup, run_args: list[str], workers: int, scratch: str) -> float:
+    """The same units through ``python -m pipeline.run`` on Beam's DirectRunner in multi_processing
+    mode, with 1 and then ``workers`` worker processes (single-threaded, not pinned): the speed-up
+    a user gets from the runner itself, Beam's start-up and the finalize step included."""
+    walls = {}
+    for count in (1, workers):
+        command = [
+            sys.executable,
+            "-m",
+            "pipeline.run",
+            "--source",
+            setup.source,
+            "--input",
+            setup.input_root,
+        ]
+        command += ["--output", os.path.join(scratch, f"beam_w{count}"), "--overwrite", *run_args]
+        command += ["--runner", "DirectRunner", "--direct_running_mode=multi_processing"]
+        command += [f"--direct_num_workers={count}"]
+        print(f"running them through Beam's DirectRunner, {count} worker process(es) ...", flush=True)
+        started = time.perf_counter()
+        subprocess.run(command, env=dict(os.environ, **THREAD_ENV), check=True, capture_output=True)
+        walls[count] = time.perf_counter() - started
+    speedup = walls[1] / walls[workers]
+    status = "met" if speedup >= SPEEDUP_TARGET else "MISSED"
+    print(
+        f"through Beam (DirectRunner multi_processing, whole command): 1 worker {walls[1]:.1f} s, "
+        f"{workers} workers {walls[workers]:.1f} s -> speed-up {speedup:.2f}x (target >= {SPEEDUP_TARGET}x: "
+        f"{status})"
+    )
+    return speedup
 
 
 def report(

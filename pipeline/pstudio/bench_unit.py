@@ -122,3 +122,8 @@ def _warm_numba() -> None:
     unit = UnitInput("warm", 0, views, gaussians, [], lambda view, t: None)
     points = np.array([[320.0, 180.0]])
     render_depth_at(splats_in_view(unit, 0, 0, points), points, 0.5)
+
+
+def beam_run_args(units: list) -> list[str]:
+    """``pipeline.run`` arguments that make exactly these (sequence, camera) units."""
+    return ["--set", "pstudio.cameras=" + ",".join(str(camera) for _, camera in units)]
