@@ -9,11 +9,9 @@ masks: the foreground centres drawn and dilated (``bench._mask_function``).
 
 from __future__ import annotations
 
-import json
 import os
 import time
 
-import cv2
 import numpy as np
 
 from pipeline.bench_units import UnitSetup
@@ -36,6 +34,7 @@ def write_sequence(root: str, sizes: dict, cameras: int) -> None:
         0, sizes["frames"], sizes["per_person"], sizes["floor"], sizes["wall"], cameras
     )
     frames, count = gaussians.means.shape[:2]
+    files = load_fixture_module("dynamic3dgs_files")
     data = os.path.join(root, "data", SEQUENCE)
     mask_of = scene._mask_function(gaussians, views)
     rng = np.random.default_rng(0)
@@ -50,34 +49,21 @@ def write_sequence(root: str, sizes: dict, cameras: int) -> None:
         for view, camera in enumerate(ids):
             mask = mask_of(view, t)
             image = np.where(mask, 170.0, 70.0)[..., None] + rng.normal(0, 5.0, (*mask.shape, 3))
-            for kind, array, ext, params in (
-                ("ims", np.clip(image, 0, 255).astype(np.uint8), ".jpg", [cv2.IMWRITE_JPEG_QUALITY, 92]),
-                ("seg", mask.astype(np.uint8) * 255, ".png", []),
-            ):
-                folder = os.path.join(data, kind, str(camera))
-                os.makedirs(folder, exist_ok=True)
-                ok, encoded = cv2.imencode(ext, array, params)
-                assert ok
-                with open(os.path.join(folder, f"{t:06d}{ext}"), "wb") as f:
-                    f.write(encoded.tobytes())
-    with open(os.path.join(data, "train_meta.json"), "w") as f:
-        json.dump(meta, f)
-    params = os.path.join(root, "output", EXPERIMENT, SEQUENCE)
-    os.makedirs(params, exist_ok=True)
+            files.write_view(data, camera, t, np.clip(image, 0, 255).astype(np.uint8), mask)
     colours = np.where(gaussians.foreground[:, None], [0.8, 0.5, 0.4], [0.5, 0.5, 0.5]).astype(np.float32)
-    np.savez(
-        os.path.join(params, "params.npz"),
-        means3D=gaussians.means,
-        rgb_colors=np.broadcast_to(colours, (frames, count, 3)),  # per frame, as the real files store it
-        unnorm_rotations=gaussians.quaternions,
-        seg_colors=np.where(gaussians.foreground[:, None], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]).astype(
-            np.float32
-        ),
-        logit_opacities=np.log(gaussians.opacities / (1 - gaussians.opacities))[:, None].astype(np.float32),
-        log_scales=np.log(gaussians.scales).astype(np.float32),
-        cam_m=np.zeros((50, 3), np.float32),
-        cam_c=np.zeros((50, 3), np.float32),
-    )
+    seg = np.where(gaussians.foreground[:, None], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]).astype(np.float32)
+    opacity = gaussians.opacities
+    params = {
+        "means3D": gaussians.means,
+        "rgb_colors": np.broadcast_to(colours, (frames, count, 3)),  # per frame, as the real files store it
+        "unnorm_rotations": gaussians.quaternions,
+        "seg_colors": seg,
+        "logit_opacities": np.log(opacity / (1 - opacity))[:, None].astype(np.float32),
+        "log_scales": np.log(gaussians.scales).astype(np.float32),
+        "cam_m": np.zeros((50, 3), np.float32),
+        "cam_c": np.zeros((50, 3), np.float32),
+    }
+    files.write_meta_and_params(root, SEQUENCE, meta, params, EXPERIMENT)
 
 
 def prepare(workdir: str, quick: bool) -> UnitSetup:
