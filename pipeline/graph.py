@@ -22,16 +22,17 @@ import time
 import traceback
 
 import apache_beam as beam
-from apache_beam.io.filesystems import FileSystems
+from apache_beam.options.pipeline_options import PipelineOptions
 
+from pipeline import storage
 from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
 from pipeline.core.errors import InputError, OutputError
 from pipeline.export.audit_table import encode_parquet, outcome_table
 from pipeline.export.depth_export import encode_depth
-from pipeline.export.files import list_files, read_bytes, write_atomic
+from pipeline.export.files import list_files, remove_quietly, write_atomic
 from pipeline.export.layout import audit_path, check_clip_name, clip_path, depth_path
-from pipeline.export.manifests import load_official_splits, split_clips
+from pipeline.export.manifests import split_clips
 from pipeline.export.npz_writer import clip_arrays, encode_npz
 from pipeline.filters.select import FILTER_ORDER, FilterOutcome, apply_filters
 from pipeline.resume import (
@@ -101,13 +102,8 @@ def write_clip(output: str, kept: ClipRecord, outcome: FilterOutcome) -> tuple[d
         digest = sha256(data)
         progress(f"clip {name}: {kept.num_tracks} of {outcome.candidates} candidate tracks written")
     else:
-        stale = [
-            path
-            for path in (clip_path(output, source, name), depth_path(output, source, name))
-            if FileSystems.exists(path)
-        ]
-        if stale:  # an earlier run's clip of this name, under other settings
-            FileSystems.delete(stale)
+        # an earlier run's clip of this name, under other settings
+        remove_quietly([clip_path(output, source, name), depth_path(output, source, name)])
         progress(f"clip {name}: no track survived the filters; not written")
     report = {
         "clip": name,
@@ -128,11 +124,22 @@ class ProcessUnit(beam.DoFn):
     per clip, and a ("failure", dict) per failed unit or clip. A unit's record is written only
     when every clip of it was written, so a unit with a failed clip is redone by a rerun."""
 
-    def __init__(self, annotator: Annotator, source: str, output: str, resume: bool):
+    def __init__(
+        self,
+        annotator: Annotator,
+        source: str,
+        output: str,
+        resume: bool,
+        options: PipelineOptions | None = None,
+    ):
         self.annotator = annotator
         self.source = source
         self.output = output.rstrip("/")
         self.resume = resume
+        self.options = options
+
+    def setup(self):
+        storage.use_options(self.options)  # Beam's Dask runner gives its workers no filesystem options
 
     def process(self, unit):
         name, source, config = self.annotator.unit_name(unit), self.source, self.annotator.config
@@ -195,10 +202,22 @@ def summarize(reports: list[dict], failures: list[dict], units: int, resumed: in
 class Finalize(beam.DoFn):
     """Runs once, on every unit's (kind, value) pairs: failures, manifests, provenance."""
 
-    def __init__(self, output: str, config: RunConfig, provenance: dict):
+    def __init__(
+        self,
+        output: str,
+        config: RunConfig,
+        provenance: dict,
+        official: tuple[dict, dict] | None,
+        options: PipelineOptions | None = None,
+    ):
         self.output = output.rstrip("/")
         self.config = config
         self.provenance = provenance
+        self.official = official
+        self.options = options
+
+    def setup(self):
+        storage.use_options(self.options)
 
     def process(self, keyed):
         _, outcomes = keyed
@@ -217,10 +236,9 @@ class Finalize(beam.DoFn):
             for source in SOURCES
         }
         clips = {source: names for source, names in clips.items() if names}
-        official = None
-        if self.config.splits_file:
-            official = load_official_splits(read_bytes(self.config.splits_file).decode())
-        minival, full_test = split_clips(clips, self.config.minival_per_source, self.config.seed, official)
+        minival, full_test = split_clips(
+            clips, self.config.minival_per_source, self.config.seed, self.official
+        )
         for name, entries in (("minival", minival), ("full_test", full_test)):
             text = "".join(entry + "\n" for entry in entries)
             write_atomic(f"{self.output}/manifests/{name}.txt", text.encode())
@@ -243,6 +261,7 @@ def build(
     process_unit: ProcessUnit,
     config: RunConfig,
     provenance: dict,
+    official: tuple[dict, dict] | None = None,
 ) -> None:
     """Attach the whole run to ``pipeline``. Finalize sees the outcome of every unit through one
     GroupByKey (plus a start marker, so it runs even when no unit emits anything)."""
@@ -253,10 +272,11 @@ def build(
         | "ProcessUnits" >> beam.ParDo(process_unit)
     )
     start = pipeline | "Start" >> beam.Create([(START, None)])
+    finalize = Finalize(process_unit.output, config, provenance, official, process_unit.options)
     _ = (
         (outcomes, start)
         | "AllOutcomes" >> beam.Flatten()
         | "UnderOneKey" >> beam.Map(under_one_key)
         | "Gather" >> beam.GroupByKey()
-        | "Finalize" >> beam.ParDo(Finalize(process_unit.output, config, provenance))
+        | "Finalize" >> beam.ParDo(finalize)
     )

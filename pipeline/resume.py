@@ -13,15 +13,18 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import time
 
 from apache_beam.io.filesystems import FileSystems
 
 import pipeline
 from pipeline.core.config import RunConfig
-from pipeline.export.files import read_bytes, write_atomic
-from pipeline.export.layout import audit_path, clip_path, depth_path, unit_record_path
+from pipeline.export.clip_reader import DEFAULT_LIMITS
+from pipeline.export.files import PARTIAL, is_abandoned, read_bytes, remove_quietly, write_atomic, writer_pid
+from pipeline.export.layout import audit_path, clip_path, depth_path, is_clip_name, unit_record_path
 from pipeline.export.validator import check_clip_bytes
+from pipeline.filters.select import FILTER_ORDER
 
 
 def sha256(data: bytes) -> str:
@@ -34,13 +37,52 @@ def run_fingerprint(source: str, config: RunConfig) -> str:
     return sha256(json.dumps(settings, sort_keys=True).encode())
 
 
+# A clip report's fields and their types, as write_clip makes them (pipeline/graph.py).
+REPORT_FIELDS = {
+    "clip": str,
+    "source": str,
+    "unit": str,
+    "frames": int,
+    "candidates": int,
+    "dropped": dict,
+    "passed": int,
+    "written_tracks": int,
+    "target_tracks": int,
+}
+# A record larger than this is not one of ours (a unit's record is a few KB per clip).
+MAX_RECORD_BYTES = 64 << 20
+
+
 def read_unit_record(output: str, source: str, unit: str) -> dict | None:
-    """The unit's record, or None when there is none or it cannot be read."""
+    """The unit's record, or None when there is none, it cannot be read, or it is not shaped as
+    ``write_unit_record`` writes it (every clip name plain, every report complete)."""
     try:
-        record = json.loads(read_bytes(unit_record_path(output, source, unit)))
+        record = json.loads(read_bytes(unit_record_path(output, source, unit), MAX_RECORD_BYTES))
     except (OSError, ValueError):
         return None
-    return record if isinstance(record, dict) and record.get("unit") == unit else None
+    return record if _well_formed(record, unit) else None
+
+
+def _well_formed(record, unit: str) -> bool:
+    if not isinstance(record, dict) or record.get("unit") != unit:
+        return False
+    reports, digests = record.get("reports"), record.get("clips")
+    if not isinstance(record.get("fingerprint"), str) or not isinstance(reports, list):
+        return False
+    if not isinstance(digests, dict) or not all(isinstance(v, str) for v in digests.values()):
+        return False
+    for report in reports:
+        if not isinstance(report, dict) or not all(
+            isinstance(report.get(key), kind) and not isinstance(report.get(key), bool)
+            for key, kind in REPORT_FIELDS.items()
+        ):
+            return False
+        dropped = report["dropped"]
+        if not is_clip_name(report["clip"]) or set(dropped) != set(FILTER_ORDER):
+            return False
+        if not all(isinstance(count, int) for count in dropped.values()):
+            return False
+    return True
 
 
 def _clip_is_intact(output: str, source: str, clip: str, digest: str, export_depth: bool) -> bool:
@@ -50,10 +92,10 @@ def _clip_is_intact(output: str, source: str, clip: str, digest: str, export_dep
     if not all(FileSystems.exists(path) for path in companions):
         return False
     try:
-        data = read_bytes(clip_path(output, source, clip))
+        data = read_bytes(clip_path(output, source, clip), DEFAULT_LIMITS.max_file_bytes)
     except OSError:
         return False
-    return sha256(data) == digest and not check_clip_bytes(data, source)
+    return sha256(data) == digest and not check_clip_bytes(data)
 
 
 def finished_reports(
@@ -72,13 +114,13 @@ def finished_reports(
 
 def remove_stale_clips(record: dict | None, output: str, source: str, current: set[str]) -> list[str]:
     """Delete the files of clips a previous record lists that this run no longer produces (e.g. an
-    object that no longer qualifies under new settings); returns their names."""
-    stale = sorted({report["clip"] for report in record["reports"]} - current) if record else []
-    for clip in stale:
-        paths = (path(output, source, clip) for path in (clip_path, audit_path, depth_path))
-        existing = [path for path in paths if FileSystems.exists(path)]
-        if existing:
-            FileSystems.delete(existing)
+    object that no longer qualifies under new settings); returns their names. A name that is not a
+    plain clip name (a forged record) is never turned into a path."""
+    listed = {report["clip"] for report in record["reports"]} if record else set()
+    stale = sorted(name for name in listed - current if is_clip_name(name))
+    remove_quietly(
+        [path(output, source, clip) for clip in stale for path in (clip_path, audit_path, depth_path)]
+    )
     return stale
 
 
@@ -90,27 +132,26 @@ def write_unit_record(
     write_atomic(unit_record_path(output, source, unit), text.encode())
 
 
-def remove_partial_files(output: str, source: str, grace_seconds: float = 300.0) -> int:
-    """Delete the hidden ``.<name>.partial-*`` files a killed run left (pipeline/export/files.py).
-    This source's folders and records are cleared outright; the manifests, shared with runs of
-    other sources, only of partial files older than ``grace_seconds``. Returns how many went."""
-    own = [
-        f"{output}/{source}/.*.partial*",
-        f"{output}/audit/{source}/.*.partial*",
-        f"{output}/depth/{source}/.*.partial*",
-        f"{output}/units/{source}/.*.partial*",
-        f"{output}/.run_{source}.json.partial*",
-        f"{output}/.failures_{source}.jsonl.partial*",
+def remove_partial_files(output: str, source: str, include_own: bool = False) -> int:
+    """Delete the hidden ``.<name>.partial-*`` temporaries (pipeline/export/files.py) that runs which
+    are gone left in this source's folders and the shared manifests folder; a concurrent run's live
+    temporaries stay. ``include_own`` also deletes this process's (it is stopping). Returns how many
+    went."""
+    patterns = [
+        f"{output}/{source}/.*{PARTIAL}*",
+        f"{output}/audit/{source}/.*{PARTIAL}*",
+        f"{output}/depth/{source}/.*{PARTIAL}*",
+        f"{output}/units/{source}/.*{PARTIAL}*",
+        f"{output}/manifests/.*{PARTIAL}*",
+        f"{output}/.run_{source}.json{PARTIAL}*",
+        f"{output}/.failures_{source}.jsonl{PARTIAL}*",
     ]
-    shared = [f"{output}/manifests/.*.partial*"]
     now = time.time()
-    doomed = [m.path for result in FileSystems.match(own) for m in result.metadata_list]
-    doomed += [
-        m.path
-        for result in FileSystems.match(shared)
-        for m in result.metadata_list
-        if now - m.last_updated_in_seconds > grace_seconds
+    doomed = [
+        match.path
+        for result in FileSystems.match(patterns)
+        for match in result.metadata_list
+        if is_abandoned(match.path, match.last_updated_in_seconds, now)
+        or (include_own and writer_pid(match.path) == os.getpid())
     ]
-    if doomed:
-        FileSystems.delete(doomed)
-    return len(doomed)
+    return remove_quietly(doomed)

@@ -19,14 +19,14 @@ import time
 
 import apache_beam as beam
 import numpy as np
-from apache_beam.io.filesystems import FileSystems
 from apache_beam.options.pipeline_options import PipelineOptions
 
 import pipeline
-from pipeline import graph
+from pipeline import graph, storage
 from pipeline.core.config import RunConfig, with_overrides
-from pipeline.core.errors import InputError
-from pipeline.export.files import read_bytes, write_atomic
+from pipeline.core.errors import InputError, OutputError
+from pipeline.export.files import is_local, read_bytes, remove_quietly, write_atomic
+from pipeline.export.manifests import load_official_splits
 from pipeline.filters.select import FILTER_ORDER
 from pipeline.resume import remove_partial_files
 
@@ -37,6 +37,7 @@ SOURCE_MODULES = {
     "pstudio": "pipeline.pstudio.transform",
 }
 
+MAX_SPLITS_BYTES = 64 << 20
 DASK_RUNNER = "apache_beam.runners.dask.dask_runner.DaskRunner"
 
 log = logging.getLogger("pipeline")
@@ -82,7 +83,7 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
 
 def configure_logging() -> None:
     logging.basicConfig(
-        level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s", datefmt="%H:%M:%S"
+        level=logging.INFO, force=True, format="%(asctime)s %(levelname)s %(message)s", datefmt="%H:%M:%S"
     )
     for noisy in ("apache_beam", "root"):
         logging.getLogger(noisy).setLevel(logging.WARNING)
@@ -114,40 +115,108 @@ def runner_args(beam_args: list[str]) -> list[str]:
     if not any(a.startswith("--runner") for a in args):
         args = ["--runner", "DirectRunner", *args]
     on_dask = DASK_RUNNER in args or f"--runner={DASK_RUNNER}" in args
-    if on_dask and not any(
-        a.startswith(("--dask_npartitions", "--dask_partition_size")) for a in args
-    ):
+    if on_dask and not any(a.startswith(("--dask_npartitions", "--dask_partition_size")) for a in args):
         args.append("--dask_partition_size=1")
     return args
 
 
+PROBE_BYTES = 4 << 20
+
+
 def check_writable(output: str) -> None:
-    """Raise OSError unless a file can be written (and removed) in ``output``."""
+    """Raise OSError unless ``output`` takes a real write of PROBE_BYTES (a full disk fails here,
+    not after hours of work), which is then removed."""
     probe = f"{output}/.write_probe-{os.getpid()}"
-    write_atomic(probe, b"")
-    FileSystems.delete([probe])
+    write_atomic(probe, os.urandom(PROBE_BYTES))
+    remove_quietly([probe])
+
+
+def check_inputs(input_root: str | None, config: RunConfig) -> tuple[dict, dict] | None:
+    """Fail before any work: every local path the run will read exists, and ``splits_file`` is read
+    and parsed. Returns the official (minival, full_eval) membership, or None without
+    ``splits_file``. Raises InputError."""
+    paths = {
+        "--input": input_root,
+        "--queries-from": config.queries_from,
+        "pstudio.params_dir": config.pstudio.params_dir,
+        "drivetrack.masks_dir": config.drivetrack.masks_dir,
+        "splits_file": config.splits_file,
+    }
+    for what, path in paths.items():
+        if path:
+            storage.check_scheme(path)
+        if path and is_local(path) and not os.path.exists(path):
+            raise InputError(f"{what} {path} does not exist")
+    if not config.splits_file:
+        return None
+    try:
+        return load_official_splits(read_bytes(config.splits_file, MAX_SPLITS_BYTES).decode())
+    except (OSError, UnicodeDecodeError, ValueError) as error:
+        what = f"splits_file {config.splits_file}"
+        raise InputError(f"{what}: not the release's splits JSON ({error})") from error
+
+
+def absolute(path: str) -> str:
+    """A local path made absolute (workers may run elsewhere); remote URLs unchanged."""
+    return os.path.abspath(path) if path and is_local(path) else path
+
+
+def root_cause(error: BaseException) -> BaseException:
+    """The innermost exception of a chain (Beam re-raises a step's error as a RuntimeError)."""
+    while (error.__cause__ or error.__context__) is not None:
+        error = error.__cause__ or error.__context__
+    return error
+
+
+class _ReportedByUs(logging.Filter):
+    """Drops Beam's traceback of a step stopped by Ctrl-C or an output error: main says it in one line."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        kind = record.exc_info[0] if record.exc_info else None
+        return not (kind and issubclass(kind, (KeyboardInterrupt, OSError, OutputError)))
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The command; exit 0 when every unit succeeded, 1 when some failed, 2 when the run could not
+    start or finish, 130 when interrupted (Ctrl-C)."""
     args, beam_args = parse_args(sys.argv[1:] if argv is None else argv)
     configure_logging()
+    output = absolute(args.output)
+    try:
+        return run(args, beam_args, output)
+    except KeyboardInterrupt:
+        removed = remove_partial_files(output, args.source, include_own=True)
+        note = f"; removed {removed} partial file(s)" if removed else ""
+        print(
+            f"interrupted: stopped{note}; finished units are kept, rerun the same command to resume",
+            file=sys.stderr,
+        )
+        return 130
+
+
+def run(args: argparse.Namespace, beam_args: list[str], output: str) -> int:
+    """``main`` without the Ctrl-C handling."""
     if args.source not in SOURCE_MODULES:
         print(
             f"source {args.source!r} is not built yet; available: {sorted(SOURCE_MODULES)}", file=sys.stderr
         )
         return 2
+    beam_args = runner_args(beam_args)
+    options = PipelineOptions(beam_args)
+    storage.use_options(options)
     try:
+        storage.check_scheme(output)
         config = with_overrides(RunConfig(), args.overrides)
         if args.export_depth:
             config = dataclasses.replace(config, export_depth=True)
-        if args.queries_from:
-            folder = args.queries_from if "://" in args.queries_from else os.path.abspath(args.queries_from)
-            config = dataclasses.replace(config, queries_from=folder)
-    except ValueError as error:
-        print(error, file=sys.stderr)
+        config = dataclasses.replace(
+            config, queries_from=absolute(args.queries_from or ""), splits_file=absolute(config.splits_file)
+        )
+        official = check_inputs(args.input, config)
+    except (ValueError, InputError) as error:
+        print(f"cannot start: {error}", file=sys.stderr)
         return 2
     module = importlib.import_module(SOURCE_MODULES[args.source])
-    output = os.path.abspath(args.output) if "://" not in args.output else args.output
     try:
         check_writable(output)
     except OSError as error:
@@ -155,19 +224,22 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     input_root = args.input
     if input_root is None:
+        if not is_local(output):
+            print(
+                f"cannot start: the embedded sample world is written under a local --output; with {output} "
+                "pass --input (a copy of the sample uploaded there works)",
+                file=sys.stderr,
+            )
+            return 2
         input_root = module.sample_input(f"{output}/sample_input/{args.source}")
         print(f"no --input given: running on the embedded sample world in {input_root}")
     elif "://" not in input_root:
         input_root = os.path.abspath(input_root)
     try:
         units = module.list_units(input_root, config)
-        if config.splits_file:
-            read_bytes(config.splits_file)
     except (InputError, OSError) as error:
         print(f"cannot start: {error}", file=sys.stderr)
         return 2
-    beam_args = runner_args(beam_args)
-    options = PipelineOptions(beam_args)
     provenance = {
         "package": "tapvid3d-pipeline",
         "version": pipeline.__version__,
@@ -190,10 +262,22 @@ def main(argv: list[str] | None = None) -> int:
         print(f"removed {removed} partial file(s) an interrupted run left in {output}")
     started = time.monotonic()
     process_unit = graph.ProcessUnit(
-        module.ANNOTATOR(input_root, config), args.source, output, resume=not args.overwrite
+        module.ANNOTATOR(input_root, config), args.source, output, resume=not args.overwrite, options=options
     )
-    with beam.Pipeline(options=options) as p:
-        graph.build(p, units, process_unit, config, provenance)
+    quiet = _ReportedByUs()
+    logging.getLogger("apache_beam").addFilter(quiet)
+    logging.getLogger("apache_beam.runners.common").addFilter(quiet)
+    try:
+        with beam.Pipeline(options=options) as p:
+            graph.build(p, units, process_unit, config, provenance, official)
+    except Exception as error:  # noqa: BLE001 - Beam wraps a step's error; say the cause in one line
+        cause = root_cause(error)
+        if isinstance(cause, KeyboardInterrupt):
+            raise cause from None
+        if not isinstance(cause, (OSError, OutputError)):
+            raise
+        print(f"cannot finish: {cause}", file=sys.stderr)
+        return 2
     summary = json.loads(read_bytes(f"{output}/run_{args.source}.json"))["summary"]
     print_summary(summary, output, args.source)
     print(f"finished in {time.monotonic() - started:.1f} s")

@@ -11,15 +11,9 @@ import argparse
 import json
 import sys
 
+from pipeline.export.clip_reader import add_limit_argument, limits_from
 from pipeline.export.files import list_files, read_bytes, write_atomic
-from pipeline.export.validator import FINDINGS, FLICKER_MAX_FRACTION, inspect_clip_bytes
-from pipeline.graph import SOURCES
-
-
-def source_of(path: str) -> str | None:
-    """The source a clip belongs to, from its folder name (``<out>/<source>/<clip>.npz``)."""
-    parts = path.replace("\\", "/").split("/")
-    return parts[-2] if len(parts) >= 2 and parts[-2] in SOURCES else None
+from pipeline.export.validator import FINDINGS, FLICKER_MAX_FRACTION, NO_FINDINGS, inspect_clip_bytes
 
 
 def findings_table(rows: list[dict]) -> str:
@@ -42,7 +36,12 @@ def main(argv: list[str] | None = None) -> int:
         help="a track flickers when its visibility changes state more than this fraction of T times",
     )
     parser.add_argument("--report", help="write the per-clip findings and violations to this JSON file")
+    add_limit_argument(parser)
     args = parser.parse_args(argv)
+    try:
+        limits = limits_from(args.limit)
+    except ValueError as error:
+        parser.error(str(error))
     root = args.directory.rstrip("/")
     paths = list_files(f"{root}/*.npz") + list_files(f"{root}/*/*.npz")
     if not paths:
@@ -51,7 +50,12 @@ def main(argv: list[str] | None = None) -> int:
     bad = 0
     rows = []
     for path in paths:
-        problems, findings = inspect_clip_bytes(read_bytes(path), source_of(path), args.flicker_max_fraction)
+        try:
+            data = read_bytes(path, limits.max_file_bytes)
+        except OSError as error:
+            problems, findings = [f"cannot be read ({error.strerror or error})"], dict(NO_FINDINGS)
+        else:
+            problems, findings = inspect_clip_bytes(data, args.flicker_max_fraction, limits)
         if problems:
             bad += 1
             for problem in problems:

@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import pytest
 
-from pipeline.export.validator import load_clip
+from pipeline.export.clip_reader import read_clip_bytes
 from pipeline.run import main as run_main
 from pipeline.validate import main as validate_main
 from tests.adt_excerpt import SAMPLE, SETTINGS, needs_excerpt
@@ -136,7 +136,7 @@ def sample_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("adt_out")
     code = run_main(["--source", "adt", "--input", str(SAMPLE), "--output", str(out), *SETTINGS])
     assert code == 0
-    clip = load_clip((out / "adt" / "aria_digital_twin_test_data_0.npz").read_bytes())
+    clip = read_clip_bytes((out / "adt" / "aria_digital_twin_test_data_0.npz").read_bytes(), "adt clip")
     return out, clip
 
 

@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from pipeline.audit.compare import compare_dirs, first_frame_size, main
+from pipeline.audit.compare import compare_dirs, main, read_reference
 from pipeline.audit.metrics import PIXEL_THRESHOLDS, eval_intrinsics, median_error, tapvid3d_metrics
+from pipeline.export.clip_reader import DEFAULT_LIMITS
 from pipeline.export.npz_writer import encode_npz
 
 # Evaluation-scale intrinsics with f = 100 px: at z = 2 m a d-pixel threshold is a 3D radius of
@@ -115,11 +116,9 @@ def synthetic_clip(seed, frames=10, tracks=200, source="adt"):
     u, v = rng.uniform(2, WIDTH - 2, (frames, tracks)), rng.uniform(2, HEIGHT - 2, (frames, tracks))
     xyz = np.stack([(u - K[2]) / K[0] * z, (v - K[3]) / K[1] * z, z], -1).astype(np.float32)
     t_q = np.arange(tracks) % frames
-    images = np.empty(frames, object)
     jpeg = cv2.imencode(".jpg", np.full((HEIGHT, WIDTH, 3), 128, np.uint8))[1].tobytes()
-    images[:] = [bytes(bytearray(jpeg)) for _ in range(frames)]
     arrays = {
-        "images_jpeg_bytes": images,
+        "images_jpeg_bytes": np.array([jpeg] * frames),
         "queries_xyt": np.concatenate([np.stack([u, v], -1)[t_q, np.arange(tracks)], t_q[:, None]], 1),
         "tracks_XYZ": xyz,
         "visibility": np.ones((frames, tracks), bool),
@@ -146,9 +145,9 @@ def ref_dir(tmp_path):
     return root
 
 
-def test_frame_size_comes_from_the_raw_jpeg_header(ref_dir):
-    data = (ref_dir / "adt" / "a_0.npz").read_bytes()
-    assert first_frame_size(data) == (HEIGHT, WIDTH)
+def test_frame_size_comes_from_the_first_jpeg_header(ref_dir):
+    _, size = read_reference(str(ref_dir / "adt" / "a_0.npz"), DEFAULT_LIMITS)
+    assert size == (HEIGHT, WIDTH)
 
 
 def test_compare_a_folder_with_itself_scores_one_and_never_unpickles(ref_dir, tmp_path, monkeypatch):
@@ -180,6 +179,8 @@ def test_mismatched_clips_are_error_rows_and_unmatched_clips_are_listed(ref_dir,
     assert report["only_in_ref"] == ["pstudio/tennis_1.npz"]
     assert report["only_in_new"] == ["drivetrack/extra.npz"]
     assert report["sources"][0]["source"] == "adt" and report["sources"][0]["errors"] == 1
+    assert main([str(ref_dir), str(tmp_path / "absent")]) == 2
+    (tmp_path / "empty").mkdir()
     assert main([str(ref_dir), str(tmp_path / "empty")]) == 1
 
 

@@ -22,6 +22,19 @@ no vehicle, so it never reads the lidar, and lidar defects fail cameras 1 and 3 
 | nan_box | lead car box at T: NaN | lidar_box/S object <id> frame T: NaN or infinity in the box | 1 |
 | camera_gap | camera 1 frame 10 deleted | camera_image/S camera 1: no image for frame F (1 of 40 ...) | 1 |
 | shifted_time | camera 1 timestamps + 1 us | camera_image/S camera 1 frame F: no vehicle_pose row ... | 1 |
+| dup_box | lead car box at T repeated, x + 1 | lidar_box/S.parquet: object '<id>' at timestamp T 2x | all |
+| dup_box_same | lead car box at T repeated as is | none: the copy is dropped (checked below) | none |
+| dup_synced | lead car synced box at T repeated | lidar_camera_synced_box/S.parquet: object ... 2x | all |
+| dup_pose | vehicle_pose of frame 3 repeated, moved | vehicle_pose/S.parquet: timestamp F 2x | all |
+| dup_lidar | TOP range image at T repeated, + 1 m | lidar/S.parquet: laser 1 at timestamp T 2x | 1, 3 |
+| dup_image | camera 1 JPEG at T repeated, cut | camera_image/S.parquet: camera 1 at timestamp T 2x | 1 |
+| dup_calibration | camera 1 calibration repeated, f_u + 1 | camera_calibration/S.parquet: camera 1 2x | 1 |
+| string_camera | key.camera_name as strings | camera_image/S.parquet: column ... type string | all |
+| int_object | lidar_box key.laser_object_id as int64 | lidar_box/S.parquet: column ... type int64 | all |
+| float_time | vehicle_pose timestamps as doubles | vehicle_pose/S.parquet: column ... type double | all |
+
+2x: "appears in 2 rows with different values (<column> differs)". A key column of the wrong type
+gives "column <name> has type <type>, expected an integer" (object ids: "a string").
 
 The copies are byte copies of the sample's files (their ``key.segment_context_name`` still names
 the sample; the pipeline takes a segment's name from its file names), which keeps this test fast.
@@ -36,10 +49,12 @@ from collections.abc import Callable
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
 
 from pipeline.drivetrack import columns as C
+from pipeline.drivetrack.reader import SegmentReader
 from tests.bad_input import assert_isolated_failures
 from tests.cli import run_pipeline
 from tests.fixtures.waymo_world import SEGMENT, timestamp
@@ -67,6 +82,15 @@ def rewrite(edit: Callable[[pa.Table], pa.Table]) -> Callable[[str], None]:
     return change
 
 
+def _edited_row(table: pa.Table, row: int, values: dict[str, Callable]) -> pa.Table:
+    """Row ``row`` of ``table`` as a table, each column of ``values`` set to ``values[column](old cell)``."""
+    cell = table.slice(row, 1)
+    for column, value in values.items():
+        new = pa.array([value(cell.column(column)[0].as_py())], table.schema.field(column).type)
+        cell = cell.set_column(table.schema.get_field_index(column), column, new)
+    return cell
+
+
 def set_cells(values: dict[str, Callable], **keys) -> Callable[[str], None]:
     """A change setting each column of ``values`` to ``values[column](old cell)`` on the rows matching
     ``keys``; the other rows are kept as they are (cheap on the large range-image columns)."""
@@ -74,13 +98,20 @@ def set_cells(values: dict[str, Callable], **keys) -> Callable[[str], None]:
     def edit(table: pa.Table) -> pa.Table:
         pieces, start = [], 0
         for row in np.nonzero(_rows(table, **keys))[0]:
-            cell = table.slice(row, 1)
-            for column, value in values.items():
-                new = pa.array([value(cell.column(column)[0].as_py())], table.schema.field(column).type)
-                cell = cell.set_column(table.schema.get_field_index(column), column, new)
-            pieces += [table.slice(start, row - start), cell]
+            pieces += [table.slice(start, row - start), _edited_row(table, row, values)]
             start = row + 1
         return pa.concat_tables([*pieces, table.slice(start)])
+
+    return rewrite(edit)
+
+
+def repeat_row(values: dict[str, Callable] | None = None, **keys) -> Callable[[str], None]:
+    """A change appending another row for the first row matching ``keys``: a copy of it with each
+    column of ``values`` set to ``values[column](old cell)`` (an exact copy without ``values``)."""
+
+    def edit(table: pa.Table) -> pa.Table:
+        row = np.nonzero(_rows(table, **keys))[0][0]
+        return pa.concat_tables([table, _edited_row(table, row, values or {})])
 
     return rewrite(edit)
 
@@ -91,6 +122,22 @@ def as_strings(column: str) -> Callable[[str], None]:
         return table.set_column(table.schema.get_field_index(column), column, cells)
 
     return rewrite(edit)
+
+
+def retyped(column: str, kind: pa.DataType) -> Callable[[str], None]:
+    """A change storing a key column as ``kind``: integers as doubles, object ids as their index."""
+
+    def edit(table: pa.Table) -> pa.Table:
+        cells = table.column(column).combine_chunks()
+        cells = pc.dictionary_encode(cells).indices if pa.types.is_string(cells.type) else cells
+        return table.set_column(table.schema.get_field_index(column), column, cells.cast(kind))
+
+    return rewrite(edit)
+
+
+def moved(matrix: list[float]) -> list[float]:
+    """A row-major 4x4 transform moved 0.5 m along x."""
+    return [v + 0.5 if i == 3 else v for i, v in enumerate(matrix)]
 
 
 def truncate(path: str) -> None:
@@ -226,12 +273,88 @@ CASES = [
         (1,),
         (f"camera_image/{{seg}} camera 1 frame {timestamp(0) + 1}: no vehicle_pose row at this timestamp",),
     ),
+    Case(
+        "dup_box",
+        (C.LIDAR_BOX,),
+        repeat_row({C.BOX_FIELDS[0]: lambda x: x + 1.0}, object=LEAD_CAR, frame=T),
+        (1, 2, 3),
+        (
+            f"lidar_box/{{seg}}.parquet: object '{LEAD_CAR}' at timestamp {T} appears in 2 rows with "
+            f"different values ({C.BOX_FIELDS[0]} differs)",
+        ),
+    ),
+    Case("dup_box_same", (C.LIDAR_BOX,), repeat_row(object=LEAD_CAR, frame=T), (), ()),
+    Case(
+        "dup_synced",
+        (C.LIDAR_CAMERA_SYNCED_BOX,),
+        repeat_row({C.SYNCED_BOX_FIELDS[0]: lambda x: x + 1.0}, object=LEAD_CAR, frame=T),
+        (1, 2, 3),
+        (
+            f"lidar_camera_synced_box/{{seg}}.parquet: object '{LEAD_CAR}' at timestamp {T} appears in 2 "
+            "rows with different values",
+        ),
+    ),
+    Case(
+        "dup_pose",
+        (C.VEHICLE_POSE,),
+        repeat_row({C.WORLD_FROM_VEHICLE: moved}, frame=timestamp(3)),
+        (1, 2, 3),
+        (
+            f"vehicle_pose/{{seg}}.parquet: timestamp {timestamp(3)} appears in 2 rows with different "
+            f"values ({C.WORLD_FROM_VEHICLE} differs)",
+        ),
+    ),
+    Case(
+        "dup_lidar",
+        (C.LIDAR,),
+        repeat_row({C.LIDAR_RANGE_VALUES: lambda values: [v + 1.0 for v in values]}, laser=1, frame=T),
+        (1, 3),
+        (
+            f"lidar/{{seg}}.parquet: laser 1 at timestamp {T} appears in 2 rows with different values "
+            f"({C.LIDAR_RANGE_VALUES} differs)",
+        ),
+    ),
+    Case(
+        "dup_image",
+        (C.CAMERA_IMAGE,),
+        repeat_row({C.IMAGE_JPEG: lambda jpeg: jpeg[: len(jpeg) // 2]}, camera=1, frame=T),
+        (1,),
+        (f"camera_image/{{seg}}.parquet: camera 1 at timestamp {T} appears in 2 rows with different values",),
+    ),
+    Case(
+        "dup_calibration",
+        (C.CAMERA_CALIBRATION,),
+        repeat_row({C.CAM_INTRINSICS[0]: lambda f: f + 1.0}, camera=1),
+        (1,),
+        ("camera_calibration/{seg}.parquet: camera 1 appears in 2 rows with different values",),
+    ),
+    Case(
+        "string_camera",
+        (C.CAMERA_IMAGE,),
+        as_strings(C.CAMERA_NAME),
+        (1, 2, 3),
+        (f"camera_image/{{seg}}.parquet: column {C.CAMERA_NAME} has type string, expected an integer",),
+    ),
+    Case(
+        "int_object",
+        (C.LIDAR_BOX,),
+        retyped(C.OBJECT_ID, pa.int64()),
+        (1, 2, 3),
+        (f"lidar_box/{{seg}}.parquet: column {C.OBJECT_ID} has type int64, expected a string",),
+    ),
+    Case(
+        "float_time",
+        (C.VEHICLE_POSE,),
+        retyped(C.TIMESTAMP, pa.float64()),
+        (1, 2, 3),
+        (f"vehicle_pose/{{seg}}.parquet: column {C.TIMESTAMP} has type double, expected an integer",),
+    ),
 ]
 
 
 @pytest.fixture(scope="module")
 def bad_run(sample_split, tmp_path_factory):
-    """(output folder, completed process) of one run over the good segment and every case."""
+    """(split folder, output folder, completed process) of one run over the good segment and every case."""
     split = str(tmp_path_factory.mktemp("bad_drivetrack") / "split")
     shutil.copytree(sample_split[0], split)
     for case in CASES:
@@ -243,11 +366,11 @@ def bad_run(sample_split, tmp_path_factory):
         for component in case.components:
             case.change(os.path.join(split, component, f"{case.segment}.parquet"))
     out = split + "_out"
-    return out, run_pipeline("drivetrack", "--input", split, "--output", out)
+    return split, out, run_pipeline("drivetrack", "--input", split, "--output", out)
 
 
 def test_each_case_fails_only_its_units_with_a_clear_error(bad_run):
-    out, result = bad_run
+    _, out, result = bad_run
     expected = {
         f"{case.segment}/camera_{camera}": [needle.format(seg=case.segment) for needle in case.expected]
         for case in CASES
@@ -258,7 +381,7 @@ def test_each_case_fails_only_its_units_with_a_clear_error(bad_run):
 
 
 def test_good_units_write_all_their_clips(bad_run):
-    out, _ = bad_run
+    _, out, _ = bad_run
     names = os.listdir(os.path.join(out, "drivetrack"))
 
     def clips(segment: str, camera: int) -> int:
@@ -269,3 +392,15 @@ def test_good_units_write_all_their_clips(bad_run):
     for case in CASES:
         written = {camera: clips(case.segment, camera) for camera in (1, 2, 3)}
         assert written == {c: 0 if c in case.cameras else good[c] for c in (1, 2, 3)}, case.name
+
+
+def test_an_exact_copy_of_a_row_is_dropped(bad_run):
+    """dup_box_same reads as the clean segment, bit for bit (its units wrote all their clips, above);
+    a clip's bytes also depend on the segment's name, which seeds the query sampling, so clip files
+    are compared with the clean segment's in tests/test_waymo_integrity.py, under one name."""
+    split, _, _ = bad_run
+    clean, copied = (SegmentReader(split, segment).box_labels() for segment in (SEGMENT, "bad_dup_box_same"))
+    for field in dataclasses.fields(clean):
+        a, b = getattr(clean, field.name), getattr(copied, field.name)
+        same = a.tolist() == b.tolist() if a.dtype == object else a.tobytes() == b.tobytes()
+        assert a.dtype == b.dtype and a.shape == b.shape and same, field.name

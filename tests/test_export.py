@@ -2,16 +2,22 @@
 
 import json
 
+import cv2
 import numpy as np
 import pytest
 
 from pipeline.core.config import RunConfig, with_overrides
+from pipeline.export.clip_reader import read_clip_bytes
 from pipeline.export.files import write_atomic
 from pipeline.export.manifests import load_official_splits, split_clips
 from pipeline.export.npz_writer import encode_npz
-from pipeline.export.validator import check_arrays, check_clip_bytes, load_clip
+from pipeline.export.validator import check_arrays, check_clip_bytes
 
-INTRINSICS = np.array([100.0, 100.0, 50.0, 50.0], np.float32)
+INTRINSICS = np.array([100.0, 100.0, 50.0, 50.0])
+
+
+def jpeg(value: int, width: int = 100, height: int = 100) -> bytes:
+    return cv2.imencode(".jpg", np.full((height, width, 3), value, np.uint8))[1].tobytes()
 
 
 def good_arrays(frames=3, tracks=4):
@@ -22,10 +28,8 @@ def good_arrays(frames=3, tracks=4):
     t_q = np.arange(tracks) % frames
     at_query = xyz[t_q, np.arange(tracks)].astype(np.float64)
     xy = at_query[:, :2] / at_query[:, 2:] * 100 + 50
-    images = np.empty(frames, object)
-    images[:] = [b"\xff\xd8fake" + bytes([i]) for i in range(frames)]
     return {
-        "images_jpeg_bytes": images,
+        "images_jpeg_bytes": np.array([jpeg(10 * i) for i in range(frames)]),
         "queries_xyt": np.concatenate([xy, t_q[:, None]], 1).astype(np.float32),
         "tracks_XYZ": xyz,
         "visibility": np.ones((frames, tracks), bool),
@@ -38,11 +42,12 @@ def test_npz_round_trip_and_bytes_are_reproducible():
     arrays = good_arrays()
     data = encode_npz(arrays)
     assert data == encode_npz(good_arrays())
-    loaded = load_clip(data)
+    loaded = read_clip_bytes(data, "clip")
     assert sorted(loaded) == sorted(arrays)
     np.testing.assert_array_equal(loaded["tracks_XYZ"], arrays["tracks_XYZ"])
     assert list(loaded["images_jpeg_bytes"]) == list(arrays["images_jpeg_bytes"])
-    assert check_clip_bytes(data, "drivetrack") == []
+    assert loaded["images_jpeg_bytes"].dtype.kind == "S" and loaded["fx_fy_cx_cy"].dtype == np.float64
+    assert check_clip_bytes(data) == []
 
 
 def _break(name):
@@ -60,9 +65,18 @@ def _break(name):
     elif name == "wrong_frames":
         arrays["images_jpeg_bytes"] = arrays["images_jpeg_bytes"][:2]
     elif name == "missing_key":
-        del arrays["extrinsics_w2c"]
+        del arrays["visibility"]
     elif name == "dtype":
-        arrays["tracks_XYZ"] = arrays["tracks_XYZ"].astype(np.float64)
+        arrays["tracks_XYZ"] = arrays["tracks_XYZ"].astype(np.float16)
+    elif name == "negative_focal":
+        arrays["fx_fy_cx_cy"] = INTRINSICS * [-1, 1, 1, 1]
+    elif name == "query_outside":
+        arrays["queries_xyt"][2, 0] = -0.25
+        arrays["tracks_XYZ"][2, 2, 0] = -0.5025 * arrays["tracks_XYZ"][2, 2, 2]
+    elif name == "frame_size":
+        arrays["images_jpeg_bytes"] = np.array([jpeg(0), jpeg(0, width=99), jpeg(0)])
+    elif name == "not_jpeg":
+        arrays["images_jpeg_bytes"] = np.array([jpeg(0), b"\xff\xd8fake", jpeg(0)])
     elif name == "query_frame":
         arrays["queries_xyt"][1, 2] = 7.0
     return arrays
@@ -77,28 +91,32 @@ def _break(name):
         ("nan", "non-finite"),
         ("no_tracks", "N = 0"),
         ("wrong_frames", "tracks_XYZ shape"),
-        ("missing_key", "missing ['extrinsics_w2c']"),
-        ("dtype", "tracks_XYZ: dtype float64"),
+        ("missing_key", "missing ['visibility']"),
+        ("dtype", "tracks_XYZ: dtype float16"),
+        ("negative_focal", "focal lengths [-100.0, 100.0] must be positive"),
+        ("query_outside", "1 query point(s) outside the 100x100 frame"),
+        ("frame_size", "images_jpeg_bytes[1]: 99x100 pixels, frame 0 is 100x100"),
+        ("not_jpeg", "images_jpeg_bytes[1]: not JPEG bytes"),
         ("query_frame", "not a frame index"),
     ],
 )
 def test_validator_names_each_broken_invariant(name, words):
-    problems = check_arrays(_break(name), "drivetrack")
+    problems = check_arrays(_break(name))
     assert any(words in p for p in problems), problems
 
 
-def test_pstudio_clips_have_no_extrinsics():
+def test_validator_accepts_the_release_variants():
+    """float64 geometry, no extrinsics (the release's ADT files), extra keys: all valid."""
     arrays = good_arrays()
-    assert (
-        check_arrays(arrays, "pstudio")
-        and "unexpected ['extrinsics_w2c']" in check_arrays(arrays, "pstudio")[0]
-    )
+    assert check_arrays(arrays) == []
     del arrays["extrinsics_w2c"]
-    assert check_arrays(arrays, "pstudio") == []
+    arrays.update(tracks_XYZ=arrays["tracks_XYZ"].astype(np.float64), extra=np.zeros(3))
+    assert check_arrays(arrays) == []
+    assert check_clip_bytes(encode_npz(arrays)) == []
 
 
 def test_unreadable_file_is_a_problem_not_a_crash():
-    assert "unreadable" in check_clip_bytes(b"not a zip", "adt")[0]
+    assert "not an .npz archive" in check_clip_bytes(b"not a zip")[0]
 
 
 def test_atomic_write_replaces_and_leaves_no_partial(tmp_path):

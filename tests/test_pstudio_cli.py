@@ -37,7 +37,7 @@ def test_run_writes_valid_clips(direct_run):
     summary = json.load(open(os.path.join(out, "run_pstudio.json")))["summary"]
     assert summary["clips_written"] == 4 and summary["clips_below_target"] == 0
     assert summary["dropped_by_filter"]["mask"] > 0  # the floaters
-    with np.load(os.path.join(out, "pstudio", "dome_3.npz"), allow_pickle=True) as clip:
+    with np.load(os.path.join(out, "pstudio", "dome_3.npz"), allow_pickle=False) as clip:
         assert "extrinsics_w2c" not in clip.files
         assert clip["tracks_XYZ"].shape == (40, 50, 3)
     assert "pstudio: 4 unit(s), 0 finished earlier, 0 failed" in result.stdout

@@ -57,7 +57,7 @@ def test_tracks_follow_the_attached_material_point(pstudio_sample, clips):
 
 def test_queries_sit_on_the_visible_surface(clips):
     for _, clip, kept, _, _ in clips:
-        assert not check_arrays(clip_arrays(kept), "pstudio")
+        assert not check_arrays(clip_arrays(kept))
         # Attachments farther than pstudio.max_attach_distance_m (blended depth at silhouettes)
         # are refused; most unprojected query points lie within a splat width of their Gaussian.
         distance = clip.track_stats["attach_distance_m"]

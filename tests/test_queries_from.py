@@ -105,7 +105,7 @@ def test_a_query_off_every_surface_fails_its_unit_with_the_reason(pstudio_sample
         == 0
     )
     clip = first / "pstudio" / "dome_3.npz"
-    with np.load(clip, allow_pickle=True) as data:
+    with np.load(clip) as data:
         arrays = dict(data)
     arrays["queries_xyt"][0, :2] = [2.0, 2.0]  # the top-left corner: no splat there
     np.savez(clip, **arrays)

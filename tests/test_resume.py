@@ -12,6 +12,7 @@ import time
 
 import pytest
 
+from pipeline.export import files
 from pipeline.export.validator import check_clip_bytes
 from pipeline.validate import main as validate_main
 from tests.bad_input import partial_files
@@ -105,11 +106,13 @@ def test_sigkill_mid_run_then_rerun_completes_with_identical_bytes(reference_run
     written = clip_bytes(out, "pstudio")
     assert 1 <= len(written) < len(expected)
     assert all(
-        not check_clip_bytes(data, "pstudio") and data == expected[name] for name, data in written.items()
+        not check_clip_bytes(data) and data == expected[name] for name, data in written.items()
     )
     assert not os.path.exists(os.path.join(out, "run_pstudio.json"))
     # A hidden temporary of an interrupted write, as a kill during a write leaves one.
-    open(os.path.join(clips, ".dome_3.npz.partial-0123456789abcdef"), "wb").write(b"half a clip")
+    # Its name carries the writer's host and pid: the killed process, gone now.
+    partial = f".dome_3.npz{files.PARTIAL}{files.writer_host()}-{process.pid}-0123456789ab"
+    open(os.path.join(clips, partial), "wb").write(b"half a clip")
 
     result = run_pipeline("pstudio", "--input", source_input, "--output", out)
     assert result.returncode == 0, result.stderr[-3000:]
@@ -123,9 +126,9 @@ def test_sigkill_mid_run_then_rerun_completes_with_identical_bytes(reference_run
 def test_a_clip_left_without_tracks_by_new_settings_is_removed(finished_copy):
     source_input, out = finished_copy
     assert len(clip_bytes(out, "pstudio")) == 4
-    # No track can pass a mask threshold above 1: the earlier run's clips must not survive it.
+    # No query attaches to a Gaussian centre within 1 nm: the earlier run's clips must not survive it.
     result = run_pipeline(
-        "pstudio", "--input", source_input, "--output", out, "--set", "pstudio.mask_min_agreement=1.5"
+        "pstudio", "--input", source_input, "--output", out, "--set", "pstudio.max_attach_distance_m=1e-9"
     )
     assert result.returncode == 0, result.stderr[-3000:]
     assert clip_bytes(out, "pstudio") == {}

@@ -6,8 +6,9 @@ import cv2
 import numpy as np
 import pytest
 
+from pipeline.core.images import jpeg_size
 from pipeline.export.npz_writer import encode_npz
-from pipeline.export.validator import jpeg_size, quality_findings
+from pipeline.export.validator import quality_findings
 from pipeline.validate import main
 
 HEIGHT, WIDTH, FRAMES, TRACKS = 48, 64, 30, 6
@@ -19,11 +20,9 @@ def clean_clip():
     rng = np.random.default_rng(0)
     u, v = rng.uniform(5, WIDTH - 5, (FRAMES, TRACKS)), rng.uniform(5, HEIGHT - 5, (FRAMES, TRACKS))
     xyz = np.stack([(u - K[2]) / K[0] * 2.0, (v - K[3]) / K[1] * 2.0, np.full_like(u, 2.0)], -1)
-    images = np.empty(FRAMES, object)
     jpeg = cv2.imencode(".jpg", np.zeros((HEIGHT, WIDTH, 3), np.uint8))[1].tobytes()
-    images[:] = [bytes(bytearray(jpeg)) for _ in range(FRAMES)]
     return {
-        "images_jpeg_bytes": images,
+        "images_jpeg_bytes": np.array([jpeg] * FRAMES),
         "queries_xyt": np.stack([u[5], v[5], np.full(TRACKS, 5.0)], 1).astype(np.float32),
         "tracks_XYZ": xyz.astype(np.float32),
         "visibility": np.ones((FRAMES, TRACKS), bool),

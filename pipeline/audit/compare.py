@@ -5,28 +5,36 @@ truth, and tracks correspond by index. Per clip: 3D-AJ and APD under each rescal
 ``pipeline.audit.metrics.SCALINGS``, OA (which is the visibility agreement: the fraction of
 (frame, track) pairs whose two visibility flags agree) and the median 3D error in metres. Per source
 and over all sources: means over the scored clips. Writes ``PREFIX.md`` and ``PREFIX.json``
-(default prefix ``NEW_DIR/compare``). Pickled members (the JPEG frames) are never unpickled: the
-frame size that sets the evaluation scale is read from the raw bytes of the first JPEG's header.
+(default prefix ``NEW_DIR/compare``). Nothing is unpickled and every size is bounded
+(``pipeline.export.clip_reader``); the frame size that sets the evaluation scale comes from the
+first JPEG's header. Every clip that cannot be scored is named with the reason; the command exits 1
+when none could be.
 """
 
 from __future__ import annotations
 
 import argparse
-import io
 import json
 import math
+import os
 import sys
-import zipfile
 
 import numpy as np
 
 from pipeline.audit.metrics import SCALINGS, eval_intrinsics, median_error, tapvid3d_metrics
-from pipeline.export.files import list_files, read_bytes, write_atomic
-from pipeline.export.validator import jpeg_size
+from pipeline.core.images import jpeg_size
+from pipeline.export.clip_reader import (
+    DEFAULT_LIMITS,
+    FRAMES,
+    ReadLimits,
+    add_limit_argument,
+    limits_from,
+    read_clip_file,
+)
+from pipeline.export.files import is_local, list_files, write_atomic
+from pipeline.export.npz_reader import NpzError
 
 NUMERIC_KEYS = ("queries_xyt", "tracks_XYZ", "visibility", "fx_fy_cx_cy")
-FRAMES_MEMBER = "images_jpeg_bytes.npy"
-HEADER_READ_BYTES = 1 << 20
 SUMMARY_KEYS = (
     *(f"{key}_{scaling}" for scaling in SCALINGS for key in ("aj", "apd")),
     "oa",
@@ -44,33 +52,28 @@ def clip_keys(root: str) -> dict[str, str]:
     return {"/".join(path.replace("\\", "/").split("/")[-2:]): path for path in paths}
 
 
-def first_frame_size(data: bytes) -> tuple[int, int]:
-    """(height, width) of a clip's first frame, from its JPEG header inside the pickled frames member.
-
-    A pickled ``bytes`` object is stored verbatim, so the first JPEG start-of-image marker in the
-    member is the first frame's; nothing is unpickled.
-    """
-    with zipfile.ZipFile(io.BytesIO(data)) as archive, archive.open(FRAMES_MEMBER) as member:
-        head = member.read(HEADER_READ_BYTES)
-    start = head.find(b"\xff\xd8\xff")
-    size = jpeg_size(head[start:]) if start >= 0 else None
-    if size is None:
-        raise ClipError("no readable JPEG header in the first frame")
-    return size
-
-
-def read_clip(path: str) -> tuple[dict[str, np.ndarray], tuple[int, int]]:
-    """The numeric arrays of a clip (loaded with ``allow_pickle=False``) and its frame (height, width)."""
+def read_members(path: str, keys: tuple[str, ...], limits: ReadLimits) -> dict[str, np.ndarray]:
+    """The members ``keys`` of a clip, read with ``pipeline.export.clip_reader`` (nothing unpickled,
+    sizes bounded by the clip's T and N); ClipError naming the file when one is missing or refused."""
     try:
-        data = read_bytes(path)
-        with np.load(io.BytesIO(data), allow_pickle=False) as archive:
-            missing = [key for key in NUMERIC_KEYS if key not in archive.files]
-            if missing:
-                raise ClipError(f"{path}: missing {missing}")
-            arrays = {key: archive[key] for key in NUMERIC_KEYS}
-        return arrays, first_frame_size(data)
-    except (OSError, ValueError, KeyError, zipfile.BadZipFile) as error:
-        raise ClipError(f"{path}: unreadable ({error})") from error
+        arrays = read_clip_file(path, limits, keys)
+    except NpzError as error:
+        raise ClipError(str(error)) from error
+    missing = [key for key in keys if key not in arrays]
+    if missing:
+        raise ClipError(f"{path}: missing {missing}")
+    return arrays
+
+
+def read_reference(path: str, limits: ReadLimits) -> tuple[dict[str, np.ndarray], tuple[int, int]]:
+    """REF's numeric arrays and its frame (height, width), from the first JPEG's header."""
+    arrays = read_members(path, (*NUMERIC_KEYS, FRAMES), limits)
+    frames = arrays.pop(FRAMES)
+    readable = frames.dtype.kind == "S" and frames.ndim == 1 and len(frames)
+    size = jpeg_size(bytes(frames[0])) if readable else None
+    if size is None:
+        raise ClipError(f"{path}: no readable JPEG header in the first frame")
+    return arrays, size
 
 
 def compare_clip(ref: dict[str, np.ndarray], new: dict[str, np.ndarray], height: int, width: int) -> dict:
@@ -99,12 +102,13 @@ def compare_clip(ref: dict[str, np.ndarray], new: dict[str, np.ndarray], height:
     return row
 
 
-def score_pair(key: str, ref_path: str, new_path: str) -> dict:
-    """One per-clip row: metrics, or ``error`` saying why the pair could not be scored."""
+def score_pair(key: str, ref_path: str, new_path: str, limits: ReadLimits = DEFAULT_LIMITS) -> dict:
+    """One per-clip row: metrics, or ``error`` saying why the pair could not be scored. NEW is read
+    for its prediction only (``tracks_XYZ``, ``visibility``)."""
     source, clip = key.split("/")
     try:
-        ref, (height, width) = read_clip(ref_path)
-        new, _ = read_clip(new_path)
+        ref, (height, width) = read_reference(ref_path, limits)
+        new = read_members(new_path, ("tracks_XYZ", "visibility"), limits)
         return {"source": source, "clip": clip, **compare_clip(ref, new, height, width)}
     except ClipError as error:
         return {"source": source, "clip": clip, "error": str(error)}
@@ -172,11 +176,11 @@ def markdown(report: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def compare_dirs(ref_dir: str, new_dir: str) -> dict:
+def compare_dirs(ref_dir: str, new_dir: str, limits: ReadLimits = DEFAULT_LIMITS) -> dict:
     """The full report (JSON-ready) of NEW_DIR's clips against REF_DIR's."""
     ref, new = clip_keys(ref_dir), clip_keys(new_dir)
     common = sorted(ref.keys() & new.keys())
-    rows = [score_pair(key, ref[key], new[key]) for key in common]
+    rows = [score_pair(key, ref[key], new[key], limits) for key in common]
     return {
         "ref": ref_dir,
         "new": new_dir,
@@ -188,19 +192,39 @@ def compare_dirs(ref_dir: str, new_dir: str) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """The ``compare`` subcommand; exit 1 when the two folders have no clip in common."""
+    """The ``compare`` subcommand; exit 1 when no clip could be scored (none in common, or every
+    pair unreadable), 2 on bad arguments or folders. Each unscored clip is named on stderr."""
     parser = argparse.ArgumentParser(prog="python -m pipeline.audit compare", description=__doc__)
     parser.add_argument("ref_dir", help="reference output folder (<dir>/<source>/<clip>.npz): ground truth")
     parser.add_argument("new_dir", help="output folder to score as the prediction")
     parser.add_argument("--out", help="write OUT.md and OUT.json (default NEW_DIR/compare)")
+    add_limit_argument(parser)
     args = parser.parse_args(argv)
-    report = compare_dirs(args.ref_dir.rstrip("/"), args.new_dir.rstrip("/"))
+    try:
+        limits = limits_from(args.limit)
+    except ValueError as error:
+        parser.error(str(error))
+    for folder in (args.ref_dir, args.new_dir):
+        if is_local(folder) and not os.path.isdir(folder):
+            print(f"compare: {folder} is not a folder", file=sys.stderr)
+            return 2
+    report = compare_dirs(args.ref_dir.rstrip("/"), args.new_dir.rstrip("/"), limits)
     text = markdown(report)
     print(text, end="")
     prefix = args.out or f"{args.new_dir.rstrip('/')}/compare"
-    write_atomic(f"{prefix}.md", text.encode())
-    write_atomic(f"{prefix}.json", json.dumps(json_ready(report), indent=1, allow_nan=False).encode())
+    try:
+        write_atomic(f"{prefix}.md", text.encode())
+        write_atomic(f"{prefix}.json", json.dumps(json_ready(report), indent=1, allow_nan=False).encode())
+    except OSError as error:
+        print(f"compare: cannot write the report {prefix}.md/.json: {error}", file=sys.stderr)
+        return 2
+    unscored = [row for row in report["clips"] if "error" in row]
+    for row in unscored:
+        print(f"not scored: {row['source']}/{row['clip']}: {row['error']}", file=sys.stderr)
     if not report["clips"]:
         print(f"no clip in common between {args.ref_dir} and {args.new_dir}", file=sys.stderr)
+        return 1
+    if len(unscored) == len(report["clips"]):
+        print(f"none of the {len(unscored)} clip(s) in common could be scored", file=sys.stderr)
         return 1
     return 0

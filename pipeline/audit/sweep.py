@@ -37,7 +37,13 @@ def load_statistics(output: str, source: str) -> list[dict]:
     """Per clip: {"clip", "num_frames", "target_tracks", "stats": {name: [N] array}}."""
     clips = []
     for path in list_files(f"{output}/audit/{source}/*.parquet"):
-        table = pq.read_table(path)
+        try:
+            table = pq.read_table(path)
+        except (pa.ArrowException, OSError) as error:
+            raise ValueError(f"audit table {path} is unreadable ({error})") from error
+        missing = {"clip", "num_frames", "target_tracks", "visible_frames"} - set(table.column_names)
+        if missing:
+            raise ValueError(f"audit table {path} lacks column(s) {sorted(missing)}")
         columns = {name: table.column(name).to_numpy(zero_copy_only=False) for name in table.column_names}
         clips.append(
             {
@@ -215,10 +221,16 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--report", help="report folder (default <output>/sweep_<source>)")
     args = parser.parse_args(argv)
     try:
-        grid = parse_grid(args.grid)
-    except ValueError as error:
-        print(error, file=sys.stderr)
+        return sweep(args)
+    except (ValueError, KeyError, OSError, pa.ArrowException) as error:
+        print(f"sweep: {error}", file=sys.stderr)
         return 2
+
+
+def sweep(args: argparse.Namespace) -> int:
+    """The sweep of ``main``'s arguments; raises ValueError, KeyError, OSError or ArrowException on
+    bad input, which ``main`` prints as one line."""
+    grid = parse_grid(args.grid)
     output = os.path.abspath(args.output) if "://" not in args.output else args.output
     if not list_files(f"{output}/audit/{args.source}/*.parquet"):
         from pipeline import run

@@ -1,19 +1,84 @@
-"""Run configuration: every threshold is a field with the paper's default.
+"""Run configuration: every threshold is a field with the paper's default and its allowed range.
 
-Fields are overridden from the command line with ``--set section.field=value``.
+Fields are overridden from the command line with ``--set section.field=value``; ``with_overrides``
+refuses a value outside its field's range (``check_ranges``) before any work starts.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import re
 import typing
+
+_INTERVAL = re.compile(r"([\[(])\s*([^,\s]+)\s*,\s*([^\])\s]+)\s*([\])])")
+
+
+@dataclasses.dataclass(frozen=True)
+class Range:
+    """An interval of allowed values (of each item, for a tuple); a bound is a finite number or the
+    name of a sibling field (``[1, chunk_frames]``). NaN fails every comparison, so it is refused."""
+
+    low: float | str
+    high: float | str
+    low_open: bool
+    high_open: bool
+    even: bool = False
+    nonempty: bool = False
+
+    def _bounds(self, node) -> tuple:
+        return tuple(getattr(node, b) if isinstance(b, str) else b for b in (self.low, self.high))
+
+    def admits(self, value, kind, node) -> bool:
+        if typing.get_origin(kind) is tuple:
+            (item_kind, _) = typing.get_args(kind)
+            return (
+                isinstance(value, tuple)
+                and len(set(value)) == len(value)
+                and bool(value or not self.nonempty)
+                and all(self.admits(item, item_kind, node) for item in value)
+            )
+        if isinstance(value, bool) or not isinstance(value, int if kind is int else (int, float)):
+            return False
+        low, high = self._bounds(node)
+        if not all(isinstance(b, (int, float)) for b in (low, high)):
+            return True  # a sibling bound that is not a number reports its own violation
+        above = value > low if self.low_open else value >= low
+        below = value < high if self.high_open else value <= high
+        return above and below and not (self.even and value % 2)
+
+    def describe(self, kind, node, prefix: str) -> str:
+        if typing.get_origin(kind) is tuple:
+            noun = ("one or more " if self.nonempty else "") + "distinct integers"
+        else:
+            noun = "an integer" if kind is int else "a number"
+        low, high = (
+            f"{prefix}{b}={getattr(node, b)}" if isinstance(b, str) else _number(b)
+            for b in (self.low, self.high)
+        )
+        interval = f"{'(' if self.low_open else '['}{low}, {high}{')' if self.high_open else ']'}"
+        return f"{noun} in {interval}" + (" and even" if self.even else "")
+
+
+def _number(bound: float) -> str:
+    return str(int(bound)) if bound == int(bound) else str(bound)
+
+
+def ranged(default, interval: str, *, even: bool = False, nonempty: bool = False):
+    """A field whose value (each item of a tuple) must lie in ``interval``, e.g. ``"(0, 10]"``."""
+    match = _INTERVAL.fullmatch(interval)
+    if not match:
+        raise ValueError(f"bad interval {interval!r}")
+    opening, low, high, closing = match.groups()
+    low, high = (text if text.isidentifier() else float(text) for text in (low, high))
+    rule = Range(low, high, opening == "(", closing == ")", even, nonempty)
+    return dataclasses.field(default=default, metadata={"range": rule})
 
 
 @dataclasses.dataclass(frozen=True)
 class FlickerConfig:
     """Drop a track whose visibility changes state more than ``max_fraction`` x T times."""
 
-    max_fraction: float = 0.10
+    max_fraction: float = ranged(0.10, "[0, 1]")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -35,18 +100,18 @@ class DriveTrackConfig:
       0 picks it from the spacing of the projected lidar points in each frame.
     """
 
-    cameras: tuple[int, ...] = (1, 2, 3)
-    object_types: tuple[int, ...] = (1,)
-    box_shrink_m: float = 0.1
-    min_contiguous_frames: int = 24
-    max_corner_distance_m: float = 50.0
-    occlusion_margin: float = 0.05
+    cameras: tuple[int, ...] = ranged((1, 2, 3), "[1, 5]", nonempty=True)
+    object_types: tuple[int, ...] = ranged((1,), "[1, 4]", nonempty=True)
+    box_shrink_m: float = ranged(0.1, "[0, 10]")
+    min_contiguous_frames: int = ranged(24, "[1, 100000]")
+    max_corner_distance_m: float = ranged(50.0, "(0, 10000]")
+    occlusion_margin: float = ranged(0.05, "[0, 1)")
     facing_test: bool = True
-    tracks_per_clip: int = 256
-    oversample: int = 4
-    mask_min_agreement: float = 0.5
+    tracks_per_clip: int = ranged(256, "[1, 100000]")
+    oversample: int = ranged(4, "[1, 10000]")
+    mask_min_agreement: float = ranged(0.5, "[0, 1]")
     masks_dir: str = ""
-    mask_closing_px: int = 0
+    mask_closing_px: int = ranged(0, "[0, 1000]")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -74,17 +139,17 @@ class AdtConfig:
     tracks_per_clip, oversample: tracks written per clip; candidates drawn = oversample x that.
     """
 
-    chunk_frames: int = 300
-    min_frames: int = 300
+    chunk_frames: int = ranged(300, "[1, 100000]")
+    min_frames: int = ranged(300, "[1, chunk_frames]")
     with_skeleton: bool = True
-    max_gt_offset_ms: float = 5.0
-    image_size: int = 512
-    focal: float = 280.0
-    depth_delta_m: float = 0.02
-    dynamic_share: float = 0.5
-    mask_min_agreement: float = 0.5
-    tracks_per_clip: int = 1024
-    oversample: int = 4
+    max_gt_offset_ms: float = ranged(5.0, "(0, 1000]")
+    image_size: int = ranged(512, "[2, 8192]", even=True)
+    focal: float = ranged(280.0, "(0, 100000]")
+    depth_delta_m: float = ranged(0.02, "(0, 10]")
+    dynamic_share: float = ranged(0.5, "[0, 1]")
+    mask_min_agreement: float = ranged(0.5, "[0, 1]")
+    tracks_per_clip: int = ranged(1024, "[1, 100000]")
+    oversample: int = ranged(4, "[1, 10000]")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -109,13 +174,13 @@ class PstudioConfig:
     """
 
     params_dir: str = ""
-    cameras: tuple[int, ...] = ()
-    depth_delta_m: float = 0.05
-    min_alpha: float = 0.5
-    max_attach_distance_m: float = 0.03
-    mask_min_agreement: float = 0.75
-    tracks_per_clip: int = 50
-    oversample: int = 8
+    cameras: tuple[int, ...] = ranged((), "[0, 999]")
+    depth_delta_m: float = ranged(0.05, "(0, 10]")
+    min_alpha: float = ranged(0.5, "[0, 1]")
+    max_attach_distance_m: float = ranged(0.03, "(0, 10]")
+    mask_min_agreement: float = ranged(0.75, "[0, 1]")
+    tracks_per_clip: int = ranged(50, "[1, 100000]")
+    oversample: int = ranged(8, "[1, 10000]")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -127,11 +192,11 @@ class RunConfig:
     export_depth: also write the depth each visibility test read (``--export-depth``).
     """
 
-    seed: int = 0
+    seed: int = ranged(0, "[0, 4294967295]")
     splits_file: str = ""
     queries_from: str = ""
     export_depth: bool = False
-    minival_per_source: int = 50
+    minival_per_source: int = ranged(50, "[0, 1000000]")
     flicker: FlickerConfig = dataclasses.field(default_factory=FlickerConfig)
     adt: AdtConfig = dataclasses.field(default_factory=AdtConfig)
     drivetrack: DriveTrackConfig = dataclasses.field(default_factory=DriveTrackConfig)
@@ -141,20 +206,71 @@ class RunConfig:
         return dataclasses.asdict(self)
 
 
-def _parse_value(text: str, kind: typing.Any, key: str):
+_EXPECTED = {bool: "bool", int: "int", float: "float", tuple[int, ...]: "comma-separated ints"}
+
+
+def _parse_value(text: str, kind: typing.Any):
     if typing.get_origin(kind) is tuple:
         (item_kind, _) = typing.get_args(kind)
-        return tuple(_parse_value(part, item_kind, key) for part in text.split(",") if part)
+        return tuple(_parse_value(part.strip(), item_kind) for part in text.split(",") if part.strip())
     if kind is bool:
         if text.lower() in ("1", "true", "yes"):
             return True
         if text.lower() in ("0", "false", "no"):
             return False
-        raise ValueError(f"--set {key}: expected true/false, got {text!r}")
-    try:
-        return kind(text)
-    except ValueError as error:
-        raise ValueError(f"--set {key}: expected {kind.__name__}, got {text!r}") from error
+        raise ValueError(text)
+    return kind(text)
+
+
+def _rule(node, name: str) -> Range | None:
+    return next(field.metadata.get("range") for field in dataclasses.fields(node) if field.name == name)
+
+
+def _admits(node, name: str, kind) -> bool:
+    rule, value = _rule(node, name), getattr(node, name)
+    if rule is not None:
+        return rule.admits(value, kind, node)
+    return isinstance(value, bool if kind is bool else str)
+
+
+def _need(node, name: str, kind, prefix: str) -> str:
+    """What field ``name`` of ``node`` must be, in words."""
+    rule = _rule(node, name)
+    if rule is not None:
+        return rule.describe(kind, node, prefix)
+    return "true or false" if kind is bool else "a string"
+
+
+def _violations(node, prefix: str = "") -> list[tuple[str, typing.Any, str]]:
+    """(key, value, what it must be) for every field of ``node`` outside its range."""
+    hints = typing.get_type_hints(type(node))
+    found = []
+    for field in dataclasses.fields(node):
+        value = getattr(node, field.name)
+        if dataclasses.is_dataclass(hints[field.name]):
+            found += _violations(value, f"{prefix}{field.name}.")
+        elif not _admits(node, field.name, hints[field.name]):
+            found.append((prefix + field.name, value, _need(node, field.name, hints[field.name], prefix)))
+    return found
+
+
+def _show(value) -> str:
+    """``value`` as it would be written after ``--set key=``."""
+    return ",".join(str(v) for v in value) if isinstance(value, tuple) else str(value)
+
+
+def check_ranges(config, assigned: dict[str, str] | None = None) -> None:
+    """Raise ValueError naming every field of ``config`` outside its range, its value and the range.
+
+    ``assigned`` maps the keys given with ``--set`` to their text, which the message quotes.
+    """
+    assigned = assigned or {}
+    problems = [
+        (f"--set {key}={assigned[key]}" if key in assigned else f"{key}={_show(value)}") + f": must be {need}"
+        for key, value, need in _violations(config)
+    ]
+    if problems:
+        raise ValueError("; ".join(problems))
 
 
 def _keys(config, prefix: str = "") -> list[str]:
@@ -169,16 +285,20 @@ def _keys(config, prefix: str = "") -> list[str]:
 
 
 def with_overrides(config, assignments: list[str]):
-    """Return ``config`` with ``section.field=value`` assignments applied (types checked)."""
+    """Return ``config`` with ``section.field=value`` assignments applied, types and ranges checked."""
+    assigned = {}
     for assignment in assignments:
         key, sep, text = assignment.partition("=")
         if not sep:
             raise ValueError(f"--set {assignment!r}: expected key=value")
-        config = _replace_path(config, key.strip().split("."), text.strip(), key, config)
+        key, text = key.strip(), text.strip()
+        config = _replace_path(config, key.split("."), text, key, config)
+        assigned[key] = text
+    check_ranges(config, assigned)
     return config
 
 
-def _replace_path(node, path: list[str], text: str, key: str, root):
+def _replace_path(node, path: list[str], text: str, key: str, root, prefix: str = ""):
     hints = typing.get_type_hints(type(node))
     name = path[0]
     if name not in hints:
@@ -188,16 +308,21 @@ def _replace_path(node, path: list[str], text: str, key: str, root):
     if dataclasses.is_dataclass(current):
         if len(path) == 1:
             raise ValueError(f"--set {key}: is a section; name one of its fields")
-        value = _replace_path(current, path[1:], text, key, root)
+        value = _replace_path(current, path[1:], text, key, root, f"{prefix}{name}.")
     elif len(path) > 1:
         raise ValueError(f"--set {key}: {name} has no fields")
     else:
-        value = _parse_value(text, hints[name], key)
+        try:
+            value = _parse_value(text, hints[name])
+        except ValueError:
+            expected, need = _EXPECTED[hints[name]], _need(node, name, hints[name], prefix)
+            raise ValueError(f"--set {key}={text}: expected {expected}; must be {need}") from None
     return dataclasses.replace(node, **{name: value})
 
 
 def config_from_dict(kind, values: dict):
-    """Rebuild a config dataclass of type ``kind`` from ``to_dict()`` output (e.g. a run.json)."""
+    """Rebuild a config dataclass of type ``kind`` from ``to_dict()`` output (e.g. a run.json);
+    ``check_ranges`` tells whether its values are allowed."""
     hints = typing.get_type_hints(kind)
     fields = {}
     for field in dataclasses.fields(kind):

@@ -1,35 +1,51 @@
 """``--queries-from DIR``: the query points of existing clips, to re-annotate exactly those.
 
 The clip ``<DIR>/<source>/<clip>.npz`` (or ``<DIR>/<clip>.npz``) is matched by name; only its
-``queries_xyt`` member is read, without unpickling anything (the JPEG member needs pickle and
-is never touched).
+``queries_xyt`` member is read, through ``pipeline.export.clip_reader`` (nothing unpickled, its
+size bounded by the clip's own headers), so a released file or a stranger's works alike.
 """
 
 from __future__ import annotations
 
-import io
-
 import numpy as np
-from apache_beam.io.filesystem import CompressionTypes
 from apache_beam.io.filesystems import FileSystems
 
 from pipeline.core.errors import InputError
+from pipeline.export.clip_reader import read_clip_file
+from pipeline.export.npz_reader import NpzError
 
 
 def given_queries(queries_from: str, source: str, clip: str) -> np.ndarray | None:
-    """Queries [N, 3] (x, y, t) of the existing clip named ``clip``, or None if there is none."""
+    """Queries [N, 3] (x, y, t) of the existing clip named ``clip``, or None if there is none.
+
+    InputError naming the file when it is refused or unreadable, when the queries are not a finite
+    [N, 3] float array, or when a query frame t is not a non-negative integer.
+    """
     root = queries_from.rstrip("/")
     for path in (f"{root}/{source}/{clip}.npz", f"{root}/{clip}.npz"):
         if not FileSystems.exists(path):
             continue
-        with FileSystems.open(path, compression_type=CompressionTypes.UNCOMPRESSED) as handle:
-            data = handle.read()
         try:
-            with np.load(io.BytesIO(data), allow_pickle=False) as archive:
-                queries = np.asarray(archive["queries_xyt"], dtype=np.float64)
-        except (KeyError, ValueError, OSError) as error:
-            raise InputError(f"--queries-from {path}: no readable queries_xyt ({error})") from error
-        if queries.ndim != 2 or queries.shape[1] != 3 or not np.isfinite(queries).all():
-            raise InputError(f"--queries-from {path}: queries_xyt must be finite [N, 3], got {queries.shape}")
+            arrays = read_clip_file(path, keys=("queries_xyt",))
+        except NpzError as error:
+            raise InputError(f"--queries-from {error}") from error
+        if "queries_xyt" not in arrays:
+            raise InputError(f"--queries-from {path}: no queries_xyt member")
+        queries = arrays["queries_xyt"]
+        if queries.dtype.kind != "f" or queries.ndim != 2 or queries.shape[1] != 3:
+            raise InputError(
+                f"--queries-from {path}: queries_xyt must be a float [N, 3] array, got {queries.dtype} "
+                f"{queries.shape}"
+            )
+        queries = queries.astype(np.float64)
+        if not np.isfinite(queries).all():
+            raise InputError(f"--queries-from {path}: queries_xyt holds non-finite values")
+        frames = queries[:, 2]
+        bad = (frames != np.round(frames)) | (frames < 0)
+        if bad.any():
+            raise InputError(
+                f"--queries-from {path}: query {int(np.flatnonzero(bad)[0])} has frame {frames[bad][0]!r}, "
+                "not a frame index (a non-negative integer)"
+            )
         return queries
     return None

@@ -69,3 +69,19 @@ COMPONENTS = (
 
 TOP_LASER = 1
 CAMERA_NAMES = {1: "FRONT", 2: "FRONT_LEFT", 3: "FRONT_RIGHT", 4: "SIDE_LEFT", 5: "SIDE_RIGHT"}
+
+# Each component's key: the columns that name one row (the segment aside, as a file holds one segment).
+KEYS = {
+    CAMERA_IMAGE: (CAMERA_NAME, TIMESTAMP),
+    CAMERA_CALIBRATION: (CAMERA_NAME,),
+    LIDAR: (LASER_NAME, TIMESTAMP),
+    LIDAR_CALIBRATION: (LASER_NAME,),
+    LIDAR_POSE: (LASER_NAME, TIMESTAMP),
+    LIDAR_CAMERA_PROJECTION: (LASER_NAME, TIMESTAMP),
+    LIDAR_BOX: (OBJECT_ID, TIMESTAMP),
+    LIDAR_CAMERA_SYNCED_BOX: (OBJECT_ID, TIMESTAMP),
+    VEHICLE_POSE: (TIMESTAMP,),
+}
+# A key column's word in messages; object ids are strings, the other key columns integers.
+KEY_WORDS = {OBJECT_ID: "object", CAMERA_NAME: "camera", LASER_NAME: "laser", TIMESTAMP: "timestamp"}
+STRING_KEYS = (OBJECT_ID,)

@@ -2,11 +2,21 @@
 
 Layout: ``<root>/<component>/<segment_context_name>.parquet``. Paths go through Beam's
 FileSystems, so a root on GCS or S3 works like a local folder.
+
+Keys (``columns.KEYS``): each component holds one row per key, e.g. per (camera, timestamp) in
+camera_image, per (object, timestamp) in the box files, per timestamp in vehicle_pose, per laser in
+lidar_calibration. Key columns must hold integers (object ids: strings); their Parquet types are
+checked when a file is opened. Among the rows a unit reads (its camera, the TOP laser at the frames
+it asks for), a key on several rows is an InputError naming the file and the key, since either row
+could be the true one; except that rows equal bit for bit in every column the reader uses are exact
+copies, and only the first is kept. The lidar files are checked on their key columns before their
+range images are streamed; rows whose key repeats are compared by digests of their range images.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 from collections.abc import Iterator
 
 import numpy as np
@@ -21,6 +31,8 @@ from pipeline.drivetrack import columns as C
 
 # Rows decoded at a time: a TOP lidar row is a few MB of range image, a camera row one JPEG.
 BATCH_ROWS = 8
+# Rows read at a time when only key columns are read.
+KEY_BATCH_ROWS = 1 << 16
 
 
 @dataclasses.dataclass(frozen=True)
@@ -110,6 +122,78 @@ def transforms_from_column(column: pa.ChunkedArray | pa.Array, what: str) -> np.
     return values.reshape(-1, 4, 4)
 
 
+def _check_key_type(label: str, name: str, kind: pa.DataType) -> None:
+    if name in C.STRING_KEYS:
+        valid, expected = pa.types.is_string(kind) or pa.types.is_large_string(kind), "a string"
+    else:
+        valid, expected = pa.types.is_integer(kind), "an integer"
+    if not valid:
+        raise InputError(f"{label}: column {name} has type {kind}, expected {expected}")
+
+
+def _bit_type(kind: pa.DataType) -> pa.DataType:
+    """``kind`` with each float as an integer of its width: equal views hold equal bits (NaN too)."""
+    if pa.types.is_floating(kind):
+        return {16: pa.int16(), 32: pa.int32(), 64: pa.int64()}[kind.bit_width]
+    if pa.types.is_fixed_size_list(kind):
+        return pa.list_(_bit_type(kind.value_type), kind.list_size)
+    if pa.types.is_list(kind):
+        return pa.list_(_bit_type(kind.value_type))
+    if pa.types.is_large_list(kind):
+        return pa.large_list(_bit_type(kind.value_type))
+    return kind
+
+
+def _unique_rows(table: pa.Table, keys: tuple[str, ...], label: str) -> pa.Table:
+    """``table`` less the rows that repeat an earlier row's key and equal it bit for bit in every
+    column; InputError naming the key where a repeat differs. Keys are compared with NumPy; the
+    other columns only on the rows whose key repeats."""
+    for name in keys:
+        if table.column(name).null_count:
+            raise InputError(f"{label}: column {name} has {table.column(name).null_count} null value(s)")
+    if table.num_rows < 2:
+        return table
+    codes = []
+    for name in keys:
+        column = table.column(name).combine_chunks()
+        column = pc.dictionary_encode(column).indices if name in C.STRING_KEYS else column
+        codes.append(column.to_numpy().astype(np.int64, copy=False))
+    order = np.lexsort(codes[::-1])  # stable: each run of equal keys starts with its first row
+    ordered = np.stack(codes, 1)[order]
+    repeat = np.zeros(len(order), bool)
+    repeat[1:] = (ordered[1:] == ordered[:-1]).all(1)
+    if not repeat.any():
+        return table
+    first = np.empty_like(order)  # first[i]: the first row holding row i's key
+    first[order] = order[np.maximum.accumulate(np.where(repeat, 0, np.arange(len(order))))]
+    rows = np.nonzero(first != np.arange(len(first)))[0]
+    for name in table.column_names:
+        column = table.column(name).combine_chunks()
+        column = column.view(_bit_type(column.type))
+        ours, theirs = column.take(rows), column.take(first[rows])
+        if not ours.equals(theirs):
+            bad = next(r for i, r in enumerate(rows) if not ours.slice(i, 1).equals(theirs.slice(i, 1)))
+            key = " at ".join(f"{C.KEY_WORDS[k]} {table.column(k)[int(bad)].as_py()!r}" for k in keys)
+            count = int((first == first[bad]).sum())
+            raise InputError(f"{label}: {key} appears in {count} rows with different values ({name} differs)")
+    return table.filter(pa.array(first == np.arange(len(first))))  # exact copies: keep the first
+
+
+def _digest(cell: pa.Scalar) -> bytes | None:
+    """blake2b of a list cell's values, bit for bit (None for a null cell)."""
+    if not cell.is_valid:
+        return None
+    return hashlib.blake2b(cell.values.to_numpy(zero_copy_only=False).tobytes()).digest()
+
+
+def _top_rows(batch: pa.RecordBatch, timestamps: pa.Array) -> pa.Array:
+    """[R] True on the TOP laser's rows at one of ``timestamps``."""
+    return pc.and_(
+        pc.equal(batch.column(C.LASER_NAME), C.TOP_LASER),
+        pc.is_in(batch.column(C.TIMESTAMP), value_set=timestamps),
+    )
+
+
 def _numbers(table: pa.Table, name: str, what: str, dtype=np.float64) -> np.ndarray:
     column = table.column(name)
     if not (pa.types.is_floating(column.type) or pa.types.is_integer(column.type)):
@@ -135,9 +219,12 @@ class SegmentReader:
             if not FileSystems.exists(self._path(component)):
                 raise InputError(f"missing component file {component}/{self.segment}.parquet")
 
-    def batches(self, component: str, columns: list[str]) -> Iterator[pa.RecordBatch]:
-        """Columns of one component file, ``BATCH_ROWS`` rows at a time (a segment's lidar files
-        decode to several GiB; only the rows a unit keeps are ever held); clear errors for bad files."""
+    def batches(
+        self, component: str, columns: list[str], batch_rows: int = BATCH_ROWS
+    ) -> Iterator[pa.RecordBatch]:
+        """Columns of one component file, ``batch_rows`` rows at a time (a segment's lidar files
+        decode to several GiB; only the rows a unit keeps are ever held); clear errors for bad files,
+        key columns of the wrong type among them (from the schema, before any row is read)."""
         path = self._path(component)
         label = f"{component}/{self.segment}.parquet"
         if not FileSystems.exists(path):
@@ -149,20 +236,25 @@ class SegmentReader:
                 missing = [name for name in columns if name not in present]
                 if missing:
                     raise InputError(f"{label}: missing column(s) {missing}")
-                yield from parquet.iter_batches(batch_size=BATCH_ROWS, columns=columns)
+                for name in columns:
+                    if name in C.KEY_WORDS:
+                        _check_key_type(label, name, parquet.schema_arrow.field(name).type)
+                yield from parquet.iter_batches(batch_size=batch_rows, columns=columns)
         except InputError:
             raise
         except (pa.ArrowException, OSError, ValueError) as error:
             raise InputError(f"{label}: unreadable Parquet ({error})") from error
 
     def read(self, component: str, columns: list[str], filters=None) -> pa.Table:
-        """The rows of one component file that pass ``filters`` (a pyarrow expression), as a table."""
+        """The rows of one component file that pass ``filters`` (a pyarrow expression), as a table,
+        one row per key (``columns`` must hold the component's key columns; see the module's doc)."""
         parts = [pa.Table.from_batches([batch]) for batch in self.batches(component, columns)]
         if filters is not None:
             parts = [part.filter(filters) for part in parts]
         if not parts:
             return pa.table({name: pa.array([]) for name in columns})
-        return pa.concat_tables(parts).combine_chunks()
+        table = pa.concat_tables(parts).combine_chunks()
+        return _unique_rows(table, C.KEYS[component], f"{component}/{self.segment}.parquet")
 
     def camera_calibration(self, camera: int) -> CameraCalibration:
         names = [C.CAMERA_NAME, *C.CAM_INTRINSICS, *C.CAM_DISTORTION, C.CAM_EXTRINSIC]
@@ -213,8 +305,6 @@ class SegmentReader:
             raise InputError(f"{what}: no frames")
         stamps = _numbers(table, C.TIMESTAMP, what, np.int64)
         order = np.argsort(stamps, kind="stable")
-        if len(np.unique(stamps)) != len(stamps):
-            raise InputError(f"{what}: duplicate frame timestamps")
         jpegs = table.column(C.IMAGE_JPEG).to_pylist()
         poses = transforms_from_column(table.column(C.IMAGE_POSE), what)
         return CameraFrames(stamps[order], [jpegs[i] for i in order], poses[order])
@@ -295,17 +385,40 @@ class SegmentReader:
     ) -> Iterator[tuple[int, np.ndarray]]:
         """(timestamp, range image [H, W, channels]) of each TOP row at one of ``timestamps``."""
         wanted = pa.array(sorted(set(timestamps)), pa.int64())
-        columns = [C.TIMESTAMP, C.LASER_NAME, values, shape]
-        for batch in self.batches(component, columns):
-            keep = pc.and_(
-                pc.equal(batch.column(C.LASER_NAME), C.TOP_LASER),
-                pc.is_in(batch.column(C.TIMESTAMP), value_set=wanted),
-            )
-            rows = batch.filter(keep)
+        self._check_top_repeats(component, [values, shape], wanted)
+        seen: set[int] = set()
+        for batch in self.batches(component, [C.TIMESTAMP, C.LASER_NAME, values, shape]):
+            rows = batch.filter(_top_rows(batch, wanted))
             for row, timestamp in enumerate(rows.column(C.TIMESTAMP).to_pylist()):
+                if timestamp in seen:
+                    continue  # an exact copy of a row handed on already (checked above)
+                seen.add(timestamp)
                 what = f"{component}/{self.segment} TOP frame {timestamp}"
                 image = _range_image(rows, row, values, shape, channels, what)
                 yield timestamp, image.copy()  # a copy: the batch's buffers are let go
+
+    def _check_top_repeats(self, component: str, columns: list[str], wanted: pa.Array) -> None:
+        """InputError if a TOP row at one of ``wanted`` repeats its timestamp with other ``columns``
+        values. Reads the key columns only; where a key repeats, also that key's rows, compared by
+        digests of their cells (a range image is a few MB)."""
+        keys = [C.TIMESTAMP, C.LASER_NAME]
+        stamps = [
+            batch.filter(_top_rows(batch, wanted)).column(C.TIMESTAMP).to_numpy()
+            for batch in self.batches(component, keys, KEY_BATCH_ROWS)
+        ]
+        unique, counts = np.unique(np.concatenate([np.zeros(0, np.int64), *stamps]), return_counts=True)
+        if (counts < 2).all():
+            return
+        repeated = pa.array(unique[counts > 1], pa.int64())
+        parts = []
+        for batch in self.batches(component, keys + columns):
+            rows = batch.filter(_top_rows(batch, repeated))
+            digests = {
+                name: pa.array([_digest(c) for c in rows.column(name)], pa.binary()) for name in columns
+            }
+            parts.append(pa.table({**{k: rows.column(k) for k in keys}, **digests}))
+        _unique_rows(pa.concat_tables(parts), C.KEYS[component], f"{component}/{self.segment}.parquet")
+
 
 def _range_image(
     table: pa.Table | pa.RecordBatch, row: int, values_name: str, shape_name: str, channels: int, what: str

@@ -1,39 +1,149 @@
-"""Atomic, idempotent writes through Beam's FileSystems (local, GCS, S3, HDFS alike)."""
+"""Atomic writes, bounded reads and safe deletes, through Beam's FileSystems (local, GCS, S3, HDFS).
+
+A file is written to a hidden temporary beside it, ``.<name>.partial-<host>-<pid>-<random>``,
+then moved into place: ``os.replace`` on a local disk (atomic, no moment without the file),
+the filesystem's rename elsewhere (object stores overwrite in one step). The writer's host and
+process id in the temporary's name let a later run tell an abandoned temporary (its process is
+gone) from a live one of a concurrent run, which it must leave alone.
+"""
 
 from __future__ import annotations
 
+import errno
+import os
+import socket
+import time
 import uuid
 
-from apache_beam.io.filesystem import CompressionTypes
+from apache_beam.io.filesystem import BeamIOError, CompressionTypes
 from apache_beam.io.filesystems import FileSystems
+
+PARTIAL = ".partial-"
+# Longest file name written; the temporary adds its prefix and suffix to it (255 is the usual limit).
+MAX_NAME_BYTES = 180
+# A temporary written from another machine counts as abandoned once this old.
+REMOTE_GRACE_SECONDS = 3600.0
+
+
+def is_local(path: str) -> bool:
+    return "://" not in path
+
+
+def temporary_path(path: str) -> str:
+    """The hidden temporary a write of ``path`` goes through, unique to this process and call."""
+    folder, _, name = path.rpartition("/")
+    temporary = f".{name}{PARTIAL}{writer_host()}-{os.getpid()}-{uuid.uuid4().hex[:12]}"
+    return f"{folder}/{temporary}" if folder else temporary
+
+
+def check_name_length(path: str) -> None:
+    """Raise OSError(ENAMETOOLONG) naming the file when its name is longer than MAX_NAME_BYTES."""
+    name = path.rpartition("/")[2]
+    if len(name.encode()) > MAX_NAME_BYTES:
+        raise OSError(
+            errno.ENAMETOOLONG, f"file name is {len(name.encode())} bytes, at most {MAX_NAME_BYTES}", name
+        )
 
 
 def write_atomic(path: str, data: bytes) -> None:
-    """Write ``data`` to a hidden temporary file beside ``path``, then rename it into place.
+    """Write ``data`` to ``path`` through a hidden temporary and an atomic replace.
 
-    A crash leaves either the old file, the new file, or a hidden ``.partial`` file that
-    no reader lists; never a truncated ``path``.
+    A crash leaves either the old file, the new file, or a hidden ``.partial-`` file that no
+    reader lists; never a truncated ``path``.
     """
-    folder, _, name = path.rpartition("/")
-    temporary = f"{folder}/.{name}.partial-{uuid.uuid4().hex}" if folder else f".{name}.partial"
+    check_name_length(path)
+    temporary = temporary_path(path)
     try:
-        with FileSystems.create(temporary, compression_type=CompressionTypes.UNCOMPRESSED) as out:
-            out.write(data)
-        if FileSystems.exists(path):
-            FileSystems.delete([path])
-        FileSystems.rename([temporary], [path])
+        if is_local(path):
+            os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
+            with open(temporary, "wb") as out:
+                out.write(data)
+            os.replace(temporary, path)
+        else:
+            with FileSystems.create(temporary, compression_type=CompressionTypes.UNCOMPRESSED) as out:
+                out.write(data)
+            FileSystems.rename([temporary], [path])
+    except OSError as error:
+        remove_quietly([temporary])
+        # Name the file (or the folder) the caller asked for, not the hidden temporary.
+        named = os.path.dirname(path) if error.filename == temporary else error.filename
+        raise OSError(error.errno, error.strerror, named) from error
     except BaseException:
-        if FileSystems.exists(temporary):
-            FileSystems.delete([temporary])
+        remove_quietly([temporary])
         raise
 
 
-def read_bytes(path: str) -> bytes:
+def read_bytes(path: str, max_bytes: int | None = None) -> bytes:
+    """The file's bytes; with ``max_bytes``, OSError(EFBIG) before reading a larger file."""
+    if max_bytes is not None:
+        size = file_size(path)
+        if size is not None and size > max_bytes:
+            raise OSError(errno.EFBIG, f"{size} bytes, more than the {max_bytes} read", path)
     with FileSystems.open(path, compression_type=CompressionTypes.UNCOMPRESSED) as handle:
-        return handle.read()
+        data = handle.read() if max_bytes is None else handle.read(max_bytes + 1)
+    if max_bytes is not None and len(data) > max_bytes:
+        raise OSError(errno.EFBIG, f"more than the {max_bytes} bytes read", path)
+    return data
+
+
+def file_size(path: str) -> int | None:
+    """Size in bytes, or None when the file does not exist."""
+    matches = FileSystems.match([path])[0].metadata_list
+    return matches[0].size_in_bytes if matches else None
 
 
 def list_files(pattern: str) -> list[str]:
     """Paths matching a glob, sorted; hidden partial files never match ``*.npz``."""
     result = FileSystems.match([pattern])[0]
     return sorted(m.path for m in result.metadata_list)
+
+
+def remove_quietly(paths: list[str]) -> int:
+    """Delete each path that exists; one already gone (another process's clean-up) is no error.
+    Returns how many were deleted here."""
+    removed = 0
+    for path in paths:
+        try:
+            if is_local(path):
+                os.remove(path)
+            else:
+                FileSystems.delete([path])
+            removed += 1
+        except (FileNotFoundError, NotADirectoryError):  # gone, or its folder never was one
+            continue
+        except BeamIOError:
+            if FileSystems.exists(path):
+                raise
+    return removed
+
+
+def writer_pid(path: str) -> int | None:
+    """The process id of the temporary's writer when it ran on this host, else None."""
+    writer = path.rpartition(PARTIAL)[2].rsplit("-", 2)
+    if len(writer) == 3 and writer[0] == writer_host() and writer[1].isdigit():
+        return int(writer[1])
+    return None
+
+
+def is_abandoned(path: str, modified: float, now: float | None = None) -> bool:
+    """Whether a temporary's writer is gone: on this host, its process no longer exists; from
+    another host (or a name without a writer), it is older than REMOTE_GRACE_SECONDS."""
+    pid = writer_pid(path)
+    if pid is not None:
+        return not _process_alive(pid)
+    return (time.time() if now is None else now) - modified > REMOTE_GRACE_SECONDS
+
+
+def writer_host() -> str:
+    """This host's name as temporaries carry it ('-' separates the name's fields)."""
+    return socket.gethostname().replace("-", "_")
+
+
+def _process_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True

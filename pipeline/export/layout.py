@@ -20,8 +20,18 @@ from pipeline.core.errors import InputError
 CLIP_NAME = re.compile(r"[A-Za-z0-9_+-][A-Za-z0-9_.+-]*")
 
 
+MAX_CLIP_NAME = 160
+
+
+def is_clip_name(name: str) -> bool:
+    """Whether ``name`` can be a clip's file name (``check_clip_name`` would accept it)."""
+    return isinstance(name, str) and bool(CLIP_NAME.fullmatch(name)) and len(name) <= MAX_CLIP_NAME
+
+
 def check_clip_name(name: str) -> str:
     """``name`` when it is a plain file name, else an InputError naming the offending characters."""
+    if len(name) > MAX_CLIP_NAME:
+        raise InputError(f"clip name {name[:40]!r}... is {len(name)} characters, at most {MAX_CLIP_NAME}")
     if not CLIP_NAME.fullmatch(name):
         bad = sorted({c for c in name if not re.fullmatch(r"[A-Za-z0-9_.+-]", c)})
         cause = f"characters {bad}" if bad else "a leading '.'" if name else "an empty name"

@@ -16,13 +16,22 @@ log = logging.getLogger(__name__)
 
 
 def load_official_splits(text: str) -> tuple[dict[str, set[str]], dict[str, set[str]]]:
-    """(minival, full_eval) membership per source from the release's splits JSON."""
+    """(minival, full_eval) membership per source from the release's splits JSON
+    (``{"minival": {source: [file, ...]}, "full_eval": {...}}``); ValueError saying what is wrong."""
     data = json.loads(text)
-    if "minival" not in data:
-        raise ValueError("splits file has no 'minival' entry")
-    return {source: set(names) for source, names in data["minival"].items()}, {
-        source: set(names) for source, names in data.get("full_eval", {}).items()
-    }
+    if not isinstance(data, dict) or "minival" not in data:
+        raise ValueError("expected a JSON object with a 'minival' entry")
+    splits = []
+    for split in ("minival", "full_eval"):
+        entry = data.get(split, {})
+        valid = isinstance(entry, dict) and all(
+            isinstance(names, list) and all(isinstance(name, str) for name in names)
+            for names in entry.values()
+        )
+        if not valid:
+            raise ValueError(f"'{split}' must map each source to a list of clip file names")
+        splits.append({source: set(names) for source, names in entry.items()})
+    return splits[0], splits[1]
 
 
 def split_clips(

@@ -17,16 +17,17 @@ FIXED_ZIP_TIME = (1980, 1, 1, 0, 0, 0)
 
 
 def clip_arrays(clip: ClipRecord) -> dict[str, np.ndarray]:
-    """The released schema's arrays for a clip (float32 geometry, bool visibility)."""
-    images = np.empty(len(clip.images_jpeg), dtype=object)
-    # Fresh bytes objects: pickled object arrays depend on object identity, not just content.
-    images[:] = [bytes(bytearray(frame)) for frame in clip.images_jpeg]
+    """The released schema's arrays for a clip: frames as a fixed-width bytes array ``|S<longest>``
+    [T] (what ``np.savez`` makes of the release's list of JPEG bytes; NumPy strips the NUL
+    padding on read and a JPEG ends in FF D9), float32 tracks and queries, bool visibility,
+    float64 intrinsics as the release writes them. No object array: the file opens with a
+    plain ``np.load``."""
     arrays = {
-        "images_jpeg_bytes": images,
+        "images_jpeg_bytes": np.array([bytes(frame) for frame in clip.images_jpeg], dtype=np.bytes_),
         "queries_xyt": clip.queries_xyt.astype(np.float32),
         "tracks_XYZ": clip.tracks_xyz.astype(np.float32),
         "visibility": clip.visibility.astype(bool),
-        "fx_fy_cx_cy": np.asarray(clip.fx_fy_cx_cy, dtype=np.float32),
+        "fx_fy_cx_cy": np.asarray(clip.fx_fy_cx_cy, dtype=np.float64),
     }
     if clip.extrinsics_w2c is not None:
         arrays["extrinsics_w2c"] = clip.extrinsics_w2c.astype(np.float32)
@@ -44,6 +45,6 @@ def encode_npz(arrays: dict[str, np.ndarray], compress: bool = False) -> bytes:
             info.compress_type = method
             info.external_attr = 0o644 << 16
             member = io.BytesIO()
-            np.lib.format.write_array(member, np.asanyarray(arrays[key]), allow_pickle=True)
+            np.lib.format.write_array(member, np.asanyarray(arrays[key]), allow_pickle=False)
             archive.writestr(info, member.getvalue())
     return buffer.getvalue()

@@ -1,57 +1,59 @@
-"""Check clips against every invariant of the released TAPVid-3D schema (SOURCES.md section 1)."""
+"""Check clips against every invariant of the released TAPVid-3D schema (docs: README "Output").
+
+Files are read with ``pipeline.export.clip_reader`` (nothing unpickled, sizes bounded by the
+clip's own T and N) and accepted as the release writes them: frames as a ``|S`` bytes array,
+float32 or float64 geometry, ``extrinsics_w2c`` optional (the release's ADT files have none),
+extra keys ignored.
+"""
 
 from __future__ import annotations
-
-import io
-import pickle
-import zipfile
 
 import numpy as np
 
 from pipeline.core.config import FlickerConfig
 from pipeline.core.geometry import in_image, project
+from pipeline.core.images import jpeg_size
+from pipeline.export.clip_reader import DEFAULT_LIMITS, ReadLimits, read_clip_bytes
+from pipeline.export.npz_reader import NpzError
 from pipeline.filters.flicker import passes_flicker, visibility_flips
 
-BASE_KEYS = {"images_jpeg_bytes", "queries_xyt", "tracks_XYZ", "visibility", "fx_fy_cx_cy"}
+REQUIRED_KEYS = ("images_jpeg_bytes", "queries_xyt", "tracks_XYZ", "visibility", "fx_fy_cx_cy")
+FLOATS = (np.dtype(np.float32), np.dtype(np.float64))
 QUERY_TOLERANCE_PX = 0.5
 FLICKER_MAX_FRACTION = FlickerConfig().max_fraction
 FINDINGS = ("hidden_queries", "off_image_visible", "flickering")
 NO_FINDINGS = dict.fromkeys(("tracks", "frames", "image_hw", *FINDINGS))
-# Start-of-frame markers (baseline, progressive, lossless, arithmetic): they carry the image size.
-SOF_MARKERS = frozenset({0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF})
 
 
-def expected_keys(source: str | None) -> set[str]:
-    """Keys a clip of ``source`` must hold exactly (pstudio omits extrinsics)."""
-    return BASE_KEYS if source == "pstudio" else BASE_KEYS | {"extrinsics_w2c"}
-
-
-def check_arrays(arrays: dict[str, np.ndarray], source: str | None) -> list[str]:
+def check_arrays(arrays: dict[str, np.ndarray]) -> list[str]:
     """Every violated invariant of one clip, as sentences; empty when the clip is valid."""
+    return structure_problems(arrays) or query_problems(arrays)
+
+
+def structure_problems(arrays: dict[str, np.ndarray]) -> list[str]:
+    """What keeps the arrays from being read as a clip: keys, dtypes, shapes [T, N, ...], frames
+    that are not JPEGs of one size, non-finite values, non-positive focals, query frames that are
+    not frame indices. Empty when a reader may index the clip freely."""
     problems = []
-    keys = set(arrays)
-    wanted = expected_keys(source)
-    if source is None:
-        wanted = BASE_KEYS | (keys & {"extrinsics_w2c"})
-    if keys != wanted:
-        missing, extra = sorted(wanted - keys), sorted(keys - wanted)
-        problems.append(f"keys: missing {missing}, unexpected {extra}")
-        if missing:
-            return problems
+    missing = [key for key in REQUIRED_KEYS if key not in arrays]
+    if missing:
+        return [f"keys: missing {missing}"]
     images = arrays["images_jpeg_bytes"]
     queries, tracks = arrays["queries_xyt"], arrays["tracks_XYZ"]
     visibility, intrinsics = arrays["visibility"], arrays["fx_fy_cx_cy"]
-    for name, array, dtype, ndim in (
-        ("queries_xyt", queries, np.float32, 2),
-        ("tracks_XYZ", tracks, np.float32, 3),
-        ("visibility", visibility, np.bool_, 2),
-        ("fx_fy_cx_cy", intrinsics, np.float32, 1),
+    for name, array, dtypes, ndim in (
+        ("queries_xyt", queries, FLOATS, 2),
+        ("tracks_XYZ", tracks, FLOATS, 3),
+        ("visibility", visibility, (np.dtype(np.bool_),), 2),
+        ("fx_fy_cx_cy", intrinsics, FLOATS, 1),
     ):
-        if array.dtype != dtype or array.ndim != ndim:
-            expected = f"{np.dtype(dtype).name} ndim {ndim}"
+        if array.dtype not in dtypes or array.ndim != ndim:
+            expected = " or ".join(dtype.name for dtype in dtypes) + f" ndim {ndim}"
             problems.append(f"{name}: dtype {array.dtype} ndim {array.ndim}, expected {expected}")
-    if images.dtype != object or images.ndim != 1:
-        problems.append("images_jpeg_bytes: expected a 1-D object array of bytes")
+    if images.dtype.kind != "S" or images.ndim != 1:
+        problems.append(
+            f"images_jpeg_bytes: dtype {images.dtype} ndim {images.ndim}, expected a 1-D bytes array"
+        )
     if problems:
         return problems
     num_frames, num_tracks = len(images), queries.shape[0]
@@ -67,17 +69,14 @@ def check_arrays(arrays: dict[str, np.ndarray], source: str | None) -> list[str]
         problems.append(f"fx_fy_cx_cy shape {intrinsics.shape}, expected (4,)")
     if "extrinsics_w2c" in arrays:
         extrinsics = arrays["extrinsics_w2c"]
-        if extrinsics.dtype != np.float32 or extrinsics.shape != (num_frames, 4, 4):
+        if extrinsics.dtype not in FLOATS or extrinsics.shape != (num_frames, 4, 4):
             problems.append(
                 f"extrinsics_w2c: {extrinsics.dtype} {extrinsics.shape}, "
-                f"expected float32 ({num_frames}, 4, 4)"
+                f"expected float32 or float64 ({num_frames}, 4, 4)"
             )
         elif not np.isfinite(extrinsics).all():
             problems.append("extrinsics_w2c: non-finite values")
-    for index, frame in enumerate(images):
-        if not isinstance(frame, bytes) or frame[:2] != b"\xff\xd8":
-            problems.append(f"images_jpeg_bytes[{index}]: not JPEG bytes")
-            break
+    problems += frame_problems(images)
     if problems:
         return problems
     for name, array in (("queries_xyt", queries), ("tracks_XYZ", tracks), ("fx_fy_cx_cy", intrinsics)):
@@ -85,13 +84,29 @@ def check_arrays(arrays: dict[str, np.ndarray], source: str | None) -> list[str]
             problems.append(f"{name}: non-finite values")
     if problems:
         return problems
+    if not (intrinsics[:2] > 0).all():
+        problems.append(f"fx_fy_cx_cy: focal lengths {intrinsics[:2].tolist()} must be positive")
+        return problems
     query_frames = queries[:, 2]
     integral = (query_frames == np.round(query_frames)) & (query_frames >= 0)
     integral &= query_frames < num_frames
     if not integral.all():
         problems.append(f"queries_xyt: {int((~integral).sum())} query frame(s) not a frame index")
-        return problems
-    t_q = query_frames.astype(np.int64)
+    return problems
+
+
+def query_problems(arrays: dict[str, np.ndarray]) -> list[str]:
+    """Violations of the query invariants of a structurally sound clip: each track visible, in front
+    of the camera and projecting onto its query (within 0.5 px) at its query frame, each query
+    inside the frame."""
+    problems = []
+    queries, tracks, visibility = arrays["queries_xyt"], arrays["tracks_XYZ"], arrays["visibility"]
+    intrinsics, num_tracks = arrays["fx_fy_cx_cy"], len(arrays["queries_xyt"])
+    height, width = jpeg_size(bytes(arrays["images_jpeg_bytes"][0]))
+    outside = ~in_image(queries[:, :2].astype(np.float64), width, height)
+    if outside.any():
+        problems.append(f"{int(outside.sum())} query point(s) outside the {width}x{height} frame")
+    t_q = queries[:, 2].astype(np.int64)
     at_query = tracks[t_q, np.arange(num_tracks)].astype(np.float64)
     hidden = ~visibility[t_q, np.arange(num_tracks)]
     if hidden.any():
@@ -109,50 +124,37 @@ def check_arrays(arrays: dict[str, np.ndarray], source: str | None) -> list[str]
     return problems
 
 
-def load_clip(data: bytes) -> dict[str, np.ndarray]:
-    """Arrays of a clip file's bytes (the frames are a pickled object array of bytes)."""
-    with np.load(io.BytesIO(data), allow_pickle=True) as archive:
-        return {key: archive[key] for key in archive.files}
+def frame_problems(images: np.ndarray) -> list[str]:
+    """The first frame [T] that is not a JPEG with a readable size header, or whose size differs
+    from frame 0's (a clip's frames share one size)."""
+    first = jpeg_size(bytes(images[0])) if len(images) else None
+    for index, frame in enumerate(images):
+        size = jpeg_size(bytes(frame))
+        if size is None:
+            return [f"images_jpeg_bytes[{index}]: not JPEG bytes with a readable size header"]
+        if size != first:
+            return [
+                f"images_jpeg_bytes[{index}]: {size[1]}x{size[0]} pixels, frame 0 is {first[1]}x{first[0]}"
+            ]
+    return []
 
 
-def check_clip_bytes(data: bytes, source: str | None) -> list[str]:
-    """Invariant violations of a clip file's bytes, including unreadable files."""
-    return inspect_clip_bytes(data, source)[0]
+def check_clip_bytes(data: bytes, limits: ReadLimits = DEFAULT_LIMITS) -> list[str]:
+    """Invariant violations of a clip file's bytes, including unreadable or refused files."""
+    return inspect_clip_bytes(data, limits=limits)[0]
 
 
 def inspect_clip_bytes(
-    data: bytes, source: str | None, flicker_max_fraction: float = FLICKER_MAX_FRACTION
+    data: bytes,
+    flicker_max_fraction: float = FLICKER_MAX_FRACTION,
+    limits: ReadLimits = DEFAULT_LIMITS,
 ) -> tuple[list[str], dict]:
     """Invariant violations (``check_arrays``) and ``quality_findings`` of a clip file's bytes."""
     try:
-        arrays = load_clip(data)
-    except (zipfile.BadZipFile, pickle.UnpicklingError, ValueError, OSError, EOFError) as error:
-        return [f"unreadable .npz ({error})"], dict(NO_FINDINGS)
-    return check_arrays(arrays, source), quality_findings(arrays, flicker_max_fraction)
-
-
-def jpeg_size(data: bytes) -> tuple[int, int] | None:
-    """(height, width) from a JPEG's start-of-frame header, or None when there is none to read."""
-    if data[:2] != b"\xff\xd8":
-        return None
-    pos = 2
-    while pos + 4 <= len(data):
-        if data[pos] != 0xFF:
-            return None
-        marker = data[pos + 1]
-        if marker == 0xFF:  # fill byte before a marker
-            pos += 1
-            continue
-        if marker in SOF_MARKERS:
-            if pos + 9 > len(data):
-                return None
-            height = int.from_bytes(data[pos + 5 : pos + 7], "big")
-            width = int.from_bytes(data[pos + 7 : pos + 9], "big")
-            return (height, width) if height and width else None
-        if marker in (0xD9, 0xDA):  # end of image or start of scan before any frame header
-            return None
-        pos += 2 + int.from_bytes(data[pos + 2 : pos + 4], "big")
-    return None
+        arrays = read_clip_bytes(data, "clip", limits)
+    except NpzError as error:
+        return [error.cause], dict(NO_FINDINGS)
+    return check_arrays(arrays), quality_findings(arrays, flicker_max_fraction)
 
 
 def quality_findings(
@@ -183,7 +185,7 @@ def quality_findings(
     if not integral.all():
         return dict(NO_FINDINGS)
     t_q = query_frames.astype(np.int64)
-    size = jpeg_size(images[0]) if num_frames and isinstance(images[0], bytes) else None
+    size = jpeg_size(bytes(images[0])) if num_frames and images.dtype.kind == "S" else None
     off_image = None
     if size is not None:
         height, width = size

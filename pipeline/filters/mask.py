@@ -8,7 +8,7 @@ from apache_beam.io.filesystem import CompressionTypes
 from apache_beam.io.filesystems import FileSystems
 from scipy.spatial import cKDTree
 
-from pipeline.core.errors import InputError
+from pipeline.core.images import decode_image
 
 MAX_CLOSING_PX = 63
 
@@ -85,7 +85,4 @@ def read_mask_png(path: str, width: int, height: int) -> np.ndarray | None:
         return None
     with FileSystems.open(path, compression_type=CompressionTypes.UNCOMPRESSED) as handle:
         data = handle.read()
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE)
-    if image is None or image.shape != (height, width):
-        raise InputError(f"mask {path}: not a {width}x{height} image")
-    return image > 0
+    return decode_image(data, width, height, f"mask {path}", noun="mask") > 0

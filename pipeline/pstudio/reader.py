@@ -7,18 +7,20 @@ Every problem raises InputError naming the file and the cause.
 from __future__ import annotations
 
 import json
-import zipfile
 
-import cv2
 import numpy as np
 from apache_beam.io.filesystem import CompressionTypes
 from apache_beam.io.filesystems import FileSystems
 
 from pipeline.core.config import PstudioConfig
 from pipeline.core.errors import InputError
-from pipeline.core.images import check_jpeg
+from pipeline.core.images import check_jpeg, decode_image
+from pipeline.export.npz_reader import NpzArchive, NpzError
 from pipeline.pstudio.annotate import Gaussians, Views
 
+# More Gaussians than any Dynamic 3D Gaussians scene holds (a few hundred thousand): a header claiming
+# more is refused before anything is allocated.
+MAX_GAUSSIANS = 20_000_000
 PARAMS_SHAPES = {  # member -> shape with T, N symbolic
     "means3D": ("T", "N", 3),
     "unnorm_rotations": ("T", "N", 4),
@@ -134,38 +136,41 @@ def read_views(input_root: str, sequence: str) -> tuple[Views, dict]:
 
 
 def read_gaussians(path: str, frames: int) -> Gaussians:
-    """The Gaussians of params.npz (no pickled objects), checked against T = ``frames``."""
+    """The Gaussians of params.npz, checked against T = ``frames`` and N = the Gaussians of
+    ``means3D`` from the members' headers before anything is read (``pipeline.export.npz_reader``:
+    no pickled objects, no allocation a header merely claims)."""
+    if not FileSystems.exists(path):
+        raise InputError(f"missing file {path}")
     try:
         with FileSystems.open(path, compression_type=CompressionTypes.UNCOMPRESSED) as handle:
-            archive = np.load(handle, allow_pickle=False)
-            if not isinstance(archive, np.lib.npyio.NpzFile):
+            if handle.read(6) == b"\x93NUMPY":
                 raise InputError(f"{path}: a single .npy array, not an npz archive")
-            arrays = {}
-            for name in PARAMS_SHAPES:
-                if name not in archive.files:
-                    raise InputError(f"{path}: no {name!r} member (has {sorted(archive.files)})")
-                try:
-                    arrays[name] = archive[name]
-                except ValueError as error:
-                    raise InputError(f"{path}: member {name!r} is a pickled object array; refused") from error
-    except InputError:
-        raise
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as error:
-        if not FileSystems.exists(path):
-            raise InputError(f"missing file {path}") from error
-        if isinstance(error, (zipfile.BadZipFile, EOFError)):
-            raise InputError(f"{path}: truncated or corrupt npz (zip) archive ({error})") from error
-        raise InputError(f"{path}: unreadable npz ({type(error).__name__}: {error})") from error
-    count = arrays["means3D"].shape[1] if arrays["means3D"].ndim == 3 else -1
-    for name, shape in PARAMS_SHAPES.items():
-        expected = tuple({"T": frames, "N": count}.get(d, d) for d in shape)
-        if arrays[name].shape != expected:
-            raise InputError(
-                f"{path}: {name} has shape {arrays[name].shape}, expected {expected} "
-                f"(T = {frames} frames in train_meta.json, N = {count} Gaussians in means3D)"
-            )
-        if arrays[name].dtype.kind != "f":
-            raise InputError(f"{path}: {name} has dtype {arrays[name].dtype}, expected floats")
+            handle.seek(0)
+            archive = NpzArchive(handle, path)
+            missing = [name for name in PARAMS_SHAPES if name not in archive.keys]
+            if missing:
+                raise InputError(f"{path}: no {missing[0]!r} member (has {archive.keys})")
+            shapes = {name: archive.header(name).shape for name in PARAMS_SHAPES}
+            count = shapes["means3D"][1] if len(shapes["means3D"]) == 3 else -1
+            if count > MAX_GAUSSIANS:
+                raise InputError(f"{path}: means3D claims {count} Gaussians, more than {MAX_GAUSSIANS} read")
+            for name, shape in PARAMS_SHAPES.items():
+                expected = tuple({"T": frames, "N": count}.get(d, d) for d in shape)
+                if shapes[name] != expected:
+                    raise InputError(
+                        f"{path}: {name} has shape {shapes[name]}, expected {expected} "
+                        f"(T = {frames} frames in train_meta.json, N = {count} Gaussians in means3D)"
+                    )
+                if archive.header(name).dtype.kind != "f":
+                    raise InputError(
+                        f"{path}: {name} has dtype {archive.header(name).dtype}, expected floats"
+                    )
+            arrays = {name: archive.read(name, archive.header(name).nbytes) for name in PARAMS_SHAPES}
+    except NpzError as error:
+        raise InputError(str(error)) from error
+    except OSError as error:
+        raise InputError(f"{path}: unreadable ({error})") from error
+    for name in PARAMS_SHAPES:
         bad = np.count_nonzero(~np.isfinite(arrays[name]))
         if bad:
             raise InputError(f"{path}: {name} holds {bad} non-finite value(s) (NaN or inf)")
@@ -199,12 +204,5 @@ class SequenceFiles:
     def mask(self, view: int, t: int) -> np.ndarray:
         """Foreground mask [H, W] bool (seg PNG, non-zero = foreground)."""
         path = FileSystems.join(self.folder, "seg", self.names[t][view].rsplit(".", 1)[0] + ".png")
-        image = cv2.imdecode(np.frombuffer(_read(path), np.uint8), cv2.IMREAD_GRAYSCALE)
-        if image is None:
-            raise InputError(f"{path}: corrupt PNG")
-        if image.shape != (self.views.height, self.views.width):
-            raise InputError(
-                f"{path}: mask is {image.shape[1]}x{image.shape[0]}, "
-                f"expected {self.views.width}x{self.views.height}"
-            )
+        image = decode_image(_read(path), self.views.width, self.views.height, path, noun="mask")
         return image > 0

@@ -43,10 +43,11 @@ def main(argv: list[str] | None = None) -> int:
         out = args.out or os.path.join(args.directory, "stats.png")
         try:
             stats = dataset_stats(args.directory)
+            print(format_table(stats))
+            write_stats_figure(stats, out)
         except (OSError, ValueError) as error:
-            parser.error(str(error))
-        print(format_table(stats))
-        write_stats_figure(stats, out)
+            print(f"viz stats: {error}", file=sys.stderr)
+            return 2
         print(f"wrote {out}")
         return 0
     parser = clip_parser()
@@ -57,8 +58,9 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--max-tracks must be >= 1, --fps > 0 and --tail >= 0")
     try:
         count = write_clip_figure(args.clip, args.out, args.frame, args.max_tracks, args.fps, args.tail)
-    except (OSError, ValueError, KeyError) as error:
-        parser.error(str(error))
+    except (OSError, ValueError) as error:
+        print(f"viz: {error}", file=sys.stderr)
+        return 2
     print(f"wrote {args.out} ({count} frame(s))")
     return 0
 

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import os
 import textwrap
-import zipfile
 from collections.abc import Iterator
 
 import cv2
@@ -19,6 +18,9 @@ from matplotlib.figure import Figure
 from PIL import Image
 
 from pipeline.core.geometry import invert_se3, project
+from pipeline.core.images import jpeg_size
+from pipeline.export.clip_reader import CLIP_KEYS, DEFAULT_LIMITS, ReadLimits, read_clip_file
+from pipeline.export.validator import structure_problems
 
 IMAGES_KEY = "images_jpeg_bytes"
 COLORMAP = "gist_rainbow"
@@ -29,13 +31,22 @@ BACKGROUND = (255, 255, 255)
 OUTPUT_KINDS = (".png", ".gif", ".mp4")
 
 
-def load_clip(path: str, with_images: bool = True) -> dict[str, np.ndarray]:
-    """The arrays of a clip ``.npz``; only ``images_jpeg_bytes`` is unpickled, and only if asked for."""
-    with np.load(path, allow_pickle=False) as archive:
-        clip = {key: archive[key] for key in archive.files if key != IMAGES_KEY}
+def load_clip(
+    path: str, with_images: bool = True, limits: ReadLimits = DEFAULT_LIMITS
+) -> dict[str, np.ndarray]:
+    """The arrays of a clip ``.npz`` (nothing unpickled, sizes bounded by the clip's T and N);
+    ValueError naming the file when it cannot be drawn as a clip."""
+    keys = CLIP_KEYS if with_images else tuple(key for key in CLIP_KEYS if key != IMAGES_KEY)
+    clip = read_clip_file(path, limits, keys)
     if with_images:
-        with zipfile.ZipFile(path) as archive, archive.open(f"{IMAGES_KEY}.npy") as member:
-            clip[IMAGES_KEY] = np.lib.format.read_array(member, allow_pickle=True)
+        problems = structure_problems(clip)
+        if problems:
+            raise ValueError(f"{path}: not a clip that can be drawn: {problems[0]}")
+        height, width = jpeg_size(bytes(clip[IMAGES_KEY][0]))
+        if height * width > limits.max_image_pixels:
+            raise ValueError(
+                f"{path}: frames of {width}x{height} pixels, more than {limits.max_image_pixels}"
+            )
     return clip
 
 

@@ -45,7 +45,7 @@ def dataset_stats(directory: str) -> dict[str, dict]:
             continue
         frames, tracks, static_share, speeds, coordinates = [], [], [], [], set()
         for path in paths:
-            clip = load_clip(path, with_images=False)
+            clip = load_clip(path)
             displacement, speed, frame = track_motion(clip)
             frames.append(clip["tracks_XYZ"].shape[0])
             tracks.append(clip["tracks_XYZ"].shape[1])

@@ -1,0 +1,131 @@
+"""Read a TAPVid-3D clip (ours, the release's, or a stranger's prediction) within bounded resources.
+
+Every size a reader allocates is derived from the clip itself before anything is read: T from
+the frames member's header (or the tracks' when a prediction file has no frames), N from the
+queries' (or the tracks'), and each member may hold at most what a clip of T frames and N tracks
+needs. ``ReadLimits`` caps T, N, one JPEG and the whole clip; nothing is ever unpickled.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+
+from pipeline.export.files import read_bytes
+from pipeline.export.npz_reader import NpzArchive, NpzError
+
+FRAMES = "images_jpeg_bytes"
+CLIP_KEYS = (FRAMES, "queries_xyt", "tracks_XYZ", "visibility", "fx_fy_cx_cy", "extrinsics_w2c")
+# Widest element a member may use per value (float64, int64): the cap is values x this.
+MAX_ITEM_BYTES = 8
+
+
+@dataclasses.dataclass(frozen=True)
+class ReadLimits:
+    """Caps on what one clip file may make a reader allocate.
+
+    The release's largest clips are DriveTrack's: up to 300 frames of 1920x1280 JPEG (~0.5 MB
+    each) and 256 tracks; ADT's 300 frames x 1024 tracks hold 7 MB of tracks. The defaults leave
+    two orders of magnitude above that and stay far below this machine's memory.
+    """
+
+    max_file_bytes: int = 4 << 30
+    max_frames: int = 100_000
+    max_tracks: int = 1 << 20
+    max_frame_bytes: int = 64 << 20
+    max_clip_bytes: int = 4 << 30
+    max_image_pixels: int = 100_000_000
+
+
+DEFAULT_LIMITS = ReadLimits()
+
+
+def add_limit_argument(parser: argparse.ArgumentParser) -> None:
+    """``--limit NAME=VALUE`` (repeatable) on a command that reads clips from elsewhere."""
+    names = ", ".join(field.name for field in dataclasses.fields(ReadLimits))
+    parser.add_argument(
+        "--limit",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help=f"raise or lower a cap on what one clip may make the reader allocate ({names}); sizes in bytes",
+    )
+
+
+def limits_from(assignments: list[str]) -> ReadLimits:
+    """ReadLimits with ``NAME=VALUE`` assignments applied; ValueError naming a bad one."""
+    values = {}
+    names = [field.name for field in dataclasses.fields(ReadLimits)]
+    for assignment in assignments:
+        name, _, text = assignment.partition("=")
+        if name not in names:
+            raise ValueError(f"--limit {assignment!r}: unknown limit; valid: {', '.join(names)}")
+        if not text.isdigit() or int(text) < 1:
+            raise ValueError(f"--limit {assignment!r}: expected a positive integer")
+        values[name] = int(text)
+    return ReadLimits(**values)
+
+
+def read_clip_file(path: str, limits: ReadLimits = DEFAULT_LIMITS, keys=CLIP_KEYS) -> dict:
+    """``read_clip_bytes`` of the file at ``path`` (any Beam filesystem), refusing an oversized file
+    before reading it."""
+    try:
+        data = read_bytes(path, limits.max_file_bytes)
+    except OSError as error:
+        raise NpzError(path, f"cannot be read ({error.strerror or error})") from error
+    return read_clip_bytes(data, path, limits, keys)
+
+
+def read_clip_bytes(data: bytes, name: str, limits: ReadLimits = DEFAULT_LIMITS, keys=CLIP_KEYS) -> dict:
+    """The members of ``keys`` the clip holds, as arrays (missing keys are absent from the result).
+
+    Raises NpzError naming the file, the member and the cause: a member that would need pickle,
+    a dtype other than bool/int/float/bytes, or a declared size beyond what T and N allow.
+    """
+    archive = NpzArchive(data, name)
+    present = [key for key in keys if key in archive.keys]
+    num_frames, num_tracks = clip_dimensions(archive, present)
+    if num_frames > limits.max_frames or num_tracks > limits.max_tracks:
+        raise NpzError(
+            name,
+            f"headers claim T = {num_frames} frames and N = {num_tracks} tracks; at most "
+            f"{limits.max_frames} frames and {limits.max_tracks} tracks are read",
+        )
+    caps = member_caps(num_frames, num_tracks, limits)
+    if FRAMES in present and archive.header(FRAMES).dtype.itemsize > limits.max_frame_bytes:
+        raise NpzError(
+            name,
+            f"member {FRAMES!r} claims frames of {archive.header(FRAMES).dtype.itemsize} bytes, more "
+            f"than {limits.max_frame_bytes} allowed per JPEG; refused",
+        )
+    why = f"a clip of T = {num_frames} frames and N = {num_tracks} tracks"
+    for key in present:
+        archive.check_size(key, caps.get(key, limits.max_clip_bytes), why)
+    total = sum(archive.header(key).nbytes for key in present)
+    if total > limits.max_clip_bytes:
+        raise NpzError(name, f"members claim {total} bytes in all, more than {limits.max_clip_bytes} allowed")
+    return {key: archive.read(key, caps.get(key, limits.max_clip_bytes), why) for key in present}
+
+
+def clip_dimensions(archive: NpzArchive, keys: list[str]) -> tuple[int, int]:
+    """(T, N) as the headers of the members ``keys`` give them: T from the frames (else tracks,
+    visibility), N from the queries (else tracks, visibility); 0 where none says. Members not
+    asked for are not looked at."""
+    shapes = {key: archive.header(key).shape for key in keys}
+    frames = (shapes.get(FRAMES), shapes.get("tracks_XYZ"), shapes.get("visibility"))
+    tracks = ((shapes.get("queries_xyt"), 0), (shapes.get("tracks_XYZ"), 1), (shapes.get("visibility"), 1))
+    num_frames = next((shape[0] for shape in frames if shape), 0)
+    num_tracks = next((shape[axis] for shape, axis in tracks if shape and len(shape) > axis), 0)
+    return num_frames, num_tracks
+
+
+def member_caps(num_frames: int, num_tracks: int, limits: ReadLimits) -> dict[str, int]:
+    """The most bytes each member of a clip with T frames and N tracks may hold."""
+    return {
+        FRAMES: num_frames * limits.max_frame_bytes,
+        "queries_xyt": num_tracks * 3 * MAX_ITEM_BYTES,
+        "tracks_XYZ": num_frames * num_tracks * 3 * MAX_ITEM_BYTES,
+        "visibility": num_frames * num_tracks * MAX_ITEM_BYTES,
+        "fx_fy_cx_cy": 4 * MAX_ITEM_BYTES,
+        "extrinsics_w2c": num_frames * 16 * MAX_ITEM_BYTES,
+    }

@@ -1,0 +1,141 @@
+"""Read ``.npz`` files from strangers: never unpickle, never allocate what a header merely claims.
+
+An ``.npz`` is a zip of ``.npy`` members. ``np.load`` trusts both layers: an object member runs
+pickle code with ``allow_pickle=True``, and a member's header or the zip entry may claim sizes
+that exhaust memory (a few MB of deflate can declare 20 GB). Here each member's ``.npy`` header
+is parsed first (dtype, shape), object and structured dtypes are refused by name, the declared
+size is checked against the zip entry and against a cap the caller derives from the clip, and
+only then are exactly those bytes read (zipfile never inflates past the entry's declared size,
+and the CRC is checked at the end).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import math
+import zipfile
+from typing import BinaryIO
+
+import numpy as np
+
+# Kinds a TAPVid-3D file may hold: bool, integers, floats, fixed-width bytes (the JPEG frames).
+SAFE_KINDS = frozenset("biufS")
+
+
+class NpzError(ValueError):
+    """A file or member that is refused or unreadable: ``str()`` is ``"<file>: <cause>"``."""
+
+    def __init__(self, name: str, cause: str):
+        super().__init__(f"{name}: {cause}")
+        self.name = name
+        self.cause = cause
+
+
+@dataclasses.dataclass(frozen=True)
+class ArrayHeader:
+    """What a member's ``.npy`` header claims: dtype, shape, memory order and data size in bytes."""
+
+    dtype: np.dtype
+    shape: tuple[int, ...]
+    fortran_order: bool
+    nbytes: int
+    data_offset: int
+
+
+class NpzArchive:
+    """The members of one ``.npz`` (its bytes, or a seekable binary file), read header first."""
+
+    def __init__(self, data: bytes | BinaryIO, name: str, max_members: int = 64):
+        self.name = name
+        try:
+            self._zip = zipfile.ZipFile(io.BytesIO(data) if isinstance(data, bytes) else data)
+        except (zipfile.BadZipFile, OSError, ValueError) as error:
+            raise NpzError(name, f"not an .npz archive ({error})") from error
+        infos = self._zip.infolist()
+        if len(infos) > max_members:
+            raise NpzError(name, f"{len(infos)} members, more than the {max_members} a clip can hold")
+        self._infos = {
+            info.filename[: -len(".npy")]: info for info in infos if info.filename.endswith(".npy")
+        }
+        self._headers: dict[str, ArrayHeader] = {}
+
+    @property
+    def keys(self) -> list[str]:
+        return sorted(self._infos)
+
+    def header(self, key: str) -> ArrayHeader:
+        """The member's header, checked: a safe dtype, and a data size equal to the zip entry's."""
+        if key not in self._headers:
+            self._headers[key] = self._read_header(key)
+        return self._headers[key]
+
+    def _read_header(self, key: str) -> ArrayHeader:
+        info = self._infos[key]
+        where = f"member {key!r}"
+        try:
+            with self._zip.open(info) as member:
+                version = np.lib.format.read_magic(member)
+                if version == (1, 0):
+                    shape, fortran, dtype = np.lib.format.read_array_header_1_0(member)
+                elif version == (2, 0):
+                    shape, fortran, dtype = np.lib.format.read_array_header_2_0(member)
+                else:
+                    raise NpzError(self.name, f"{where}: .npy format version {version} is not read here")
+                offset = member.tell()
+        except NpzError:
+            raise
+        except (ValueError, OSError, zipfile.BadZipFile, EOFError, SyntaxError) as error:
+            raise NpzError(self.name, f"{where}: unreadable .npy header ({error})") from error
+        if dtype.hasobject:
+            raise NpzError(self.name, f"{where} is an object array: loading it would need pickle; refused")
+        if dtype.kind not in SAFE_KINDS or dtype.fields is not None or dtype.subdtype is not None:
+            raise NpzError(
+                self.name, f"{where} has dtype {dtype}; only bool, integer, float and bytes arrays are read"
+            )
+        nbytes = math.prod(shape) * dtype.itemsize
+        if info.file_size != offset + nbytes:
+            raise NpzError(
+                self.name,
+                f"{where}: header claims shape {shape} of {dtype} ({nbytes} bytes) but the entry holds "
+                f"{info.file_size - offset} bytes of data",
+            )
+        return ArrayHeader(dtype, tuple(shape), fortran, nbytes, offset)
+
+    def check_size(self, key: str, max_bytes: int, why: str = "") -> None:
+        """NpzError when the member's header claims more than ``max_bytes`` of data (``why`` says
+        where the cap comes from)."""
+        header = self.header(key)
+        if header.nbytes > max_bytes:
+            limit = f" ({why})" if why else ""
+            raise NpzError(
+                self.name,
+                f"member {key!r} claims shape {header.shape} of {header.dtype} = {_size(header.nbytes)}, "
+                f"more than the {_size(max_bytes)} allowed{limit}; refused",
+            )
+
+    def read(self, key: str, max_bytes: int, why: str = "") -> np.ndarray:
+        """The member as an array, refused before reading when its data exceed ``max_bytes``."""
+        self.check_size(key, max_bytes, why)
+        header = self.header(key)
+        where = f"member {key!r}"
+        try:
+            with self._zip.open(self._infos[key]) as member:
+                member.read(header.data_offset)
+                data = member.read(header.nbytes)
+                member.read(1)  # reach the end: zipfile checks the CRC there
+        except (OSError, zipfile.BadZipFile, EOFError, ValueError) as error:
+            raise NpzError(self.name, f"{where}: unreadable ({error})") from error
+        if len(data) != header.nbytes:
+            raise NpzError(
+                self.name, f"{where}: {len(data)} bytes of data, its header claims {header.nbytes}"
+            )
+        array = np.frombuffer(data, dtype=header.dtype)
+        return array.reshape(header.shape, order="F" if header.fortran_order else "C").copy()
+
+
+def _size(nbytes: int) -> str:
+    for unit, scale in (("GiB", 1 << 30), ("MiB", 1 << 20), ("KiB", 1 << 10)):
+        if nbytes >= scale:
+            return f"{nbytes / scale:.1f} {unit}"
+    return f"{nbytes} bytes"
