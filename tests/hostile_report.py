@@ -43,17 +43,15 @@ def snapshot(root: str, skip: str) -> dict[str, tuple[int, int]]:
 
 
 def run_case(root: str, out: str, command: list[str], interrupt: bool = False, small_disk: bool = False):
-    """(exit code, peak RSS in MiB, last stderr line, files touched outside ``out``)."""
+    """(exit code, peak RSS in MiB, last stderr line (else stdout's), files touched outside ``out``)."""
     before = snapshot(root, out)
 
     def limits():
         if small_disk:
             resource.setrlimit(resource.RLIMIT_FSIZE, (1 << 20, 1 << 20))
 
-    with tempfile.TemporaryFile("w+") as err:
-        process = subprocess.Popen(
-            command, cwd=REPO, stdout=subprocess.DEVNULL, stderr=err, preexec_fn=limits
-        )
+    with tempfile.TemporaryFile("w+") as err, tempfile.TemporaryFile("w+") as out_lines:
+        process = subprocess.Popen(command, cwd=REPO, stdout=out_lines, stderr=err, preexec_fn=limits)
         if interrupt:
             while True:
                 err.seek(0)
@@ -64,7 +62,9 @@ def run_case(root: str, out: str, command: list[str], interrupt: bool = False, s
         _, status, usage = os.wait4(process.pid, 0)
         process.returncode = os.waitstatus_to_exitcode(status)
         err.seek(0)
+        out_lines.seek(0)
         lines = [line for line in err.read().splitlines() if line.strip()]
+        lines = lines or [line for line in out_lines.read().splitlines() if line.strip()]
     after = snapshot(root, out)
     touched = sum(before.get(path) != value for path, value in after.items()) + len(before.keys() - after)
     return process.returncode, usage.ru_maxrss / 1024, (lines[-1] if lines else ""), touched
