@@ -22,7 +22,14 @@ import pipeline
 from pipeline.core.config import RunConfig
 from pipeline.export.clip_reader import DEFAULT_LIMITS
 from pipeline.export.files import PARTIAL, is_abandoned, read_bytes, remove_quietly, write_atomic, writer_pid
-from pipeline.export.layout import audit_path, clip_path, depth_path, is_clip_name, unit_record_path
+from pipeline.export.layout import (
+    audit_path,
+    clip_path,
+    depth_path,
+    is_clip_name,
+    temporary_patterns,
+    unit_record_path,
+)
 from pipeline.export.validator import check_clip_bytes
 from pipeline.filters.select import FILTER_ORDER
 
@@ -137,15 +144,7 @@ def remove_partial_files(output: str, source: str, include_own: bool = False) ->
     are gone left in this source's folders and the shared manifests folder; a concurrent run's live
     temporaries stay. ``include_own`` also deletes this process's (it is stopping). Returns how many
     went."""
-    patterns = [
-        f"{output}/{source}/.*{PARTIAL}*",
-        f"{output}/audit/{source}/.*{PARTIAL}*",
-        f"{output}/depth/{source}/.*{PARTIAL}*",
-        f"{output}/units/{source}/.*{PARTIAL}*",
-        f"{output}/manifests/.*{PARTIAL}*",
-        f"{output}/.run_{source}.json{PARTIAL}*",
-        f"{output}/.failures_{source}.jsonl{PARTIAL}*",
-    ]
+    patterns = temporary_patterns(output, source, PARTIAL)
     now = time.time()
     doomed = [
         match.path

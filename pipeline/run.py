@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import importlib
 import json
 import logging
 import os
@@ -19,23 +18,20 @@ import time
 
 import apache_beam as beam
 import numpy as np
+from apache_beam.metrics.metric import MetricsFilter
 from apache_beam.options.pipeline_options import PipelineOptions
 
 import pipeline
-from pipeline import graph, storage
+from pipeline import graph, sources, storage
 from pipeline.core.config import RunConfig, with_overrides
 from pipeline.core.errors import InputError, OutputError
 from pipeline.export.files import is_local, read_bytes, remove_quietly, write_atomic
+from pipeline.export.layout import failures_path, run_record_path, sample_folder
 from pipeline.export.manifests import load_official_splits
 from pipeline.filters.select import FILTER_ORDER
 from pipeline.resume import remove_partial_files
-
-# Each source module provides list_units, unit_name, ANNOTATOR and sample_input.
-SOURCE_MODULES = {
-    "adt": "pipeline.adt.transform",
-    "drivetrack": "pipeline.drivetrack.transform",
-    "pstudio": "pipeline.pstudio.transform",
-}
+from pipeline.sources import NoSample
+from pipeline.unit import UnitJob
 
 MAX_SPLITS_BYTES = 64 << 20
 DASK_RUNNER = "apache_beam.runners.dask.dask_runner.DaskRunner"
@@ -49,7 +45,7 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("--source", required=True, choices=graph.SOURCES)
+    parser.add_argument("--source", required=True, choices=sources.names())
     parser.add_argument("--input", help="source data (DriveTrack: a Waymo Open v2 split folder)")
     parser.add_argument("--output", default="tapvid3d_out", help="output folder (default %(default)s)")
     parser.add_argument(
@@ -89,8 +85,39 @@ def configure_logging() -> None:
         logging.getLogger(noisy).setLevel(logging.WARNING)
 
 
-def print_summary(summary: dict, output: str, source: str) -> None:
+def record_metrics(result, output: str, source: str) -> dict[str, int] | None:
+    """The run's Beam counters (``graph.COUNTERS``), added to its run record as ``metrics``; None
+    when the runner reports none (then the record says so)."""
+    try:
+        found = result.metrics().query(MetricsFilter().with_namespace(graph.METRICS_NAMESPACE))["counters"]
+    except (NotImplementedError, AttributeError, KeyError):
+        found = None
+    counters = None
+    if found is not None:
+        totals = {name: 0 for name in graph.COUNTERS}
+        for item in found:
+            value = item.committed if item.committed is not None else item.attempted
+            totals[item.key.metric.name] = totals.get(item.key.metric.name, 0) + int(value or 0)
+        counters = totals
+    path = run_record_path(output, source)
+    record = json.loads(read_bytes(path))
+    record["metrics"] = counters if counters is not None else "not reported by this runner"
+    write_atomic(path, json.dumps(record, indent=2, sort_keys=True).encode())
+    return counters
+
+
+def print_summary(summary: dict, counters: dict[str, int] | None, output: str, source: str) -> None:
+    """The closing lines: what this run did (its Beam counters, when the runner reports them), then
+    the totals over every unit (finished-earlier ones included), the manifests, where things are."""
     dropped = ", ".join(f"{name} {summary['dropped_by_filter'][name]}" for name in FILTER_ORDER)
+    if counters is not None:
+        print(
+            f"\nthis run (Beam counters): {counters['units_read']} unit(s) read, "
+            f"{counters['units_resumed']} skipped as finished, {counters['units_failed']} failed; "
+            f"{counters['clips_written']} of {counters['clips_annotated']} annotated clip(s) written, "
+            f"{counters['tracks_written']} tracks; dropped by filter: "
+            + ", ".join(f"{name} {counters[f'tracks_dropped_{name}']}" for name in FILTER_ORDER)
+        )
     print(
         f"\n{source}: {summary['units']} unit(s), {summary['units_resumed']} finished earlier, "
         f"{summary['units_failed']} failed; "
@@ -101,10 +128,10 @@ def print_summary(summary: dict, output: str, source: str) -> None:
         f"manifests: minival {summary['manifests']['minival']}, full_test "
         f"{summary['manifests']['full_test']} clip(s)\n"
         f"clips in {output}/{source}/, manifests in {output}/manifests/, "
-        f"provenance in {output}/run_{source}.json"
+        f"provenance in {run_record_path(output, source)}"
     )
     if summary["failures"]:
-        print(f"{summary['failures']} failure(s): see {output}/failures_{source}.jsonl", file=sys.stderr)
+        print(f"{summary['failures']} failure(s): see {failures_path(output, source)}", file=sys.stderr)
 
 
 def runner_args(beam_args: list[str]) -> list[str]:
@@ -196,11 +223,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def run(args: argparse.Namespace, beam_args: list[str], output: str) -> int:
     """``main`` without the Ctrl-C handling."""
-    if args.source not in SOURCE_MODULES:
-        print(
-            f"source {args.source!r} is not built yet; available: {sorted(SOURCE_MODULES)}", file=sys.stderr
-        )
-        return 2
+    source = sources.get(args.source)
     beam_args = runner_args(beam_args)
     options = PipelineOptions(beam_args)
     storage.use_options(options)
@@ -216,7 +239,6 @@ def run(args: argparse.Namespace, beam_args: list[str], output: str) -> int:
     except (ValueError, InputError) as error:
         print(f"cannot start: {error}", file=sys.stderr)
         return 2
-    module = importlib.import_module(SOURCE_MODULES[args.source])
     try:
         check_writable(output)
     except OSError as error:
@@ -231,12 +253,16 @@ def run(args: argparse.Namespace, beam_args: list[str], output: str) -> int:
                 file=sys.stderr,
             )
             return 2
-        input_root = module.sample_input(f"{output}/sample_input/{args.source}")
+        try:
+            input_root = source.sample_input(sample_folder(output, source.name))
+        except NoSample as message:
+            print(message, file=sys.stderr)
+            return 2
         print(f"no --input given: running on the embedded sample world in {input_root}")
     elif "://" not in input_root:
         input_root = os.path.abspath(input_root)
     try:
-        units = module.list_units(input_root, config)
+        units = source.list_units(input_root, config)
     except (InputError, OSError) as error:
         print(f"cannot start: {error}", file=sys.stderr)
         return 2
@@ -247,7 +273,7 @@ def run(args: argparse.Namespace, beam_args: list[str], output: str) -> int:
         "input": input_root,
         "output": output,
         "config": config.to_dict(),
-        "units": [module.unit_name(unit) for unit in units],
+        "units": [source.unit_name(unit) for unit in units],
         "beam_options": beam_args,
         "environment": {
             "python": platform.python_version(),
@@ -261,15 +287,15 @@ def run(args: argparse.Namespace, beam_args: list[str], output: str) -> int:
     if removed:
         print(f"removed {removed} partial file(s) an interrupted run left in {output}")
     started = time.monotonic()
-    process_unit = graph.ProcessUnit(
-        module.ANNOTATOR(input_root, config), args.source, output, resume=not args.overwrite, options=options
-    )
+    job = UnitJob(source, input_root, config, output, resume=not args.overwrite)
     quiet = _ReportedByUs()
     logging.getLogger("apache_beam").addFilter(quiet)
     logging.getLogger("apache_beam.runners.common").addFilter(quiet)
     try:
-        with beam.Pipeline(options=options) as p:
-            graph.build(p, units, process_unit, config, provenance, official)
+        p = beam.Pipeline(options=options)
+        _ = p | "RegenerateClips" >> graph.RegenerateClips(job, units, provenance, official, options)
+        result = p.run()
+        result.wait_until_finish()
     except Exception as error:  # noqa: BLE001 - Beam wraps a step's error; say the cause in one line
         cause = root_cause(error)
         if isinstance(cause, KeyboardInterrupt):
@@ -278,8 +304,9 @@ def run(args: argparse.Namespace, beam_args: list[str], output: str) -> int:
             raise
         print(f"cannot finish: {cause}", file=sys.stderr)
         return 2
-    summary = json.loads(read_bytes(f"{output}/run_{args.source}.json"))["summary"]
-    print_summary(summary, output, args.source)
+    counters = record_metrics(result, output, source.name)
+    summary = json.loads(read_bytes(run_record_path(output, source.name)))["summary"]
+    print_summary(summary, counters, output, source.name)
     print(f"finished in {time.monotonic() - started:.1f} s")
     return 1 if summary["failures"] else 0
 

@@ -1,15 +1,75 @@
-"""Shared fixtures: the sample driving and studio worlds, written once per test session."""
+"""Shared fixtures: the sample driving and studio worlds, written once into a versioned cache
+beside the repository and reused by every later session.
+
+The cache is ``<repo>/.cache/samples/<name>-<version>`` (or ``$TAPVID3D_SAMPLE_CACHE/<name>-<version>``);
+``<version>`` hashes the generators' source (every module of ``pipeline/samples``), the versions of
+the libraries that encode and ray cast the files, and ``CACHE_LAYOUT``, so editing a generator or
+upgrading them writes a new folder. Each folder is written by ``write_once`` (a hidden staging
+folder renamed into place) under a file lock, so racing sessions write it once and never see it
+half-written. The cached folders are shared: tests read them, and copy them before changing
+anything (``split_copy``, ``pstudio_links``). ``rm -rf .cache/samples`` drops old versions.
+"""
 
 from __future__ import annotations
 
+import fcntl
+import hashlib
+import os
+import pathlib
 import shutil
 
+import cv2
+import numpy as np
+import open3d
+import pyarrow
 import pytest
+import scipy
+import trimesh
 
-from tests.cli import run_pipeline
-from tests.fixtures.driving_world import DrivingWorld
-from tests.fixtures.dynamic3dgs_files import write_sequence
-from tests.fixtures.waymo_world import write_split
+import pipeline.samples
+from pipeline.samples.driving_world import DrivingWorld
+from pipeline.samples.dynamic3dgs_files import write_sequence
+from pipeline.samples.studio_world import StudioWorld
+from pipeline.samples.waymo_world import write_split
+from pipeline.samples.write_once import write_once
+from tests.cli import REPO, run_pipeline
+
+SAMPLE_CACHE = os.environ.get("TAPVID3D_SAMPLE_CACHE") or os.path.join(REPO, ".cache", "samples")
+CACHE_LAYOUT = "1"  # bump when what the fixtures below keep in a cache folder changes
+
+
+def sample_version() -> str:
+    """12 hex digits of sha256 over the generators' source, the libraries' versions and the layout."""
+    digest = hashlib.sha256(f"layout {CACHE_LAYOUT}\0".encode())
+    for path in sorted(pathlib.Path(pipeline.samples.__file__).parent.glob("*.py")):
+        digest.update(path.name.encode() + b"\0" + path.read_bytes() + b"\0")
+    for module in (np, cv2, open3d, pyarrow, scipy, trimesh):
+        digest.update(f"{module.__name__} {module.__version__}\0".encode())
+    return digest.hexdigest()[:12]
+
+
+def cached_sample(name: str, write) -> str:
+    """``<cache>/<name>-<version>``, made by ``write(staging)`` unless a complete one is there."""
+    version = sample_version()
+    folder = os.path.join(SAMPLE_CACHE, f"{name}-{version}")
+    if os.path.exists(os.path.join(folder, f".complete-v{version}")):
+        return folder
+    os.makedirs(SAMPLE_CACHE, exist_ok=True)
+    with open(os.path.join(SAMPLE_CACHE, f".{name}-{version}.lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # a racing session waits for the writer, then reuses its folder
+        return write_once(folder, version, write)
+
+
+def link_tree(source: str, target: str) -> None:
+    """``target``: a copy of the folder ``source`` made of hard links (copies across file systems)."""
+
+    def link(src: str, dst: str) -> None:
+        try:
+            os.link(src, dst)
+        except OSError:
+            shutil.copy2(src, dst)
+
+    shutil.copytree(source, target, copy_function=link)
 
 
 @pytest.fixture(scope="session")
@@ -18,11 +78,17 @@ def world() -> DrivingWorld:
 
 
 @pytest.fixture(scope="session")
-def sample_split(tmp_path_factory, world):
-    """(split folder, generator output) for the one-segment sample world."""
-    folder = tmp_path_factory.mktemp("waymo") / "split"
-    generated = write_split(str(folder), world=world)
-    return str(folder), generated
+def sample_split(world):
+    """(split folder, generator output) for the one-segment sample world; the folder is the shared
+    cache (never write into it: ``split_copy``), the output ``{"points": [40 x [64, 900, 3]]}``."""
+
+    def write(staging: str) -> None:
+        generated = write_split(os.path.join(staging, "split"), world=world)
+        np.save(os.path.join(staging, "points.npy"), np.stack(generated["points"]))
+
+    folder = cached_sample("waymo", write)
+    points = np.load(os.path.join(folder, "points.npy"))
+    return os.path.join(folder, "split"), {"points": list(points)}
 
 
 @pytest.fixture
@@ -34,11 +100,22 @@ def split_copy(sample_split, tmp_path):
 
 
 @pytest.fixture(scope="session")
-def pstudio_sample(tmp_path_factory):
-    """(root holding data/ and output/, the StudioWorld) for the one-sequence studio sample."""
-    root = tmp_path_factory.mktemp("pstudio") / "root"
-    studio = write_sequence(str(root))
-    return str(root), studio
+def pstudio_sample():
+    """(root holding data/ and output/, the StudioWorld) for the one-sequence studio sample; the root
+    is the shared cache (never write into it: ``pstudio_links``). The world is cheap to build (about
+    10 ms) and deterministic, so a cache hit returns a fresh one equal to the one written."""
+    studio = StudioWorld()
+    folder = cached_sample("pstudio", lambda staging: write_sequence(os.path.join(staging, "root"), studio))
+    return os.path.join(folder, "root"), studio
+
+
+@pytest.fixture
+def pstudio_links(pstudio_sample, tmp_path):
+    """A private copy of the studio sample's root made of hard links: a test may add files and
+    replace files (remove, then write), but must never write into a file it did not create."""
+    root = str(tmp_path / "root")
+    link_tree(pstudio_sample[0], root)
+    return root
 
 
 @pytest.fixture(scope="session")

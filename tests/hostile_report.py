@@ -23,8 +23,8 @@ import time
 
 import numpy as np
 
+from pipeline.samples.dynamic3dgs_files import write_sequence
 from tests.cli import REPO
-from tests.fixtures.dynamic3dgs_files import write_sequence
 from tests.hostile import bomb_clip, savez_bytes, shape_bomb_clip, with_payload
 
 PYTHON = [sys.executable, "-m"]

@@ -244,9 +244,7 @@ def test_tracks_sit_on_their_objects_and_overlay(sample_run, truth, tmp_path):
 
 
 def test_without_input_explains_how_to_get_adt(tmp_path, capsys):
-    with pytest.raises(SystemExit) as exit_info:
-        run_main(["--source", "adt", "--output", str(tmp_path)])
-    assert exit_info.value.code == 2
+    assert run_main(["--source", "adt", "--output", str(tmp_path)]) == 2
     message = capsys.readouterr().err
     assert "no embedded ADT sample" in message and "aria_dataset_downloader" in message
     assert "adt.chunk_frames=2" in message

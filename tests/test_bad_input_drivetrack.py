@@ -55,9 +55,9 @@ import pytest
 
 from pipeline.drivetrack import columns as C
 from pipeline.drivetrack.reader import SegmentReader
+from pipeline.samples.waymo_world import SEGMENT, timestamp
 from tests.bad_input import assert_isolated_failures
 from tests.cli import run_pipeline
-from tests.fixtures.waymo_world import SEGMENT, timestamp
 
 T = timestamp(5)
 LEAD_CAR = "lead_car_AAAAAAAAAAAAAAAAAAAAAA"

@@ -32,9 +32,9 @@ import shutil
 import cv2
 import numpy as np
 
+from pipeline.samples.dynamic3dgs_files import EXPERIMENT, SEQUENCE
 from tests.bad_input import assert_isolated_failures
 from tests.cli import run_pipeline
-from tests.fixtures.dynamic3dgs_files import EXPERIMENT, SEQUENCE
 
 CAMERA, OTHER = 0, 1  # columns of cameras 3 and 8 in train_meta.json
 
@@ -190,9 +190,8 @@ def make_cases(root: str, count: int) -> dict[str, list[str]]:
     return {f"{name}/camera_3": needles for name, (_, needles) in cases.items()}
 
 
-def test_each_bad_sequence_fails_alone_with_its_error(pstudio_sample, tmp_path):
-    root = str(tmp_path / "root")
-    shutil.copytree(pstudio_sample[0], root, copy_function=os.link)  # never written: see Sequence
+def test_each_bad_sequence_fails_alone_with_its_error(pstudio_sample, pstudio_links, tmp_path):
+    root = pstudio_links  # hard links to the shared sample, never written: see Sequence
     expected = make_cases(root, len(pstudio_sample[1].part_of_gaussian))
     out = str(tmp_path / "out")
     result = run_pipeline("pstudio", "--input", root, "--output", out, "--set", "pstudio.cameras=3")

@@ -30,13 +30,13 @@ import pytest
 
 from pipeline.core.errors import InputError
 from pipeline.export.layout import check_clip_name
-from pipeline.graph import SOURCES
+from pipeline.samples.waymo_world import SEGMENT
+from pipeline.sources import BUILT_IN
 from tests.adt_excerpt import SAMPLE as ADT_EXCERPT
 from tests.adt_excerpt import SETTINGS as ADT_SETTINGS
 from tests.adt_excerpt import needs_excerpt
 from tests.bad_input import failures_by_unit, partial_files
 from tests.cli import run_pipeline
-from tests.fixtures.waymo_world import SEGMENT
 
 ADT_SEQUENCE = str(ADT_EXCERPT)
 UNSAFE = "is not a plain file name"
@@ -71,9 +71,8 @@ def test_drivetrack_object_id_with_path_separators_fails_its_clip_only(split_cop
     assert partial_files(out) == []
 
 
-def test_pstudio_unreadable_train_meta_fails_one_unit_when_cameras_come_from_it(pstudio_sample, tmp_path):
-    root = str(tmp_path / "root")
-    shutil.copytree(pstudio_sample[0], root, copy_function=os.link)
+def test_pstudio_unreadable_train_meta_fails_one_unit_when_cameras_come_from_it(pstudio_links, tmp_path):
+    root = pstudio_links
     shutil.copytree(os.path.join(root, "data", "dome"), os.path.join(root, "data", "broken"))
     pretrained = os.path.join(root, "output", "pretrained")
     shutil.copytree(os.path.join(pretrained, "dome"), os.path.join(pretrained, "broken"))
@@ -135,7 +134,7 @@ def test_adt_unsafe_sequence_name_fails_its_unit_only(tmp_path):
     assert partial_files(out) == []
 
 
-@pytest.mark.parametrize("source", SOURCES)
+@pytest.mark.parametrize("source", sorted(BUILT_IN))
 def test_output_under_a_regular_file_is_refused_before_any_work(source, tmp_path):
     blocker = tmp_path / "not_a_folder"
     blocker.write_bytes(b"")

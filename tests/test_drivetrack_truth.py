@@ -5,9 +5,12 @@ import pytest
 
 from pipeline.core.config import RunConfig, with_overrides
 from pipeline.drivetrack import annotate as A
-from pipeline.drivetrack.transform import load_unit
+from pipeline.drivetrack.evidence import gather_lidar
+from pipeline.drivetrack.objects import select_objects
+from pipeline.drivetrack.poses import camera_from_world, frame_poses
+from pipeline.drivetrack.source import load_unit
 from pipeline.filters.select import apply_filters, decide
-from tests.fixtures.waymo_world import (
+from pipeline.samples.waymo_world import (
     FIRST_TIMESTAMP_MICROS,
     FX_FY_CX_CY,
     HEIGHT,
@@ -85,7 +88,7 @@ def test_visibility_agrees_with_ray_cast_truth(clips, world):
             _, _, visible, _ = true_tracks(world, clip, camera)
             candidate_agree += (visible == clip.visibility).sum()
             candidate_total += visible.size
-            selected = apply_filters(clip, config)[1].selected
+            selected = apply_filters(clip, config, config.drivetrack.mask_min_agreement)[1].selected
             written_agree += (visible[:, selected] == clip.visibility[:, selected]).sum()
             written_total += visible[:, selected].size
     print(
@@ -99,14 +102,14 @@ def test_visibility_agrees_with_ray_cast_truth(clips, world):
 def test_mask_filter_drops_planted_off_object_tracks(sample_split):
     config = with_overrides(RunConfig(), ["drivetrack.oversample=1000"])
     unit = load_unit(sample_split[0], SEGMENT, 1)
-    world_from_frame = A.frame_poses(unit)
-    cam_from_world = A.camera_from_world(unit.frames, unit.calibration)
+    world_from_frame = frame_poses(unit)
+    cam_from_world = camera_from_world(unit.frames, unit.calibration)
     run = next(
         r
-        for r in A.select_objects(unit, cam_from_world, world_from_frame, config)
+        for r in select_objects(unit, cam_from_world, world_from_frame, config)
         if r.object_id.startswith("lead")
     )
-    evidence = A.gather_lidar(unit, [run], cam_from_world, world_from_frame, 0.1, 0.05)
+    evidence = gather_lidar(unit, [run], cam_from_world, world_from_frame, 0.1, 0.05)
     # Plant ground points 2 m beside the car, as a mislabelled box would capture them.
     planted = np.array([[x, 2.9, -0.86] for x in np.linspace(-2.0, 2.0, 12)])
     frame = run.start + 5
@@ -119,7 +122,7 @@ def test_mask_filter_drops_planted_off_object_tracks(sample_split):
     body = clip.tracks_xyz[0] @ box_from_cam[:3, :3].T + box_from_cam[:3, 3]
     is_planted = np.linalg.norm(body[:, None] - planted[None], axis=2).min(axis=1) < 1e-6
     assert is_planted.sum() == 12
-    verdicts, _ = decide(clip, config)
+    verdicts, _ = decide(clip, config, config.drivetrack.mask_min_agreement)
     visible = clip.visibility[:, is_planted].any(axis=0)
     assert visible.sum() >= 6, "planted points should be visible (ground beside the car)"
     assert not verdicts["mask"][is_planted & clip.visibility.any(axis=0)].any()

@@ -2,19 +2,15 @@
 
 from __future__ import annotations
 
-import pathlib
-
 import numpy as np
 import open3d as o3d
-import pytest
 
 from pipeline.run import main as run_main
-from tests.fixtures.studio_world import WIDTH as STUDIO_WIDTH
-from tests.fixtures.waymo_world import FIRST_TIMESTAMP_MICROS, frame_time, world_from_camera
+from pipeline.samples.studio_world import WIDTH as STUDIO_WIDTH
+from pipeline.samples.waymo_world import FIRST_TIMESTAMP_MICROS, frame_time, world_from_camera
+from tests.adt_excerpt import SAMPLE as ADT_EXCERPT
+from tests.adt_excerpt import needs_excerpt
 
-ADT_EXCERPT = (
-    pathlib.Path(__file__).resolve().parents[2] / "shared/data/adt_sample/aria_digital_twin_test_data"
-)
 OPENCV_FROM_WAYMO = np.array([[0, -1, 0, 0], [0, 0, -1, 0], [1, 0, 0, 0], [0, 0, 0, 1.0]])
 
 
@@ -76,7 +72,7 @@ def test_drivetrack_sparse_depth_lies_on_visible_surfaces(sample_split, world, t
     assert on_surface / total > 0.9 and unobstructed / total > 0.9, (on_surface / total, unobstructed / total)
 
 
-@pytest.mark.skipif(not ADT_EXCERPT.is_dir(), reason=f"the real ADT excerpt is not at {ADT_EXCERPT}")
+@needs_excerpt
 def test_adt_dense_depth_is_the_rendered_depth(tmp_path):
     from tests.test_adt_sample import SETTINGS, Truth
 

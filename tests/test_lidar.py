@@ -4,7 +4,7 @@ import numpy as np
 
 from pipeline.drivetrack.lidar import beam_inclinations, range_image_to_vehicle, top_lidar_world_points
 from pipeline.drivetrack.reader import LidarCalibration, SegmentReader
-from tests.fixtures.waymo_world import SEGMENT, timestamp
+from pipeline.samples.waymo_world import SEGMENT, timestamp
 
 
 def test_uniform_inclinations_are_reversed():

@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from pipeline.pstudio.render import render_depth_at, render_depth_image
 from pipeline.pstudio.splats import Splats2D, project_splats
-from tests.fixtures.studio_world import HEIGHT, WIDTH
+from pipeline.samples.studio_world import HEIGHT, WIDTH
 
 
 def reference_splats(means, quaternions, scales, opacities, w2c, fx_fy_cx_cy):

@@ -11,8 +11,8 @@ from pipeline.export.npz_writer import clip_arrays
 from pipeline.export.validator import check_arrays
 from pipeline.filters.select import apply_filters
 from pipeline.pstudio.annotate import annotate_unit, multiview_mask_fraction
-from pipeline.pstudio.transform import list_units, load_unit
-from tests.fixtures.studio_world import FRAMES
+from pipeline.pstudio.source import list_units, load_unit
+from pipeline.samples.studio_world import FRAMES
 
 
 @pytest.fixture(scope="module")
@@ -24,7 +24,7 @@ def clips(pstudio_sample):
     for unit in list_units(root, config):
         unit_input = load_unit(root, *unit, config)
         (clip,) = annotate_unit(unit_input, config)
-        kept, outcome = apply_filters(clip, config)
+        kept, outcome = apply_filters(clip, config, config.pstudio.mask_min_agreement)
         camera = next(c for c in studio.cameras if c.camera_id == unit[1])
         result.append((camera, clip, kept, outcome, unit_input))
     return result

@@ -6,21 +6,11 @@ import pathlib
 
 import numpy as np
 import pyarrow.parquet as pq
-import pytest
 
 from pipeline.run import main as run_main
-
-ADT_EXCERPT = (
-    pathlib.Path(__file__).resolve().parents[2] / "shared/data/adt_sample/aria_digital_twin_test_data"
-)
-ADT_SETTINGS = [
-    "--set",
-    "adt.chunk_frames=2",
-    "--set",
-    "adt.min_frames=2",
-    "--set",
-    "adt.max_gt_offset_ms=40",
-]
+from tests.adt_excerpt import SAMPLE as ADT_EXCERPT
+from tests.adt_excerpt import SETTINGS as ADT_SETTINGS
+from tests.adt_excerpt import needs_excerpt
 
 
 def same_bytes(first: pathlib.Path, second: pathlib.Path, source: str) -> list[str]:
@@ -86,7 +76,7 @@ def test_drivetrack_rerun_reproduces(sample_split, tmp_path):
     assert same_bytes(first, second, "drivetrack") == []
 
 
-@pytest.mark.skipif(not ADT_EXCERPT.is_dir(), reason=f"the real ADT excerpt is not at {ADT_EXCERPT}")
+@needs_excerpt
 def test_adt_rerun_reproduces(tmp_path):
     first, second = tmp_path / "first", tmp_path / "second"
     command = ["--source", "adt", "--input", str(ADT_EXCERPT), *ADT_SETTINGS]

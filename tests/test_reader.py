@@ -9,7 +9,7 @@ import pytest
 
 from pipeline.core.errors import InputError
 from pipeline.drivetrack.reader import SegmentReader, list_segments, transforms_from_column
-from tests.fixtures.waymo_world import SEGMENT, camera_to_vehicle
+from pipeline.samples.waymo_world import SEGMENT, camera_to_vehicle
 
 
 @pytest.mark.parametrize(

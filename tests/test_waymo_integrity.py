@@ -17,8 +17,8 @@ import pytest
 from pipeline.core.errors import InputError
 from pipeline.drivetrack import columns as C
 from pipeline.drivetrack.reader import SegmentReader
+from pipeline.samples.waymo_world import SEGMENT, timestamp
 from tests.cli import clip_bytes, run_pipeline
-from tests.fixtures.waymo_world import SEGMENT, timestamp
 from tests.test_bad_input_drivetrack import LEAD_CAR, T, as_strings, repeat_row, retyped, set_cells
 
 

@@ -47,11 +47,6 @@ def unrotate_pixels_cw(xy: np.ndarray, size: int) -> np.ndarray:
     return np.stack([xy[..., 1], size - xy[..., 0]], axis=-1)
 
 
-def stored_intrinsics(size: int, focal: float) -> np.ndarray:
-    """fx, fy, cx, cy [4] of the stored (rotated) frames: principal point at the image centre."""
-    return np.array([focal, focal, size / 2.0, size / 2.0])
-
-
 def stored_cam_from_world(world_from_camera: np.ndarray) -> np.ndarray:
     """World-to-stored-camera [..., 4, 4] from the RGB camera's pose(s) in the world [..., 4, 4]."""
     from pipeline.core.geometry import invert_se3

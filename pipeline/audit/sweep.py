@@ -21,22 +21,23 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from pipeline import sources
 from pipeline.core.config import RunConfig, config_from_dict, with_overrides
 from pipeline.export.files import list_files, read_bytes, write_atomic
+from pipeline.export.layout import audit_path, run_record_path, sweep_folder
 from pipeline.filters.select import FILTER_ORDER, count_dropped, verdicts_from_stats
+from pipeline.sources import Source
 
-SWEEPABLE = (
-    "flicker.max_fraction",
-    "adt.mask_min_agreement",
-    "drivetrack.mask_min_agreement",
-    "pstudio.mask_min_agreement",
-)
+
+def sweepable(source: Source) -> tuple[str, ...]:
+    """The config keys a sweep may vary for ``source``: the filter stage's thresholds only."""
+    return ("flicker.max_fraction", *source.sweepable)
 
 
 def load_statistics(output: str, source: str) -> list[dict]:
     """Per clip: {"clip", "num_frames", "target_tracks", "stats": {name: [N] array}}."""
     clips = []
-    for path in list_files(f"{output}/audit/{source}/*.parquet"):
+    for path in list_files(audit_path(output, source, "*")):
         try:
             table = pq.read_table(path)
         except (pa.ArrowException, OSError) as error:
@@ -62,13 +63,15 @@ def load_statistics(output: str, source: str) -> list[dict]:
     return clips
 
 
-def evaluate(clips: list[dict], source: str, config: RunConfig) -> dict:
+def evaluate(clips: list[dict], source: Source, config: RunConfig) -> dict:
     """The filter stage's totals at ``config``: candidates, dropped per filter, passed, clips
     with a survivor, and those that would fall below their target track count."""
     dropped = dict.fromkeys(FILTER_ORDER, 0)
     candidates = passed = written = below = 0
     for clip in clips:
-        verdicts = verdicts_from_stats(clip["stats"], clip["num_frames"], source, config)
+        verdicts = verdicts_from_stats(
+            clip["stats"], clip["num_frames"], config, source.mask_min_agreement(config)
+        )
         for name, count in count_dropped(verdicts).items():
             dropped[name] += count
         survivors = int(np.logical_and.reduce([verdicts[name] for name in FILTER_ORDER]).sum())
@@ -85,7 +88,7 @@ def evaluate(clips: list[dict], source: str, config: RunConfig) -> dict:
     }
 
 
-def parse_grid(assignments: list[str]) -> dict[str, list[str]]:
+def parse_grid(assignments: list[str], source: Source) -> dict[str, list[str]]:
     """``key=v1,v2`` -> {key: [v1, v2]}; only thresholds the filter stage reads can be swept."""
     grid = {}
     for assignment in assignments:
@@ -93,9 +96,9 @@ def parse_grid(assignments: list[str]) -> dict[str, list[str]]:
         key = key.strip()
         if not sep or not values:
             raise ValueError(f"--grid {assignment!r}: expected key=v1,v2,...")
-        if key not in SWEEPABLE:
+        if key not in sweepable(source):
             raise ValueError(
-                f"--grid {key}: the sweep replays the filter stage only ({', '.join(SWEEPABLE)}); "
+                f"--grid {key}: the sweep replays the filter stage only ({', '.join(sweepable(source))}); "
                 "a setting that changes annotation needs a new run (python -m pipeline.run --set ...)"
             )
         grid[key] = [v.strip() for v in values.split(",") if v.strip()]
@@ -112,7 +115,7 @@ def _pyplot():
     return plt
 
 
-def survival_figure(clips: list[dict], source: str, config: RunConfig, path: str) -> None:
+def survival_figure(clips: list[dict], source: Source, config: RunConfig, path: str) -> None:
     """Share of candidates each filter keeps as its threshold varies (default marked)."""
     plt = _pyplot()
     flips = np.concatenate([c["stats"]["visibility_flips"] / max(c["num_frames"], 1) for c in clips])
@@ -126,16 +129,15 @@ def survival_figure(clips: list[dict], source: str, config: RunConfig, path: str
         score = np.concatenate(agreement).astype(np.float64)
         grid = np.linspace(0, 1, 201)
         axes[1].plot(grid, [(np.isnan(score) | (score >= g)).mean() for g in grid])
-        axes[1].axvline(
-            getattr(config, source).mask_min_agreement, color="k", linestyle="--", label="default"
-        )
-    axes[1].set(xlabel=f"{source}.mask_min_agreement", ylabel="share of candidates kept", title="mask")
+        axes[1].axvline(source.mask_min_agreement(config), color="k", linestyle="--", label="default")
+    axes[1].set(xlabel=f"{source.name}.mask_min_agreement", ylabel="share of candidates kept", title="mask")
     for ax in axes:
         ax.set_ylim(0, 1.02)
         ax.grid(alpha=0.3)
         ax.legend()
     figure.suptitle(
-        f"{source}: survival per filter ({sum(len(c['stats']['visible_frames']) for c in clips)} candidates)"
+        f"{source.name}: survival per filter "
+        f"({sum(len(c['stats']['visible_frames']) for c in clips)} candidates)"
     )
     figure.tight_layout()
     figure.savefig(path, dpi=110)
@@ -202,7 +204,7 @@ def report_markdown(source: str, rows: list[dict], run_summary: dict | None, sta
 
 
 def run_summary_and_config(output: str, source: str, overrides: list[str]) -> tuple[dict | None, RunConfig]:
-    path = f"{output}/run_{source}.json"
+    path = run_record_path(output, source)
     if not os.path.exists(path) and "://" not in output:
         return None, with_overrides(RunConfig(), overrides)
     record = json.loads(read_bytes(path))
@@ -211,7 +213,7 @@ def run_summary_and_config(output: str, source: str, overrides: list[str]) -> tu
 
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="python -m pipeline.audit sweep", description=__doc__)
-    parser.add_argument("--source", required=True, choices=("adt", "drivetrack", "pstudio"))
+    parser.add_argument("--source", required=True, choices=sources.names())
     parser.add_argument("--input", help="source data, for a run when --output holds none yet")
     parser.add_argument(
         "--output", default="tapvid3d_out", help="the run's output folder (default %(default)s)"
@@ -230,9 +232,10 @@ def main(argv: list[str]) -> int:
 def sweep(args: argparse.Namespace) -> int:
     """The sweep of ``main``'s arguments; raises ValueError, KeyError, OSError or ArrowException on
     bad input, which ``main`` prints as one line."""
-    grid = parse_grid(args.grid)
+    source = sources.get(args.source)
+    grid = parse_grid(args.grid, source)
     output = os.path.abspath(args.output) if "://" not in args.output else args.output
-    if not list_files(f"{output}/audit/{args.source}/*.parquet"):
+    if not load_statistics(output, args.source):
         from pipeline import run
 
         print(f"no recorded statistics in {output}/audit/{args.source}/: running the pipeline once")
@@ -248,18 +251,18 @@ def sweep(args: argparse.Namespace) -> int:
         print(f"no audit tables in {output}/audit/{args.source}/", file=sys.stderr)
         return 1
     keys = list(grid)
-    rows = [{"values": {k: _current(base, k) for k in keys}, "result": evaluate(clips, args.source, base)}]
+    rows = [{"values": {k: _current(base, k) for k in keys}, "result": evaluate(clips, source, base)}]
     for values in itertools.product(*grid.values()) if keys else []:
         config = with_overrides(base, [f"{k}={v}" for k, v in zip(keys, values, strict=True)])
         rows.append(
-            {"values": dict(zip(keys, values, strict=True)), "result": evaluate(clips, args.source, config)}
+            {"values": dict(zip(keys, values, strict=True)), "result": evaluate(clips, source, config)}
         )
     if run_summary is not None:
         rows[0]["matches_run"] = matches_run(rows[0]["result"], run_summary)
-    report = args.report or f"{output}/sweep_{args.source}"
+    report = args.report or sweep_folder(output, args.source)
     os.makedirs(report, exist_ok=True)
     statistics = numeric_statistics(clips)
-    survival_figure(clips, args.source, base, f"{report}/survival.png")
+    survival_figure(clips, source, base, f"{report}/survival.png")
     histogram_figure(statistics, args.source, f"{report}/histograms.png")
     markdown = report_markdown(args.source, rows, run_summary, statistics)
     write_atomic(f"{report}/report.md", markdown.encode())

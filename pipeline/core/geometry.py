@@ -32,6 +32,18 @@ def transform_points(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
     return np.einsum("ij,...j->...i", transform[:3, :3], points) + transform[:3, 3]
 
 
+def transform_points_batch(transforms: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Apply transforms [..., 4, 4] to points [..., N, 3], one transform per point set; e.g.
+    poses per frame [T, 4, 4] with points [N, 3] or [T, N, 3]. Returns [..., N, 3]."""
+    return transform_directions_batch(transforms, points) + transforms[..., None, :3, 3]
+
+
+def transform_directions_batch(transforms: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """Rotate directions [..., N, 3] (normals) by the rotation of transforms [..., 4, 4], as
+    ``transform_points_batch`` without the translation. Returns [..., N, 3]."""
+    return np.einsum("...ij,...nj->...ni", transforms[..., :3, :3], directions)
+
+
 def project(points_cam: np.ndarray, fx_fy_cx_cy: np.ndarray) -> np.ndarray:
     """Pinhole projection of camera-frame points [..., 3] to pixels [..., 2].
 

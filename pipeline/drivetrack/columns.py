@@ -68,7 +68,6 @@ COMPONENTS = (
 )
 
 TOP_LASER = 1
-CAMERA_NAMES = {1: "FRONT", 2: "FRONT_LEFT", 3: "FRONT_RIGHT", 4: "SIDE_LEFT", 5: "SIDE_RIGHT"}
 
 # Each component's key: the columns that name one row (the segment aside, as a file holds one segment).
 KEYS = {

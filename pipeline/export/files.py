@@ -18,6 +18,8 @@ import uuid
 from apache_beam.io.filesystem import BeamIOError, CompressionTypes
 from apache_beam.io.filesystems import FileSystems
 
+from pipeline.core.errors import InputError
+
 PARTIAL = ".partial-"
 # Longest file name written; the temporary adds its prefix and suffix to it (255 is the usual limit).
 MAX_NAME_BYTES = 180
@@ -73,13 +75,29 @@ def write_atomic(path: str, data: bytes) -> None:
         raise
 
 
+def open_binary(path: str):
+    """A seekable binary stream of the file (for readers that stream: Parquet, zip)."""
+    return FileSystems.open(path, compression_type=CompressionTypes.UNCOMPRESSED)
+
+
+def read_input(path: str, max_bytes: int | None = None) -> bytes:
+    """``read_bytes`` for a unit's input: InputError ``missing file <path>`` or ``cannot read <path>:
+    <cause>`` instead of each filesystem's own exception."""
+    try:
+        return read_bytes(path, max_bytes)
+    except Exception as error:  # noqa: BLE001 - any filesystem's not-found becomes InputError
+        if not FileSystems.exists(path):
+            raise InputError(f"missing file {path}") from error
+        raise InputError(f"cannot read {path}: {error}") from error
+
+
 def read_bytes(path: str, max_bytes: int | None = None) -> bytes:
     """The file's bytes; with ``max_bytes``, OSError(EFBIG) before reading a larger file."""
     if max_bytes is not None:
         size = file_size(path)
         if size is not None and size > max_bytes:
             raise OSError(errno.EFBIG, f"{size} bytes, more than the {max_bytes} read", path)
-    with FileSystems.open(path, compression_type=CompressionTypes.UNCOMPRESSED) as handle:
+    with open_binary(path) as handle:
         data = handle.read() if max_bytes is None else handle.read(max_bytes + 1)
     if max_bytes is not None and len(data) > max_bytes:
         raise OSError(errno.EFBIG, f"more than the {max_bytes} bytes read", path)

@@ -6,6 +6,8 @@
 <out>/units/<source>/<unit>.json      a finished unit's record, which lets a rerun skip it
 <out>/manifests/{minival,full_test}.txt
 <out>/run_<source>.json, <out>/failures_<source>.jsonl
+<out>/sweep_<source>/                 ``pipeline.audit sweep``'s report
+<out>/sample_input/<source>/          the embedded sample world, when a run has no --input
 """
 
 from __future__ import annotations
@@ -43,7 +45,7 @@ def check_clip_name(name: str) -> str:
 
 
 def clip_path(output: str, source: str, clip: str) -> str:
-    return f"{output}/{source}/{clip}.npz"
+    return f"{clip_folder(output, source)}/{clip}.npz"
 
 
 def audit_path(output: str, source: str, clip: str) -> str:
@@ -60,3 +62,40 @@ def unit_record_path(output: str, source: str, unit: str) -> str:
     slug = re.sub(r"[^A-Za-z0-9_.+-]+", "_", unit).strip("._")[:80]
     digest = hashlib.sha256(unit.encode()).hexdigest()[:12]
     return f"{output}/units/{source}/{slug}-{digest}.json"
+
+
+def clip_folder(output: str, source: str) -> str:
+    return f"{output}/{source}"
+
+
+def manifest_path(output: str, split: str) -> str:
+    return f"{output}/manifests/{split}.txt"
+
+
+def run_record_path(output: str, source: str) -> str:
+    return f"{output}/run_{source}.json"
+
+
+def failures_path(output: str, source: str) -> str:
+    return f"{output}/failures_{source}.jsonl"
+
+
+def sweep_folder(output: str, source: str) -> str:
+    return f"{output}/sweep_{source}"
+
+
+def sample_folder(output: str, source: str) -> str:
+    return f"{output}/sample_input/{source}"
+
+
+def temporary_patterns(output: str, source: str, partial: str) -> list[str]:
+    """Globs of the hidden temporaries (``.<name><partial>*``) a run of ``source`` may leave."""
+    folders = [
+        clip_folder(output, source),
+        *(f"{output}/{kind}/{source}" for kind in ("audit", "depth", "units")),
+    ]
+    patterns = [f"{folder}/.*{partial}*" for folder in [*folders, f"{output}/manifests"]]
+    for path in (run_record_path(output, source), failures_path(output, source)):
+        folder, _, name = path.rpartition("/")
+        patterns.append(f"{folder}/.{name}{partial}*")
+    return patterns

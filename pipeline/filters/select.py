@@ -60,10 +60,11 @@ def count_dropped(verdicts: dict[str, np.ndarray]) -> dict[str, int]:
 
 
 def verdicts_from_stats(
-    stats: dict[str, np.ndarray], num_frames: int, source: str, config: RunConfig
+    stats: dict[str, np.ndarray], num_frames: int, config: RunConfig, mask_min_agreement: float
 ) -> dict[str, np.ndarray]:
     """Verdict per filter [N] bool from recorded statistics [N]: the filter stage's only rule,
-    also replayed by ``pipeline.audit sweep`` at other thresholds."""
+    also replayed by ``pipeline.audit sweep`` at other thresholds. ``mask_min_agreement`` is the
+    clip's source's threshold (``Source.mask_min_agreement``)."""
     count = len(stats["visible_frames"])
     verdicts = {
         "never_visible": np.asarray(stats["visible_frames"]) > 0,
@@ -74,22 +75,26 @@ def verdicts_from_stats(
     }
     if "mask_agreement" in stats:
         score = np.asarray(stats["mask_agreement"], dtype=np.float64)
-        verdicts["mask"] = np.isnan(score) | (score >= getattr(config, source).mask_min_agreement)
+        verdicts["mask"] = np.isnan(score) | (score >= mask_min_agreement)
     return verdicts
 
 
-def decide(clip: ClipRecord, config: RunConfig) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+def decide(
+    clip: ClipRecord, config: RunConfig, mask_min_agreement: float
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     """Verdict per filter [N] bool, and the statistics they read [N]."""
     stats = dict(clip.track_stats)
     stats["visibility_flips"] = visibility_flips(clip.visibility)
     stats.setdefault("visible_frames", clip.visibility.sum(axis=0).astype(np.int64))
-    return verdicts_from_stats(stats, clip.num_frames, clip.source, config), stats
+    return verdicts_from_stats(stats, clip.num_frames, config, mask_min_agreement), stats
 
 
-def apply_filters(clip: ClipRecord, config: RunConfig) -> tuple[ClipRecord, FilterOutcome]:
+def apply_filters(
+    clip: ClipRecord, config: RunConfig, mask_min_agreement: float
+) -> tuple[ClipRecord, FilterOutcome]:
     """Keep the tracks every filter passes, then draw the clip's target count (seeded); a clip of
     given queries keeps every track, in order (the verdicts are still recorded)."""
-    verdicts, stats = decide(clip, config)
+    verdicts, stats = decide(clip, config, mask_min_agreement)
     survivors = np.nonzero(np.logical_and.reduce([verdicts[name] for name in FILTER_ORDER]))[0]
     rng = rng_for(config.seed, f"{clip.name}/subsample")
     selected = survivors[choose_subset(len(survivors), clip.target_tracks, rng)]

@@ -9,12 +9,12 @@ from __future__ import annotations
 import json
 
 import numpy as np
-from apache_beam.io.filesystem import CompressionTypes
 from apache_beam.io.filesystems import FileSystems
 
 from pipeline.core.config import PstudioConfig
 from pipeline.core.errors import InputError
 from pipeline.core.images import check_jpeg, decode_image
+from pipeline.export.files import open_binary, read_input
 from pipeline.export.npz_reader import NpzArchive, NpzError
 from pipeline.pstudio.annotate import Gaussians, Views
 
@@ -28,16 +28,6 @@ PARAMS_SHAPES = {  # member -> shape with T, N symbolic
     "logit_opacities": ("N", 1),
     "seg_colors": ("N", 3),
 }
-
-
-def _read(path: str) -> bytes:
-    try:
-        with FileSystems.open(path, compression_type=CompressionTypes.UNCOMPRESSED) as handle:
-            return handle.read()
-    except Exception as error:  # noqa: BLE001 - any filesystem's not-found becomes InputError
-        if not FileSystems.exists(path):
-            raise InputError(f"missing file {path}") from error
-        raise InputError(f"cannot read {path}: {error}") from error
 
 
 def data_root(input_root: str) -> str:
@@ -82,7 +72,7 @@ def read_views(input_root: str, sequence: str) -> tuple[Views, dict]:
     """The sequence's cameras from train_meta.json (checked static) and the raw metadata."""
     path = FileSystems.join(data_root(input_root), sequence, "train_meta.json")
     try:
-        meta = json.loads(_read(path))
+        meta = json.loads(read_input(path))
         width, height = int(meta["w"]), int(meta["h"])
         k = np.asarray(meta["k"], dtype=np.float64)
         w2c = np.asarray(meta["w2c"], dtype=np.float64)
@@ -142,7 +132,7 @@ def read_gaussians(path: str, frames: int) -> Gaussians:
     if not FileSystems.exists(path):
         raise InputError(f"missing file {path}")
     try:
-        with FileSystems.open(path, compression_type=CompressionTypes.UNCOMPRESSED) as handle:
+        with open_binary(path) as handle:
             if handle.read(6) == b"\x93NUMPY":
                 raise InputError(f"{path}: a single .npy array, not an npz archive")
             handle.seek(0)
@@ -197,12 +187,12 @@ class SequenceFiles:
 
     def image(self, view: int, t: int) -> bytes:
         path = FileSystems.join(self.folder, "ims", self.names[t][view])
-        data = _read(path)
+        data = read_input(path)
         check_jpeg(data, self.views.width, self.views.height, path)
         return data
 
     def mask(self, view: int, t: int) -> np.ndarray:
         """Foreground mask [H, W] bool (seg PNG, non-zero = foreground)."""
         path = FileSystems.join(self.folder, "seg", self.names[t][view].rsplit(".", 1)[0] + ".png")
-        image = decode_image(_read(path), self.views.width, self.views.height, path, noun="mask")
+        image = decode_image(read_input(path), self.views.width, self.views.height, path, noun="mask")
         return image > 0

@@ -38,7 +38,7 @@ def _timed(function, *args):
 def run(frames: int) -> None:
     """Print per-frame reading/re-rendering costs over ``frames`` frame reads, then the clip cost."""
     from pipeline.adt.annotate import Chunk, annotate_chunk
-    from pipeline.adt.transform import SequenceFrames, clip_name, encode_jpeg, open_reader, unit_name
+    from pipeline.adt.source import SequenceFrames, clip_name, encode_jpeg, open_reader, unit_name
 
     path = excerpt_path()
     if not os.path.isdir(path):

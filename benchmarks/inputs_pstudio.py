@@ -18,7 +18,6 @@ from pipeline.bench_units import UnitSetup
 from pipeline.pstudio import bench as scene
 from pipeline.pstudio.annotate import UnitInput, splats_in_view
 from pipeline.pstudio.render import render_depth_at
-from pipeline.samples import load_fixture_module
 
 SEQUENCE = "dome"
 EXPERIMENT = "bench"
@@ -34,7 +33,7 @@ def write_sequence(root: str, sizes: dict, cameras: int) -> None:
         0, sizes["frames"], sizes["per_person"], sizes["floor"], sizes["wall"], cameras
     )
     frames, count = gaussians.means.shape[:2]
-    files = load_fixture_module("dynamic3dgs_files")
+    from pipeline.samples import dynamic3dgs_files as files
     data = os.path.join(root, "data", SEQUENCE)
     mask_of = scene._mask_function(gaussians, views)
     rng = np.random.default_rng(0)
@@ -69,7 +68,7 @@ def write_sequence(root: str, sizes: dict, cameras: int) -> None:
 def prepare(workdir: str, quick: bool) -> UnitSetup:
     sizes = QUICK if quick else FULL
     cameras = CAMERAS_QUICK if quick else CAMERAS_FULL
-    write_once = load_fixture_module("write_once").write_once
+    from pipeline.samples.write_once import write_once
     tag = "quick" if quick else "full"
     folder = os.path.join(workdir, f"sequence_{tag}")
     if not os.path.exists(os.path.join(folder, f".complete-v{VERSION}")):

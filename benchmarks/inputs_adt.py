@@ -53,10 +53,10 @@ def prepare(workdir: str, quick: bool) -> UnitSetup | None:
 
 
 def run_unit(spec: dict) -> dict:
-    """The unit as ``pipeline.adt.transform.annotate_unit`` runs it, with the opening timed apart;
+    """The unit as ``pipeline.adt.source.annotate_unit`` runs it, with the opening timed apart;
     the chunk is annotated ``spec["repeat"]`` times after one opening."""
     from pipeline.adt.annotate import Chunk, annotate_chunk
-    from pipeline.adt.transform import SequenceFrames, clip_name, open_reader, unit_name
+    from pipeline.adt.source import SequenceFrames, clip_name, open_reader, unit_name
     from pipeline.core.config import RunConfig, with_overrides
 
     config = with_overrides(RunConfig(), spec["overrides"])

@@ -1,13 +1,15 @@
-"""Beam edge of the Panoptic Studio source: list (sequence, camera) units and annotate them."""
+"""Panoptic Studio (Dynamic 3D Gaussians) as a Source: (sequence, camera) units, one clip each."""
 
 from __future__ import annotations
+
+import operator
 
 from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
 from pipeline.core.errors import InputError
-from pipeline.graph import Annotator
 from pipeline.pstudio.annotate import UnitInput, annotate_unit
 from pipeline.pstudio.reader import SequenceFiles, list_sequences, params_path, read_gaussians, read_views
+from pipeline.sources import Source
 
 # The camera of the one unit listed for a sequence whose train_meta.json cannot be read: that
 # unit fails with the reason, and the other sequences still run.
@@ -48,20 +50,24 @@ def load_unit(input_root: str, sequence: str, camera: int, config: RunConfig) ->
     return UnitInput(sequence, camera, views, gaussians, frames, files.mask)
 
 
-class AnnotatePstudio(Annotator):
-    """(sequence, camera) -> one candidate clip ``<sequence>_<camera>``."""
-
-    unit_name = staticmethod(unit_name)
-
-    def annotate(self, unit: tuple[str, int]) -> list[ClipRecord]:
-        return annotate_unit(load_unit(self.input_root, *unit, self.config), self.config)
-
-
 def sample_input(folder: str) -> str:
     """Write (once) the embedded sample world in Dynamic 3D Gaussians' layout; returns its path."""
-    from pipeline.samples import load_fixture_module
+    from pipeline.samples.dynamic3dgs_files import write_sample
 
-    return load_fixture_module("dynamic3dgs_files").write_sample(folder)
+    return write_sample(folder)
 
 
-ANNOTATOR = AnnotatePstudio
+def annotate(input_root: str, unit: tuple[str, int], config: RunConfig) -> list[ClipRecord]:
+    """(sequence, camera) -> one candidate clip ``<sequence>_<camera>``."""
+    return annotate_unit(load_unit(input_root, *unit, config), config)
+
+
+SOURCE = Source(
+    name="pstudio",
+    list_units=list_units,
+    unit_name=unit_name,
+    annotate=annotate,
+    sample_input=sample_input,
+    mask_min_agreement=operator.attrgetter("pstudio.mask_min_agreement"),
+    sweepable=("pstudio.mask_min_agreement",),
+)

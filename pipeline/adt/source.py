@@ -1,13 +1,9 @@
-"""Beam edge of the ADT source: list (sequence, chunk) units and annotate them.
-
-``--input`` is one ADT sequence folder or a folder of them, on a local or mounted file system
-(projectaria-tools reads VRS files from local paths only).
-"""
+"""Aria Digital Twin as a Source: (sequence, 300-frame chunk) units, one clip each."""
 
 from __future__ import annotations
 
+import operator
 import os
-import sys
 
 import cv2
 import numpy as np
@@ -19,11 +15,23 @@ from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
 from pipeline.core.errors import InputError
 from pipeline.core.given_queries import given_queries
-from pipeline.graph import Annotator, progress
+from pipeline.core.progress import progress
+from pipeline.sources import NoSample, Source
 
 JPEG_QUALITY = 95
+# The real ADT excerpt shared beside the repository (relative to its root; read in place) and the
+# settings its two frames need. Tests, the Makefile's ADT_EXCERPT and the benchmarks use these.
 SHARED_EXCERPT = "../shared/data/adt_sample/aria_digital_twin_test_data"
 EXCERPT_SETTINGS = ("adt.chunk_frames=2", "adt.min_frames=2", "adt.max_gt_offset_ms=40")
+_REPOSITORY = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+def excerpt_path() -> str | None:
+    """The ADT excerpt's folder: ``$ADT_EXCERPT`` when set, else ``SHARED_EXCERPT`` beside the
+    repository; None when that folder does not exist."""
+    path = os.environ.get("ADT_EXCERPT") or os.path.join(_REPOSITORY, SHARED_EXCERPT)
+    path = os.path.normpath(os.path.abspath(path))
+    return path if os.path.isdir(path) else None
 
 
 def open_reader(sequence: str, config: RunConfig) -> SequenceReader:
@@ -142,15 +150,6 @@ def annotate_unit(sequence: str, chunk: int, config: RunConfig) -> list[ClipReco
         raise _named(error, sequence, name) from error
 
 
-class AnnotateAdt(Annotator):
-    """(sequence, chunk) -> one candidate clip."""
-
-    unit_name = staticmethod(unit_name)
-
-    def annotate(self, unit: tuple[str, int]) -> list[ClipRecord]:
-        return annotate_unit(unit[0], unit[1], self.config)
-
-
 def no_sample_message() -> str:
     settings = " ".join(f"--set {s}" for s in EXCERPT_SETTINGS)
     return (
@@ -171,10 +170,22 @@ def no_sample_message() -> str:
     )
 
 
+def annotate(input_root: str, unit: tuple[str, int], config: RunConfig) -> list[ClipRecord]:
+    """(sequence folder, chunk) -> one candidate clip ``<v1 sequence name>_<chunk>``."""
+    return annotate_unit(unit[0], unit[1], config)
+
+
 def sample_input(folder: str) -> str:
-    """There is no embedded ADT sample: print how to get ADT (and run the shared excerpt), exit 2."""
-    print(no_sample_message(), file=sys.stderr)
-    raise SystemExit(2)
+    """There is no embedded ADT sample: NoSample says how to get ADT and run the shared excerpt."""
+    raise NoSample(no_sample_message())
 
 
-ANNOTATOR = AnnotateAdt
+SOURCE = Source(
+    name="adt",
+    list_units=list_units,
+    unit_name=unit_name,
+    annotate=annotate,
+    sample_input=sample_input,
+    mask_min_agreement=operator.attrgetter("adt.mask_min_agreement"),
+    sweepable=("adt.mask_min_agreement",),
+)

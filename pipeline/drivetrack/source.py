@@ -1,12 +1,15 @@
-"""Beam edge of the DriveTrack source: list (segment, camera) units and annotate them."""
+"""DriveTrack (Waymo Open v2) as a Source: (segment, camera) units, one clip per vehicle."""
 
 from __future__ import annotations
 
+import operator
+
 from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
-from pipeline.drivetrack.annotate import UnitInput, annotate_unit
+from pipeline.drivetrack.annotate import annotate_unit
 from pipeline.drivetrack.reader import SegmentReader, list_segments
-from pipeline.graph import Annotator
+from pipeline.drivetrack.unit_input import UnitInput
+from pipeline.sources import Source
 
 
 def list_units(input_root: str, config: RunConfig) -> list[tuple[str, int]]:
@@ -34,20 +37,24 @@ def unit_name(unit: tuple[str, int]) -> str:
     return f"{unit[0]}/camera_{unit[1]}"
 
 
-class AnnotateDriveTrack(Annotator):
-    """(segment, camera) -> one candidate clip per vehicle assigned to that camera."""
-
-    unit_name = staticmethod(unit_name)
-
-    def annotate(self, unit: tuple[str, int]) -> list[ClipRecord]:
-        return annotate_unit(load_unit(self.input_root, *unit), self.config)
-
-
 def sample_input(folder: str) -> str:
     """Write (once) the embedded sample world, a Waymo v2 split folder; returns its path."""
-    from pipeline.samples import load_fixture_module
+    from pipeline.samples.waymo_world import write_sample_split
 
-    return load_fixture_module("waymo_world").write_sample_split(folder)
+    return write_sample_split(folder)
 
 
-ANNOTATOR = AnnotateDriveTrack
+def annotate(input_root: str, unit: tuple[str, int], config: RunConfig) -> list[ClipRecord]:
+    """(segment, camera) -> one candidate clip per vehicle assigned to that camera."""
+    return annotate_unit(load_unit(input_root, *unit), config)
+
+
+SOURCE = Source(
+    name="drivetrack",
+    list_units=list_units,
+    unit_name=unit_name,
+    annotate=annotate,
+    sample_input=sample_input,
+    mask_min_agreement=operator.attrgetter("drivetrack.mask_min_agreement"),
+    sweepable=("drivetrack.mask_min_agreement",),
+)

@@ -1,0 +1,114 @@
+"""Which vehicles become clips of a unit, and on which frames: the objects the camera sees best
+whose box projects into it on enough contiguous frames, near enough."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections import Counter
+
+import numpy as np
+
+from pipeline.core.config import RunConfig
+from pipeline.core.errors import InputError
+from pipeline.core.geometry import project, transform_points
+from pipeline.drivetrack.boxes import box_corners_local, box_poses, longest_run
+from pipeline.drivetrack.reader import CameraCalibration
+from pipeline.drivetrack.unit_input import UnitInput
+
+
+@dataclasses.dataclass(frozen=True)
+class ObjectRun:
+    """A vehicle's clip: frames [start, stop) of the camera, its boxes on those frames.
+
+    world_from_box: [T, 4, 4] camera-synced box poses in the world.
+    lidar_boxes: [T, 7] lidar boxes (vehicle frame at frame time).
+    """
+
+    object_id: str
+    start: int
+    stop: int
+    world_from_box: np.ndarray
+    lidar_boxes: np.ndarray
+
+
+def assigned_camera(most_visible: np.ndarray) -> int:
+    """The camera an object belongs to: its most frequent ``most_visible_camera_name`` over its
+    labels [R] (the lowest camera on ties)."""
+    votes = Counter(most_visible.tolist())
+    return min(votes, key=lambda cam: (-votes[cam], cam))
+
+
+def boxes_per_frame(unit: UnitInput, object_id: str, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """An object's (camera-synced, lidar) boxes per camera frame, each [T, 7] (NaN on frames without
+    a label), from its label rows [R] (checked finite)."""
+    boxes = unit.boxes
+    for component, values in (
+        ("lidar_box", boxes.lidar_boxes),
+        ("lidar_camera_synced_box", boxes.synced_boxes),
+    ):
+        bad = ~np.isfinite(values[rows]).all(axis=1)
+        if bad.any():
+            raise InputError(
+                f"{component}/{unit.segment} object {object_id} frame {boxes.timestamps[rows][bad][0]}: "
+                "NaN or infinity in the box"
+            )
+    frame_index = {ts: i for i, ts in enumerate(unit.frames.timestamps.tolist())}
+    num_frames = len(unit.frames.timestamps)
+    synced = np.full((num_frames, 7), np.nan)
+    lidar = np.full((num_frames, 7), np.nan)
+    for row in rows:
+        index = frame_index.get(int(boxes.timestamps[row]))
+        if index is not None:
+            synced[index] = boxes.synced_boxes[row]
+            lidar[index] = boxes.lidar_boxes[row]
+    return synced, lidar
+
+
+def box_in_view(corners_cam: np.ndarray, calibration: CameraCalibration) -> bool:
+    """True when a box's corners [8, 3] (camera frame) project onto the image."""
+    front = corners_cam[:, 2] > 0
+    if not front.any():
+        return False
+    uv = project(corners_cam[front], calibration.fx_fy_cx_cy)
+    return bool(
+        uv[:, 0].max() >= 0
+        and uv[:, 0].min() < calibration.width
+        and uv[:, 1].max() >= 0
+        and uv[:, 1].min() < calibration.height
+    )
+
+
+def select_objects(
+    unit: UnitInput, cam_from_world: np.ndarray, world_from_frame: np.ndarray, config: RunConfig
+) -> list[ObjectRun]:
+    """Vehicles assigned to this camera whose box projects on enough contiguous frames, each on its
+    longest such run, with a box corner within reach on one of its frames; in object-id order.
+
+    cam_from_world, world_from_frame: [T, 4, 4] per camera frame (``poses.py``).
+    """
+    rules = config.drivetrack
+    boxes = unit.boxes
+    runs = []
+    for object_id in sorted(set(boxes.object_ids.tolist())):
+        rows = np.nonzero(boxes.object_ids == object_id)[0]
+        if boxes.types[rows[0]] not in rules.object_types:
+            continue
+        if assigned_camera(boxes.most_visible_camera[rows]) != unit.camera:
+            continue
+        synced, lidar = boxes_per_frame(unit, object_id, rows)
+        labelled = np.isfinite(synced[:, 0])
+        world_from_box = np.full((len(synced), 4, 4), np.nan)
+        world_from_box[labelled] = world_from_frame[labelled] @ box_poses(synced[labelled])
+        in_view_flags = np.zeros(len(synced), bool)
+        nearest = np.full(len(synced), np.inf)
+        for t in np.nonzero(labelled)[0]:
+            corners = transform_points(cam_from_world[t] @ world_from_box[t], box_corners_local(synced[t]))
+            in_view_flags[t] = box_in_view(corners, unit.calibration)
+            nearest[t] = np.linalg.norm(corners, axis=1).min()
+        start, stop = longest_run(in_view_flags)
+        if stop - start < rules.min_contiguous_frames:
+            continue
+        if nearest[start:stop].min() > rules.max_corner_distance_m:
+            continue
+        runs.append(ObjectRun(object_id, start, stop, world_from_box[start:stop], lidar[start:stop]))
+    return runs

@@ -1,0 +1,185 @@
+"""One unit of work, in plain Python: resume check -> annotate -> filter -> write -> record.
+
+The Beam graph (``pipeline.graph``) runs these stages as its named steps, the benchmarks call
+``run_unit`` for the same work without Beam, and resume is the first stage. A unit's record is
+written only when every one of its clips was written, so a unit with a failed clip is redone by
+a rerun. Failures never escape a stage: they become ``failure`` records (the run goes on).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+import traceback
+
+from pipeline.core.clip import ClipRecord
+from pipeline.core.config import RunConfig
+from pipeline.core.errors import InputError, OutputError
+from pipeline.core.progress import progress
+from pipeline.export.audit_table import encode_parquet, outcome_table
+from pipeline.export.depth_export import encode_depth
+from pipeline.export.files import remove_quietly, write_atomic
+from pipeline.export.layout import audit_path, check_clip_name, clip_path, depth_path
+from pipeline.export.npz_writer import clip_arrays, encode_npz
+from pipeline.filters.select import FilterOutcome, apply_filters
+from pipeline.resume import (
+    finished_reports,
+    read_unit_record,
+    remove_stale_clips,
+    run_fingerprint,
+    sha256,
+    write_unit_record,
+)
+from pipeline.sources import Source
+
+
+@dataclasses.dataclass(frozen=True)
+class UnitJob:
+    """What every stage of one run needs besides the unit: the source, where its input and output
+    are, the settings, and whether finished units are skipped."""
+
+    source: Source
+    input_root: str
+    config: RunConfig
+    output: str
+    resume: bool = True
+
+    @property
+    def fingerprint(self) -> str:
+        return run_fingerprint(self.source.name, self.config)
+
+
+@dataclasses.dataclass
+class UnitOutcome:
+    """What became of one unit: its clips' reports, its failures, and whether an earlier run had
+    finished it (then nothing was redone)."""
+
+    name: str
+    reports: list[dict] = dataclasses.field(default_factory=list)
+    failures: list[dict] = dataclasses.field(default_factory=list)
+    resumed: bool = False
+
+
+def failure(unit: str, stage: str, error: BaseException) -> dict:
+    """A failures_<source>.jsonl record; unexpected errors keep their innermost frame for debugging."""
+    record = {"unit": unit, "stage": stage, "error": f"{type(error).__name__}: {error}"}
+    if not isinstance(error, (InputError, OutputError)):
+        frame = traceback.extract_tb(error.__traceback__)[-1]
+        record["where"] = f"{frame.filename}:{frame.lineno}"
+    return record
+
+
+def finished_earlier(job: UnitJob, name: str) -> list[dict] | None:
+    """The clip reports of the unit when an earlier run with these settings finished it (its clips
+    intact on disk), else None."""
+    if not job.resume:
+        return None
+    record = read_unit_record(job.output, job.source.name, name)
+    reports = finished_reports(record, job.output, job.source.name, job.fingerprint, job.config.export_depth)
+    if reports is not None:
+        progress(f"unit {name}: finished by an earlier run with these settings; skipped")
+    return reports
+
+
+def annotate(job: UnitJob, unit) -> list[ClipRecord]:
+    """The unit's candidate clips (raises on bad input; ``run_unit`` and the graph record it)."""
+    started = time.monotonic()
+    clips = job.source.annotate(job.input_root, unit, job.config)
+    progress(f"unit {job.source.unit_name(unit)}: {len(clips)} clip(s) in {time.monotonic() - started:.1f} s")
+    return clips
+
+
+def filter_clip(job: UnitJob, clip: ClipRecord) -> tuple[ClipRecord, FilterOutcome]:
+    """The filter stage with this source's thresholds: the kept clip and every verdict."""
+    return apply_filters(clip, job.config, job.source.mask_min_agreement(job.config))
+
+
+def _write(path: str, data: bytes) -> None:
+    try:
+        write_atomic(path, data)
+    except OSError as error:
+        raise OutputError(f"cannot write {path}: {error}") from error
+
+
+def write_clip(output: str, kept: ClipRecord, outcome: FilterOutcome) -> tuple[dict, str | None]:
+    """Write a filtered clip's audit table, its exported depth if any, then its .npz (each
+    atomically, in that order, so an existing .npz always has its companions). Returns the clip's
+    report and the SHA-256 of its .npz (None when no track survived: then no .npz of that name
+    is left in the folder)."""
+    source, name = kept.source, check_clip_name(kept.name)
+    _write(audit_path(output, source, name), encode_parquet(outcome_table(outcome)))
+    digest = None
+    if kept.num_tracks:
+        if kept.depth_export is not None:
+            _write(depth_path(output, source, name), encode_depth(kept.depth_export))
+        data = encode_npz(clip_arrays(kept))
+        _write(clip_path(output, source, name), data)
+        digest = sha256(data)
+        progress(f"clip {name}: {kept.num_tracks} of {outcome.candidates} candidate tracks written")
+    else:
+        # an earlier run's clip of this name, under other settings
+        remove_quietly([clip_path(output, source, name), depth_path(output, source, name)])
+        progress(f"clip {name}: no track survived the filters; not written")
+    report = {
+        "clip": name,
+        "source": source,
+        "unit": kept.unit,
+        "frames": kept.num_frames,
+        "candidates": outcome.candidates,
+        "dropped": outcome.dropped_by(),
+        "passed": outcome.passed,
+        "written_tracks": kept.num_tracks,
+        "target_tracks": kept.target_tracks,
+    }
+    return report, digest
+
+
+def filter_and_write(
+    job: UnitJob, name: str, clip: ClipRecord
+) -> tuple[dict | None, str | None, dict | None]:
+    """(report, digest, None) for a clip filtered and written, (None, None, failure) otherwise."""
+    try:
+        report, digest = write_clip(job.output, *filter_clip(job, clip))
+    except Exception as error:  # noqa: BLE001 - every failure becomes data
+        progress(f"clip {clip.name} FAILED: {error}")
+        return None, None, failure(f"{name} ({clip.name})", "clip", error)
+    return report, digest, None
+
+
+def record_unit(job: UnitJob, name: str, reports: list[dict], digests: dict[str, str]) -> list[dict]:
+    """After all of a unit's clips were written: remove the files of clips an earlier record listed
+    that this run no longer makes, then write the unit's record. Returns failures (none, or one
+    when the record cannot be written)."""
+    try:
+        previous = read_unit_record(job.output, job.source.name, name)
+        remove_stale_clips(previous, job.output, job.source.name, {r["clip"] for r in reports})
+        write_unit_record(job.output, job.source.name, name, job.fingerprint, reports, digests)
+    except OSError as error:
+        return [failure(name, "record", OutputError(f"cannot record the finished unit: {error}"))]
+    return []
+
+
+def run_unit(job: UnitJob, unit) -> UnitOutcome:
+    """Every stage of one unit in this process, as the graph runs them."""
+    name = job.source.unit_name(unit)
+    reports = finished_earlier(job, name)
+    if reports is not None:
+        return UnitOutcome(name, reports, resumed=True)
+    try:
+        clips = annotate(job, unit)
+    except Exception as error:  # noqa: BLE001 - every failure becomes data
+        progress(f"unit {name} FAILED: {error}")
+        return UnitOutcome(name, failures=[failure(name, "annotate", error)])
+    outcome, digests = UnitOutcome(name), {}
+    for clip in clips:
+        report, digest, failed = filter_and_write(job, name, clip)
+        if failed:
+            outcome.failures.append(failed)
+            continue
+        outcome.reports.append(report)
+        if digest:
+            digests[report["clip"]] = digest
+    outcome.reports.sort(key=lambda report: report["clip"])  # the order the graph's Record step sees
+    if not outcome.failures:
+        outcome.failures += record_unit(job, name, outcome.reports, digests)
+    return outcome

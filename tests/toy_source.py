@@ -1,0 +1,94 @@
+"""A toy source, defined entirely here and registered at run time: the proof that a source needs
+one object and nothing else in the package (docs/adding-a-source.md).
+
+Input: a folder of ``<name>.json`` files, each a unit: ``{"frames": T, "points": [[x, y, z], ...],
+"velocity": [vx, vy, vz]}``: points moving at constant velocity (metres per frame) in front of a
+static 64x48 pinhole camera. Each unit makes one clip ``toy_<name>`` of every point, visible while
+it projects into the frame.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+
+import cv2
+import numpy as np
+
+from pipeline.core.clip import ClipRecord
+from pipeline.core.config import RunConfig
+from pipeline.core.errors import InputError
+from pipeline.sources import Source
+
+WIDTH, HEIGHT = 64, 48
+INTRINSICS = np.array([40.0, 40.0, 32.0, 24.0])
+MASK_THRESHOLD = 0.5
+
+
+def list_units(input_root: str, config: RunConfig) -> list[str]:
+    names = sorted(name[: -len(".json")] for name in os.listdir(input_root) if name.endswith(".json"))
+    if not names:
+        raise InputError(f"{input_root}: no <unit>.json files")
+    return names
+
+
+def truth(spec: dict) -> np.ndarray:
+    """Points [T, N, 3] of a unit, from its analytic motion."""
+    steps = np.arange(spec["frames"])[:, None, None]
+    return np.asarray(spec["points"], float)[None] + steps * np.asarray(spec["velocity"], float)
+
+
+def annotate(input_root: str, unit: str, config: RunConfig) -> list[ClipRecord]:
+    with open(os.path.join(input_root, f"{unit}.json")) as handle:
+        spec = json.load(handle)
+    tracks = truth(spec)
+    fx, fy, cx, cy = INTRINSICS
+    pixels = np.stack(
+        [fx * tracks[..., 0] / tracks[..., 2] + cx, fy * tracks[..., 1] / tracks[..., 2] + cy], -1
+    )
+    visible = (
+        (pixels[..., 0] >= 0) & (pixels[..., 0] < WIDTH) & (pixels[..., 1] >= 0) & (pixels[..., 1] < HEIGHT)
+    )
+    query_frames = visible.argmax(axis=0)
+    index = np.arange(tracks.shape[1])
+    queries = np.concatenate([pixels[query_frames, index], query_frames[:, None]], axis=1)
+    frame = cv2.imencode(".jpg", np.full((HEIGHT, WIDTH, 3), 90, np.uint8))[1].tobytes()
+    return [
+        ClipRecord(
+            source="toy",
+            name=f"toy_{unit}",
+            unit=unit,
+            images_jpeg=[frame] * spec["frames"],
+            fx_fy_cx_cy=INTRINSICS,
+            image_size=(WIDTH, HEIGHT),
+            extrinsics_w2c=None,
+            tracks_xyz=tracks,
+            visibility=visible,
+            queries_xyt=queries,
+            frame_ids=np.arange(spec["frames"]),
+            track_stats={"mask_agreement": np.ones(tracks.shape[1])},
+            target_tracks=tracks.shape[1],
+        )
+    ]
+
+
+def write_sample(folder: str) -> str:
+    os.makedirs(folder, exist_ok=True)
+    spec = {
+        "frames": 12,
+        "points": [[-0.4, 0.1, 2.0], [0.2, -0.2, 3.0], [0.0, 0.0, 4.0]],
+        "velocity": [0.02, 0, 0],
+    }
+    with open(os.path.join(folder, "walk.json"), "w") as handle:
+        json.dump(spec, handle)
+    return folder
+
+
+TOY = Source(
+    name="toy",
+    list_units=list_units,
+    unit_name=str,
+    annotate=annotate,
+    sample_input=write_sample,
+    mask_min_agreement=lambda config: MASK_THRESHOLD,
+)
