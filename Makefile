@@ -4,8 +4,10 @@ PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
 OUT ?= out/demo
-# The real ADT excerpt shipped beside the project (read in place, never copied).
+# The real ADT excerpt shipped beside the project (read in place, never copied); exported, so the
+# tests and the benchmarks read the same one (pipeline.adt.source.excerpt_path reads $ADT_EXCERPT).
 ADT_EXCERPT ?= ../shared/data/adt_sample/aria_digital_twin_test_data
+export ADT_EXCERPT
 
 .PHONY: setup demo test bench
 
@@ -32,8 +34,8 @@ demo: setup
 	$(PY) -m pipeline.validate $(OUT)
 
 test: setup
-	$(PY) -m ruff check pipeline tests
+	$(PY) -m ruff check pipeline tests benchmarks
 	$(PY) -m pytest -q
 
 bench: setup
-	$(PY) -m pipeline.bench all
+	$(PY) -m benchmarks all

@@ -1,5 +1,6 @@
-"""DriveTrack benchmark unit: one synthetic Waymo Open v2 segment at the real sensors' sizes, written
-in the real Parquet schema by the sample world's writer (``pipeline/samples/waymo_world.py``).
+"""DriveTrack benchmark inputs (``prepare``): one synthetic Waymo Open v2 segment at the real
+sensors' sizes, written in the real Parquet schema by the sample world's writer
+(``pipeline/samples/waymo_world.py``).
 
 Full size: 199 frames (20 s at 10 Hz); FRONT, FRONT_LEFT and FRONT_RIGHT cameras at 1920x1280
 (focal 2055 px; the scene is ray cast at 480x320, resized up and given film grain so the JPEGs
@@ -21,7 +22,7 @@ import time
 
 import numpy as np
 
-from pipeline.bench_units import UnitSetup
+from benchmarks.units import UnitSetup
 
 SEGMENT = "1000000000000000001_0_000_20_000"
 FULL = {"frames": 199, "width": 1920, "height": 1280, "columns": 2650, "short_range": (200, 600), "scale": 4}
@@ -38,6 +39,7 @@ CAMERAS = 3
 def bench_world():
     """A street for 20 s: same-direction traffic, oncoming traffic, parked cars, a pedestrian."""
     from pipeline.samples import driving_world as driving
+
     actor = driving.Actor
     grey = (0.55, 0.55, 0.6)
     vehicles = [
@@ -67,6 +69,7 @@ def prepare(workdir: str, quick: bool) -> UnitSetup:
     sizes = QUICK if quick else FULL
     from pipeline.samples import waymo_world as waymo
     from pipeline.samples.write_once import write_once
+
     focal = FOCAL_AT_1920 * sizes["width"] / 1920
     models = waymo.camera_models(
         sizes["width"], sizes["height"], np.array([focal, focal, sizes["width"] / 2, sizes["height"] / 2])

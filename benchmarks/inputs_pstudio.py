@@ -1,10 +1,11 @@
-"""Panoptic Studio benchmark unit: the synthetic dome of ``pipeline/pstudio/bench.py`` (300,000
-Gaussians x 150 frames at 640x360), seen by 27 cameras like a Dynamic 3D Gaussians training
-sequence, written in its file layout (``data/<seq>/train_meta.json``, ``ims/``, ``seg/``,
-``output/<exp>/<seq>/params.npz`` stored like ``np.savez``), read back by the real reader.
+"""Panoptic Studio benchmark inputs (``prepare``): the synthetic dome of
+``benchmarks/micro_pstudio.py`` (300,000 Gaussians x 150 frames at 640x360), seen by 27 cameras
+like a Dynamic 3D Gaussians training sequence, written in its file layout
+(``data/<seq>/train_meta.json``, ``ims/``, ``seg/``, ``output/<exp>/<seq>/params.npz`` stored like
+``np.savez``), read back by the real reader.
 
 Images: grey studio with the people brighter, plus grain (the pipeline passes them through);
-masks: the foreground centres drawn and dilated (``bench._mask_function``).
+masks: the foreground centres drawn and dilated (``micro_pstudio._mask_function``).
 """
 
 from __future__ import annotations
@@ -14,8 +15,8 @@ import time
 
 import numpy as np
 
-from pipeline.bench_units import UnitSetup
-from pipeline.pstudio import bench as scene
+from benchmarks import micro_pstudio as scene
+from benchmarks.units import UnitSetup
 from pipeline.pstudio.annotate import UnitInput, splats_in_view
 from pipeline.pstudio.render import render_depth_at
 
@@ -34,6 +35,7 @@ def write_sequence(root: str, sizes: dict, cameras: int) -> None:
     )
     frames, count = gaussians.means.shape[:2]
     from pipeline.samples import dynamic3dgs_files as files
+
     data = os.path.join(root, "data", SEQUENCE)
     mask_of = scene._mask_function(gaussians, views)
     rng = np.random.default_rng(0)
@@ -69,6 +71,7 @@ def prepare(workdir: str, quick: bool) -> UnitSetup:
     sizes = QUICK if quick else FULL
     cameras = CAMERAS_QUICK if quick else CAMERAS_FULL
     from pipeline.samples.write_once import write_once
+
     tag = "quick" if quick else "full"
     folder = os.path.join(workdir, f"sequence_{tag}")
     if not os.path.exists(os.path.join(folder, f".complete-v{VERSION}")):

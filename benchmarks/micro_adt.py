@@ -3,30 +3,17 @@ and ids (projectaria-tools' VRS decode, then ``distort_*_by_calibration`` and th
 the poses and the JPEG encoding; then the annotation cost of one clip, per frame and
 extrapolated to a 300-frame chunk.
 
-The excerpt is ``$TAPVID3D_ADT_SAMPLE`` or ``../shared/data/adt_sample/aria_digital_twin_test_data``
-beside the repository.
+The excerpt is ``pipeline.adt.source.excerpt_path()``: ``$ADT_EXCERPT``, else
+``../shared/data/adt_sample/aria_digital_twin_test_data`` beside the repository.
 """
 
 from __future__ import annotations
 
 import os
-import pathlib
 import time
 
+from pipeline.adt.source import EXCERPT_SETTINGS, SHARED_EXCERPT, excerpt_path
 from pipeline.core.config import RunConfig, with_overrides
-
-EXCERPT_SETTINGS = ["adt.chunk_frames=2", "adt.min_frames=2", "adt.max_gt_offset_ms=40"]
-
-
-def excerpt_path() -> str:
-    default = (
-        pathlib.Path(__file__).resolve().parents[3]
-        / "shared"
-        / "data"
-        / "adt_sample"
-        / "aria_digital_twin_test_data"
-    )
-    return os.environ.get("TAPVID3D_ADT_SAMPLE", str(default))
 
 
 def _timed(function, *args):
@@ -41,8 +28,9 @@ def run(frames: int) -> None:
     from pipeline.adt.source import SequenceFrames, clip_name, encode_jpeg, open_reader, unit_name
 
     path = excerpt_path()
-    if not os.path.isdir(path):
-        print(f"adt bench: no ADT excerpt at {path}; set TAPVID3D_ADT_SAMPLE to a sequence folder")
+    if path is None:
+        where = os.environ.get("ADT_EXCERPT") or SHARED_EXCERPT
+        print(f"adt bench: no ADT excerpt at {where}; set ADT_EXCERPT to a sequence folder")
         return
     config = with_overrides(RunConfig(), EXCERPT_SETTINGS)
     open_time, reader = _timed(open_reader, path, config)

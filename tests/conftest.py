@@ -32,7 +32,7 @@ from pipeline.samples.dynamic3dgs_files import write_sequence
 from pipeline.samples.studio_world import StudioWorld
 from pipeline.samples.waymo_world import write_split
 from pipeline.samples.write_once import write_once
-from tests.cli import REPO, run_pipeline
+from tests.cli import REPO, run_in_process
 
 SAMPLE_CACHE = os.environ.get("TAPVID3D_SAMPLE_CACHE") or os.path.join(REPO, ".cache", "samples")
 CACHE_LAYOUT = "1"  # bump when what the fixtures below keep in a cache folder changes
@@ -128,7 +128,7 @@ def reference_run(tmp_path_factory, sample_split, pstudio_sample):
     def run(source: str) -> str:
         if source not in made:
             out = str(tmp_path_factory.mktemp(f"reference_{source}"))
-            result = run_pipeline(source, "--input", inputs[source], "--output", out)
+            result = run_in_process(source, "--input", inputs[source], "--output", out)
             assert result.returncode == 0, result.stderr[-3000:]
             made[source] = out
         return made[source]

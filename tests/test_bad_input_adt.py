@@ -38,7 +38,7 @@ import pathlib
 
 from tests.adt_excerpt import SAMPLE, SETTINGS, needs_excerpt
 from tests.bad_input import assert_isolated_failures
-from tests.cli import run_pipeline
+from tests.cli import run_in_process
 
 VIDEO, DEPTH, IDS = "video.vrs", "depth_images_with_skeleton.vrs", "segmentations_with_skeleton.vrs"
 TRAJECTORY, OBJECTS = "aria_trajectory.csv", "scene_objects.csv"
@@ -195,7 +195,7 @@ def test_each_bad_sequence_fails_alone_with_its_error(tmp_path):
         if make:
             make(root / name)
     out = tmp_path / "out"
-    result = run_pipeline("adt", "--input", str(root), "--output", str(out), *SETTINGS)
+    result = run_in_process("adt", "--input", str(root), "--output", str(out), *SETTINGS)
     expected = {f"{case}/chunk_0": needles for case, _, needles in CASES}
     errors = assert_isolated_failures(result, str(out), "adt", expected)
     assert f"object {centre_object()} has no pose at t=" in errors["no_pose/chunk_0"]

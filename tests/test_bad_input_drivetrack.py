@@ -57,7 +57,7 @@ from pipeline.drivetrack import columns as C
 from pipeline.drivetrack.reader import SegmentReader
 from pipeline.samples.waymo_world import SEGMENT, timestamp
 from tests.bad_input import assert_isolated_failures
-from tests.cli import run_pipeline
+from tests.cli import run_in_process
 
 T = timestamp(5)
 LEAD_CAR = "lead_car_AAAAAAAAAAAAAAAAAAAAAA"
@@ -366,7 +366,7 @@ def bad_run(sample_split, tmp_path_factory):
         for component in case.components:
             case.change(os.path.join(split, component, f"{case.segment}.parquet"))
     out = split + "_out"
-    return split, out, run_pipeline("drivetrack", "--input", split, "--output", out)
+    return split, out, run_in_process("drivetrack", "--input", split, "--output", out)
 
 
 def test_each_case_fails_only_its_units_with_a_clear_error(bad_run):

@@ -34,7 +34,7 @@ import numpy as np
 
 from pipeline.samples.dynamic3dgs_files import EXPERIMENT, SEQUENCE
 from tests.bad_input import assert_isolated_failures
-from tests.cli import run_pipeline
+from tests.cli import run_in_process
 
 CAMERA, OTHER = 0, 1  # columns of cameras 3 and 8 in train_meta.json
 
@@ -194,6 +194,6 @@ def test_each_bad_sequence_fails_alone_with_its_error(pstudio_sample, pstudio_li
     root = pstudio_links  # hard links to the shared sample, never written: see Sequence
     expected = make_cases(root, len(pstudio_sample[1].part_of_gaussian))
     out = str(tmp_path / "out")
-    result = run_pipeline("pstudio", "--input", root, "--output", out, "--set", "pstudio.cameras=3")
+    result = run_in_process("pstudio", "--input", root, "--output", out, "--set", "pstudio.cameras=3")
     assert_isolated_failures(result, out, "pstudio", expected)
     assert os.listdir(os.path.join(out, "pstudio")) == ["dome_3.npz"]  # the good unit's, and only it

@@ -36,7 +36,7 @@ from tests.adt_excerpt import SAMPLE as ADT_EXCERPT
 from tests.adt_excerpt import SETTINGS as ADT_SETTINGS
 from tests.adt_excerpt import needs_excerpt
 from tests.bad_input import failures_by_unit, partial_files
-from tests.cli import run_pipeline
+from tests.cli import run_in_process
 
 ADT_SEQUENCE = str(ADT_EXCERPT)
 UNSAFE = "is not a plain file name"
@@ -59,7 +59,7 @@ def rename_object(split: str, segment: str, old: str, new: str) -> None:
 def test_drivetrack_object_id_with_path_separators_fails_its_clip_only(split_copy, tmp_path):
     rename_object(split_copy, SEGMENT, "lead_car_AAAAAAAAAAAAAAAAAAAAAA", "../escape")
     out = str(tmp_path / "out")
-    result = run_pipeline("drivetrack", "--input", split_copy, "--output", out)
+    result = run_in_process("drivetrack", "--input", split_copy, "--output", out)
     assert result.returncode == 1, result.stderr[-3000:]
     errors = failures_by_unit(out, "drivetrack")
     unit = f"{SEGMENT}/camera_1 (tapvid3d_{SEGMENT}_1_../escape)"
@@ -81,7 +81,7 @@ def test_pstudio_unreadable_train_meta_fails_one_unit_when_cameras_come_from_it(
     os.remove(meta)  # a hard link to the sample's file: replace, never write through it
     open(meta, "w").write(text[: len(text) // 2])
     out = str(tmp_path / "out")
-    result = run_pipeline("pstudio", "--input", root, "--output", out)
+    result = run_in_process("pstudio", "--input", root, "--output", out)
     assert result.returncode == 1, result.stderr[-3000:]
     errors = failures_by_unit(out, "pstudio")
     assert set(errors) == {"broken/all_cameras"}
@@ -124,7 +124,7 @@ def test_adt_unsafe_sequence_name_fails_its_unit_only(tmp_path):
     os.symlink(os.path.abspath(ADT_SEQUENCE), folder / "good")
     os.symlink(os.path.abspath(ADT_SEQUENCE), folder / "seq\\evil")
     out = str(tmp_path / "out")
-    result = run_pipeline("adt", "--input", str(folder), "--output", out, *ADT_SETTINGS)
+    result = run_in_process("adt", "--input", str(folder), "--output", out, *ADT_SETTINGS)
     assert result.returncode == 1, result.stderr[-3000:]
     errors = failures_by_unit(out, "adt")
     assert len(errors) == 1
@@ -138,7 +138,7 @@ def test_adt_unsafe_sequence_name_fails_its_unit_only(tmp_path):
 def test_output_under_a_regular_file_is_refused_before_any_work(source, tmp_path):
     blocker = tmp_path / "not_a_folder"
     blocker.write_bytes(b"")
-    result = run_pipeline(source, "--input", str(tmp_path), "--output", str(blocker / "out"))
+    result = run_in_process(source, "--input", str(tmp_path), "--output", str(blocker / "out"))
     assert result.returncode == 2
     assert f"cannot start: output folder {blocker}/out is not writable" in result.stderr
     assert sorted(os.listdir(tmp_path)) == ["not_a_folder"]
@@ -148,7 +148,7 @@ def blocked_run(source: str, source_input: str, out: str, *args: str) -> dict[st
     """Run with ``<out>/<source>`` a regular file; returns the failures by unit."""
     os.makedirs(out)
     open(os.path.join(out, source), "wb").close()
-    result = run_pipeline(source, "--input", source_input, "--output", out, *args)
+    result = run_in_process(source, "--input", source_input, "--output", out, *args)
     assert result.returncode == 1, result.stderr[-3000:]
     errors = failures_by_unit(out, source)
     assert errors and all(

@@ -1,15 +1,15 @@
-"""``python -m pipeline.bench pstudio --quick``: the per-unit benchmark runs end to end and prints
+"""``python -m benchmarks pstudio --quick``: the per-unit benchmark runs end to end and prints
 every figure (no timing assertions: only that each figure is there and positive)."""
 
 from __future__ import annotations
 
 import re
 
-from pipeline import bench
+from benchmarks import cli
 
 
 def test_quick_unit_bench_prints_every_figure(tmp_path, capsys):
-    assert bench.main(["pstudio", "--quick", "--units", "2", "--workdir", str(tmp_path)]) == 0
+    assert cli.main(["pstudio", "--quick", "--units", "2", "--workdir", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     for phrase in (
         "unit work (read inputs + annotate + filter + encode/write)",

@@ -7,7 +7,7 @@ import os
 import pytest
 from distributed import Client, LocalCluster
 
-from tests.cli import clip_bytes, run_pipeline
+from tests.cli import clip_bytes, run_in_process
 
 
 @pytest.fixture(scope="module")
@@ -30,7 +30,7 @@ def test_dask_runner_writes_the_direct_runners_bytes(source, cluster, reference_
     sample_input = json.load(open(os.path.join(reference, f"run_{source}.json")))["input"]
     before = tasks_per_worker(client)
     out = str(tmp_path / "dask")
-    result = run_pipeline(
+    result = run_in_process(
         source,
         "--input",
         sample_input,

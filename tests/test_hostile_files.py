@@ -20,8 +20,8 @@ from PIL import Image
 
 from pipeline.audit.compare import main as compare_main
 from pipeline.core.errors import InputError
-from pipeline.core.given_queries import given_queries
 from pipeline.export.clip_reader import read_clip_bytes
+from pipeline.export.given_queries import given_queries
 from pipeline.export.npz_reader import NpzError
 from pipeline.run import main as run_main
 from pipeline.validate import main as validate_main

@@ -16,7 +16,7 @@ from pipeline.export import files
 from pipeline.export.validator import check_clip_bytes
 from pipeline.validate import main as validate_main
 from tests.bad_input import partial_files
-from tests.cli import REPO, clip_bytes, run_pipeline
+from tests.cli import REPO, clip_bytes, run_in_process
 
 
 def skipped_units(stderr: str) -> int:
@@ -44,7 +44,7 @@ def test_rerun_skips_finished_units_and_redoes_a_damaged_clip(finished_copy, ref
     with open(path, "r+b") as handle:
         handle.truncate(os.path.getsize(path) // 2)
 
-    result = run_pipeline("pstudio", "--input", source_input, "--output", out)
+    result = run_in_process("pstudio", "--input", source_input, "--output", out)
     assert result.returncode == 0, result.stderr[-3000:]
     assert skipped_units(result.stderr) == 3
     assert f"clip {damaged[:-4]}:" in result.stderr  # rewritten
@@ -58,15 +58,15 @@ def test_rerun_skips_finished_units_and_redoes_a_damaged_clip(finished_copy, ref
 def test_changed_settings_or_overwrite_redo_every_unit(finished_copy):
     source_input, out = finished_copy
     before = clip_bytes(out, "pstudio")
-    changed = run_pipeline("pstudio", "--input", source_input, "--output", out, "--set", "seed=7")
+    changed = run_in_process("pstudio", "--input", source_input, "--output", out, "--set", "seed=7")
     assert changed.returncode == 0, changed.stderr[-3000:]
     assert skipped_units(changed.stderr) == 0
     after = clip_bytes(out, "pstudio")
     assert set(after) == set(before) and all(after[name] != before[name] for name in before)
 
-    again = run_pipeline("pstudio", "--input", source_input, "--output", out, "--set", "seed=7")
+    again = run_in_process("pstudio", "--input", source_input, "--output", out, "--set", "seed=7")
     assert skipped_units(again.stderr) == 4
-    forced = run_pipeline(
+    forced = run_in_process(
         "pstudio", "--input", source_input, "--output", out, "--set", "seed=7", "--overwrite"
     )
     assert forced.returncode == 0 and skipped_units(forced.stderr) == 0
@@ -114,7 +114,7 @@ def test_sigkill_mid_run_then_rerun_completes_with_identical_bytes(reference_run
     partial = f".dome_3.npz{files.PARTIAL}{files.writer_host()}-{process.pid}-0123456789ab"
     open(os.path.join(clips, partial), "wb").write(b"half a clip")
 
-    result = run_pipeline("pstudio", "--input", source_input, "--output", out)
+    result = run_in_process("pstudio", "--input", source_input, "--output", out)
     assert result.returncode == 0, result.stderr[-3000:]
     assert "partial file(s) an interrupted run left" in result.stdout
     assert skipped_units(result.stderr) >= 1
@@ -127,7 +127,7 @@ def test_a_clip_left_without_tracks_by_new_settings_is_removed(finished_copy):
     source_input, out = finished_copy
     assert len(clip_bytes(out, "pstudio")) == 4
     # No query attaches to a Gaussian centre within 1 nm: the earlier run's clips must not survive it.
-    result = run_pipeline(
+    result = run_in_process(
         "pstudio", "--input", source_input, "--output", out, "--set", "pstudio.max_attach_distance_m=1e-9"
     )
     assert result.returncode == 0, result.stderr[-3000:]

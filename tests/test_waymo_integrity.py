@@ -18,7 +18,7 @@ from pipeline.core.errors import InputError
 from pipeline.drivetrack import columns as C
 from pipeline.drivetrack.reader import SegmentReader
 from pipeline.samples.waymo_world import SEGMENT, timestamp
-from tests.cli import clip_bytes, run_pipeline
+from tests.cli import clip_bytes, run_in_process
 from tests.test_bad_input_drivetrack import LEAD_CAR, T, as_strings, repeat_row, retyped, set_cells
 
 
@@ -42,7 +42,7 @@ def test_exact_copies_give_the_clean_clips_byte_for_byte(split_copy, reference_r
     for component, keys in copies.items():
         change(split_copy, component, repeat_row(**keys))
     out = str(tmp_path / "out")
-    result = run_pipeline("drivetrack", "--input", split_copy, "--output", out)
+    result = run_in_process("drivetrack", "--input", split_copy, "--output", out)
     assert result.returncode == 0, result.stderr[-3000:]
     clean = clip_bytes(reference_run("drivetrack"), "drivetrack")
     assert clean and clip_bytes(out, "drivetrack") == clean

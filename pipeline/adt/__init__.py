@@ -1,2 +1,2 @@
 """Aria Digital Twin source: reader (projectaria-tools), rectify (pinhole re-rendering and the
-upright rotation), annotate (pure NumPy), transform (the Beam edge), bench (speed figures)."""
+upright rotation), annotate (pure NumPy), source (its Source: units, names, the excerpt)."""

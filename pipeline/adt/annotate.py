@@ -4,7 +4,7 @@ Pure NumPy on frames already re-rendered to the stored camera (``rectify.py``): 
 projectaria-tools here. All geometry is in the stored (upright pinhole) camera with the
 intrinsics ``fx_fy_cx_cy`` and pixel centres at +0.5 (pixel [r, c] covers [c, c+1) x [r, r+1)).
 
-Paper (SOURCES.md section 2): Q_cam = K^-1 (x, y, 1) D(x, y); Q_obj = P_obj<-world(t_q)
+Paper (docs/formats.md, section 2): Q_cam = K^-1 (x, y, 1) D(x, y); Q_obj = P_obj<-world(t_q)
 P_world<-cam(t_q) Q_cam; Q_cam(t) = P_cam<-world(t) P_world<-obj(t) Q_obj; visible when in front,
 in the image, |z - D_t(u, v)| < delta and not on the wearer's (human) pixels.
 
@@ -25,9 +25,9 @@ from pipeline.core.clip import ClipRecord
 from pipeline.core.config import AdtConfig, RunConfig
 from pipeline.core.errors import InputError
 from pipeline.core.geometry import in_image, invert_se3, project, unproject
-from pipeline.core.given_queries import given_queries
 from pipeline.core.sampling import rng_for
 from pipeline.export.depth_export import dense_depth_mm, dense_record
+from pipeline.export.given_queries import given_queries, given_query_frames
 
 
 @dataclasses.dataclass
@@ -252,11 +252,7 @@ def annotate_chunk(
     num_frames = len(chunk.timestamps)
     given = given_queries(config.queries_from, "adt", chunk.name) if config.queries_from else None
     if given is not None:
-        query_frames = given[:, 2].astype(np.int64)
-        if (query_frames < 0).any() or (query_frames >= num_frames).any():
-            raise InputError(
-                f"{chunk.unit}: a given query frame of {chunk.name} lies outside 0..{num_frames - 1}"
-            )
+        query_frames = given_query_frames(given, num_frames, f"{chunk.unit} ({chunk.name})")
     else:
         total = rules.oversample * rules.tracks_per_clip
         query_frames = rng_for(config.seed, f"{chunk.name}/query_frames").integers(0, num_frames, total)

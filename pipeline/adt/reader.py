@@ -4,7 +4,7 @@ Everything projectaria-tools returns is checked here and turned into NumPy; a pr
 ``InputError`` naming the sequence and the cause. Poses are [4, 4] float64 matrices
 ``world_from_*`` (ADT's "scene" frame is our world frame).
 
-Files of a sequence folder (SOURCES.md section 4): ``video.vrs`` (RGB stream 214-1),
+Files of a sequence folder (docs/formats.md, section 4): ``video.vrs`` (RGB stream 214-1),
 ``depth_images[_with_skeleton].vrs``, ``segmentations[_with_skeleton].vrs``,
 ``aria_trajectory.csv``, ``scene_objects.csv``, ``3d_bounding_box.csv``, ``instances.json``,
 ``metadata.json``. They are checked before projectaria-tools opens them (``check_file``): it

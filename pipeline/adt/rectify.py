@@ -1,5 +1,5 @@
 """Re-render ADT frames to the release's upright pinhole camera: 512x512, focal 280, then a
-90-degree clockwise rotation (SOURCES.md section 4).
+90-degree clockwise rotation (docs/formats.md, section 4).
 
 Pixel convention of the stored frames: pixel [row r, column c] covers [c, c+1) x [r, r+1), so
 its centre is (c + 0.5, r + 0.5) and the intrinsics (280, 280, 256, 256) put the optical axis at

@@ -14,8 +14,8 @@ from pipeline.adt.rectify import Rectifier, stored_cam_from_world
 from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
 from pipeline.core.errors import InputError
-from pipeline.core.given_queries import given_queries
 from pipeline.core.progress import progress
+from pipeline.export.given_queries import given_queries
 from pipeline.sources import NoSample, Source
 
 JPEG_QUALITY = 95

@@ -116,7 +116,7 @@ class DriveTrackConfig:
 
 @dataclasses.dataclass(frozen=True)
 class AdtConfig:
-    """Aria Digital Twin choices, as the TAPVid-3D release made them (SOURCES.md section 4).
+    """Aria Digital Twin choices, as the TAPVid-3D release made them (docs/formats.md, section 4).
 
     chunk_frames: frames per clip (chunk k = frames [k * chunk_frames, (k + 1) * chunk_frames)
       of the RGB frames strictly inside the ground-truth window).
@@ -154,7 +154,7 @@ class AdtConfig:
 
 @dataclasses.dataclass(frozen=True)
 class PstudioConfig:
-    """Panoptic Studio (Dynamic 3D Gaussians) choices (SOURCES.md section 5).
+    """Panoptic Studio (Dynamic 3D Gaussians) choices (docs/formats.md, section 5).
 
     params_dir: folder holding ``<sequence>/params.npz``; empty = ``<input>/output/<exp>``
       when ``<input>/output`` holds exactly one experiment.

@@ -16,7 +16,6 @@ import numpy as np
 from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
 from pipeline.core.geometry import project, transform_directions_batch, transform_points_batch
-from pipeline.core.given_queries import given_queries
 from pipeline.core.images import check_jpeg
 from pipeline.core.sampling import rng_for
 from pipeline.drivetrack.evidence import LidarEvidence, gather_lidar
@@ -28,6 +27,7 @@ from pipeline.drivetrack.tracks import choose_points, point_pool
 from pipeline.drivetrack.unit_input import UnitInput
 from pipeline.drivetrack.visibility import track_visibility
 from pipeline.export.depth_export import sparse_record
+from pipeline.export.given_queries import given_queries
 from pipeline.filters.mask import agreement, on_mask
 
 log = logging.getLogger(__name__)

@@ -9,6 +9,7 @@ from scipy.spatial import cKDTree
 from pipeline.core.errors import InputError
 from pipeline.core.geometry import project, transform_points
 from pipeline.core.sampling import queries_from_tracks, sample_query_frames
+from pipeline.export.given_queries import given_query_frames
 
 
 def match_given_queries(
@@ -17,9 +18,7 @@ def match_given_queries(
     """Index into the object's lidar points [P, 3] (box frame) of each given query [N, 3]: the
     point whose projection at the query's frame (camera poses [T, 4, 4]) is nearest (x, y);
     it must lie within half a pixel, as the release's queries are such projections."""
-    frames = queries[:, 2].astype(np.int64)
-    if (frames < 0).any() or (frames >= len(cam_from_box)).any():
-        raise InputError(f"{clip}: a given query frame lies outside 0..{len(cam_from_box) - 1}")
+    frames = given_query_frames(queries, len(cam_from_box), clip)
     chosen = np.empty(len(queries), np.int64)
     for t in np.unique(frames):
         rows = np.nonzero(frames == t)[0]

@@ -1,4 +1,4 @@
-"""Check clips against every invariant of the released TAPVid-3D schema (docs: README "Output").
+"""Check clips against every invariant of the released TAPVid-3D schema (docs/formats.md, section 1).
 
 Files are read with ``pipeline.export.clip_reader`` (nothing unpickled, sizes bounded by the
 clip's own T and N) and accepted as the release writes them: frames as a ``|S`` bytes array,

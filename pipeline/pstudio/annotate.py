@@ -23,10 +23,10 @@ from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
 from pipeline.core.errors import InputError
 from pipeline.core.geometry import invert_se3, project, transform_points, unproject
-from pipeline.core.given_queries import given_queries
 from pipeline.core.sampling import rng_for
 from pipeline.core.visibility import in_view
 from pipeline.export.depth_export import dense_depth_mm, dense_record
+from pipeline.export.given_queries import given_queries, given_query_frames
 from pipeline.pstudio.render import render_depth_at, render_depth_image
 from pipeline.pstudio.splats import Splats2D, project_splats
 
@@ -146,11 +146,7 @@ def match_given_queries(unit: UnitInput, queries: np.ndarray, config: RunConfig)
     intrinsics = unit.views.fx_fy_cx_cy[view]
     world_from_cam = invert_se3(unit.views.w2c[view])
     foreground = np.nonzero(unit.gaussians.foreground)[0]
-    frames = queries[:, 2].astype(np.int64)
-    if (frames < 0).any() or (frames >= unit.gaussians.num_frames).any():
-        raise InputError(
-            f"{unit.clip_name}: a given query frame lies outside 0..{unit.gaussians.num_frames - 1}"
-        )
+    frames = given_query_frames(queries, unit.gaussians.num_frames, unit.clip_name)
     chosen = np.empty(len(queries), np.int64)
     for t in np.unique(frames):
         rows = np.nonzero(frames == t)[0]

@@ -49,3 +49,16 @@ def given_queries(queries_from: str, source: str, clip: str) -> np.ndarray | Non
             )
         return queries
     return None
+
+
+def given_query_frames(queries: np.ndarray, num_frames: int, what: str) -> np.ndarray:
+    """Query frames [N] int64 of given queries [N, 3], each checked to be one of the clip's
+    ``num_frames`` frames (InputError naming ``what`` and the first query outside)."""
+    frames = queries[:, 2].astype(np.int64)
+    outside = (frames < 0) | (frames >= num_frames)
+    if outside.any():
+        k = int(np.flatnonzero(outside)[0])
+        raise InputError(
+            f"{what}: given query {k} has frame {frames[k]}, outside the clip's 0..{num_frames - 1}"
+        )
+    return frames

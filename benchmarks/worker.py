@@ -1,0 +1,102 @@
+"""One benchmark unit in this (fresh) process: ``python -m benchmarks.worker SPEC_JSON RESULT_PATH``,
+started by ``benchmarks.processes``.
+
+The work is the Beam graph's, through the same function its stages call:
+``pipeline.unit.run_unit(UnitJob(source, input_root, config, output, resume=False), unit)`` (read
+the inputs and annotate, filter, encode and write the clips, record the unit), ``spec["repeat"]``
+times (default 1). The source's ``annotate`` is wrapped only to time it. A source whose
+``benchmarks/inputs_<source>.py`` defines ``measure_fixed_cost(spec, config)`` (ADT: opening the
+sequence) has that cost measured apart, before the runs, for the extrapolation in ``report``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import json
+import os
+import sys
+import time
+
+from benchmarks.processes import peak_rss
+
+
+def unit_counts(reports: list[dict]) -> dict:
+    """Clips, clips written, tracks written and clip frames of one unit's clip reports."""
+    return {
+        "clips": len(reports),
+        "clips_written": sum(r["written_tracks"] > 0 for r in reports),
+        "tracks_written": sum(r["written_tracks"] for r in reports),
+        "clip_frames": sum(r["frames"] for r in reports),
+    }
+
+
+def run(spec: dict) -> dict:
+    """The unit's work, timed: work_s / work_cpu_s (all runs), annotate_s (the source's annotate),
+    the output counts of the last run, the fixed cost when measured apart, and peak_rss."""
+    if spec.get("cpu") is not None:  # before the imports, so every thread created later inherits it
+        os.sched_setaffinity(0, {spec["cpu"]})
+    import cv2
+
+    if os.environ.get("OPENCV_FOR_THREADS_NUM") == "1":
+        cv2.setNumThreads(1)
+    from pipeline import sources
+    from pipeline.core.config import RunConfig, with_overrides
+    from pipeline.unit import UnitJob, run_unit
+
+    config = with_overrides(RunConfig(), spec["overrides"])
+    source = sources.get(spec["source"])
+    unit = tuple(spec["unit"])
+    inputs = importlib.import_module(f"benchmarks.inputs_{spec['source']}")
+    measure_fixed_cost = getattr(inputs, "measure_fixed_cost", None)
+    fixed = measure_fixed_cost(spec, config) if measure_fixed_cost else {}
+
+    annotate_s = 0.0
+
+    def timed_annotate(input_root, unit, config):
+        nonlocal annotate_s
+        started = time.perf_counter()
+        try:
+            return source.annotate(input_root, unit, config)
+        finally:
+            annotate_s += time.perf_counter() - started
+
+    job = UnitJob(
+        dataclasses.replace(source, annotate=timed_annotate),
+        spec["input_root"],
+        config,
+        spec["output"],
+        resume=False,
+    )
+    wall, cpu = time.perf_counter(), time.process_time()
+    for _ in range(spec.get("repeat", 1)):
+        outcome = run_unit(job, unit)
+        if outcome.failures:
+            raise RuntimeError(f"unit {outcome.name} failed: {outcome.failures}")
+    return {
+        "work_s": time.perf_counter() - wall,
+        "work_cpu_s": time.process_time() - cpu,
+        "annotate_s": annotate_s,
+        **unit_counts(outcome.reports),
+        **fixed,
+        "peak_rss": peak_rss(),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if len(argv) != 2:
+        print(
+            "usage: python -m benchmarks.worker SPEC_JSON RESULT_PATH (started by benchmarks)",
+            file=sys.stderr,
+        )
+        return 2
+    spec, result_path = json.loads(argv[0]), argv[1]
+    result = run(spec)
+    with open(result_path, "w") as f:
+        json.dump(result, f)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
