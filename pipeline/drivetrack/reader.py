@@ -23,11 +23,11 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
-from apache_beam.io.filesystem import CompressionTypes
 from apache_beam.io.filesystems import FileSystems
 
 from pipeline.core.errors import InputError
 from pipeline.drivetrack import columns as C
+from pipeline.export.files import open_binary
 
 # Rows decoded at a time: a TOP lidar row is a few MB of range image, a camera row one JPEG.
 BATCH_ROWS = 8
@@ -230,7 +230,7 @@ class SegmentReader:
         if not FileSystems.exists(path):
             raise InputError(f"missing component file {label}")
         try:
-            with FileSystems.open(path, compression_type=CompressionTypes.UNCOMPRESSED) as handle:
+            with open_binary(path) as handle:
                 parquet = pq.ParquetFile(handle, pre_buffer=False)
                 present = set(parquet.schema_arrow.names)
                 missing = [name for name in columns if name not in present]

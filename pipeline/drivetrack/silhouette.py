@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from apache_beam.io.filesystem import CompressionTypes
 from apache_beam.io.filesystems import FileSystems
 from scipy.spatial import cKDTree
 
@@ -16,6 +15,7 @@ from pipeline.core.images import decode_image
 from pipeline.drivetrack.evidence import LidarEvidence
 from pipeline.drivetrack.objects import ObjectRun
 from pipeline.drivetrack.unit_input import UnitInput
+from pipeline.export.files import read_input
 
 MAX_CLOSING_PX = 63
 
@@ -61,9 +61,7 @@ def read_mask_png(path: str, width: int, height: int) -> np.ndarray | None:
     """A user-supplied mask [H, W] bool (non-zero = object), or None when the file is absent."""
     if not FileSystems.exists(path):
         return None
-    with FileSystems.open(path, compression_type=CompressionTypes.UNCOMPRESSED) as handle:
-        data = handle.read()
-    return decode_image(data, width, height, f"mask {path}", noun="mask") > 0
+    return decode_image(read_input(path), width, height, f"mask {path}", noun="mask") > 0
 
 
 def object_masks(
