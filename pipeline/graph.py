@@ -92,14 +92,7 @@ class Filter(_JobStep):
         if kind != CLIPS:
             yield element
             return
-        filtered = []
-        for clip in clips:
-            try:
-                filtered.append(unit.filter_clip(self.job, clip))
-            except Exception as error:  # noqa: BLE001
-                progress(f"clip {clip.name} FAILED: {error}")
-                filtered.append(unit.failure(f"{name} ({clip.name})", "clip", error))
-        yield name, (FILTERED, filtered)
+        yield name, (FILTERED, unit.filter_unit(self.job, name, clips))
 
 
 class Write(_JobStep):
@@ -116,27 +109,17 @@ class Write(_JobStep):
         if kind == FAILURE:
             yield FAILURE, value
             return
-        failures = [item for item in value if isinstance(item, dict)]
-        reports, digests = [], {}
-        for kept, outcome in (item for item in value if not isinstance(item, dict)):
-            try:
-                report, digest = unit.write_clip(self.job.output, kept, outcome)
-            except Exception as error:  # noqa: BLE001
-                progress(f"clip {kept.name} FAILED: {error}")
-                failures.append(unit.failure(f"{name} ({kept.name})", "clip", error))
-                continue
-            counter("clips_written").inc(digest is not None)
-            counter("tracks_written").inc(kept.num_tracks)
-            for filter_name, count in outcome.dropped_by().items():
-                counter(f"tracks_dropped_{filter_name}").inc(count)
-            reports.append(report)
-            if digest:
-                digests[report["clip"]] = digest
-        reports.sort(key=lambda report: report["clip"])
-        if not failures:
-            failures = unit.record_unit(self.job, name, reports, digests)
-        yield from ((FAILURE, failure) for failure in failures)
-        yield from ((REPORT, report) for report in reports)
+        outcome = unit.write_unit(self.job, name, value, count_written)
+        yield from ((FAILURE, failure) for failure in outcome.failures)
+        yield from ((REPORT, report) for report in outcome.reports)
+
+
+def count_written(kept, outcome, digest) -> None:
+    """The Write step's counters for one written clip."""
+    counter("clips_written").inc(digest is not None)
+    counter("tracks_written").inc(kept.num_tracks)
+    for filter_name, count in outcome.dropped_by().items():
+        counter(f"tracks_dropped_{filter_name}").inc(count)
 
 
 def summarize(reports: list[dict], failures: list[dict], units: int, resumed: int) -> dict:

@@ -134,18 +134,6 @@ def write_clip(output: str, kept: ClipRecord, outcome: FilterOutcome) -> tuple[d
     return report, digest
 
 
-def filter_and_write(
-    job: UnitJob, name: str, clip: ClipRecord
-) -> tuple[dict | None, str | None, dict | None]:
-    """(report, digest, None) for a clip filtered and written, (None, None, failure) otherwise."""
-    try:
-        report, digest = write_clip(job.output, *filter_clip(job, clip))
-    except Exception as error:  # noqa: BLE001 - every failure becomes data
-        progress(f"clip {clip.name} FAILED: {error}")
-        return None, None, failure(f"{name} ({clip.name})", "clip", error)
-    return report, digest, None
-
-
 def record_unit(job: UnitJob, name: str, reports: list[dict], digests: dict[str, str]) -> list[dict]:
     """After all of a unit's clips were written: remove the files of clips an earlier record listed
     that this run no longer makes, then write the unit's record. Returns failures (none, or one
@@ -159,8 +147,43 @@ def record_unit(job: UnitJob, name: str, reports: list[dict], digests: dict[str,
     return []
 
 
+def filter_unit(job: UnitJob, name: str, clips: list[ClipRecord]) -> list:
+    """Each clip filtered: (kept clip, outcome), or a failure record when its filter stage fails."""
+    filtered = []
+    for clip in clips:
+        try:
+            filtered.append(filter_clip(job, clip))
+        except Exception as error:  # noqa: BLE001 - every failure becomes data
+            progress(f"clip {clip.name} FAILED: {error}")
+            filtered.append(failure(f"{name} ({clip.name})", "clip", error))
+    return filtered
+
+
+def write_unit(job: UnitJob, name: str, filtered: list, on_written=None) -> UnitOutcome:
+    """Write a unit's filtered clips (``filter_unit``), then its record when every clip was written
+    (the unit's commit point). ``on_written(kept, outcome, digest)`` is called per written clip."""
+    outcome, digests = UnitOutcome(name), {}
+    outcome.failures = [item for item in filtered if isinstance(item, dict)]
+    for kept, verdicts in (item for item in filtered if not isinstance(item, dict)):
+        try:
+            report, digest = write_clip(job.output, kept, verdicts)
+        except Exception as error:  # noqa: BLE001
+            progress(f"clip {kept.name} FAILED: {error}")
+            outcome.failures.append(failure(f"{name} ({kept.name})", "clip", error))
+            continue
+        if on_written is not None:
+            on_written(kept, verdicts, digest)
+        outcome.reports.append(report)
+        if digest:
+            digests[report["clip"]] = digest
+    outcome.reports.sort(key=lambda report: report["clip"])
+    if not outcome.failures:
+        outcome.failures = record_unit(job, name, outcome.reports, digests)
+    return outcome
+
+
 def run_unit(job: UnitJob, unit) -> UnitOutcome:
-    """Every stage of one unit in this process, as the graph runs them."""
+    """Every stage of one unit in this process, as the graph's steps run them."""
     name = job.source.unit_name(unit)
     reports = finished_earlier(job, name)
     if reports is not None:
@@ -170,16 +193,4 @@ def run_unit(job: UnitJob, unit) -> UnitOutcome:
     except Exception as error:  # noqa: BLE001 - every failure becomes data
         progress(f"unit {name} FAILED: {error}")
         return UnitOutcome(name, failures=[failure(name, "annotate", error)])
-    outcome, digests = UnitOutcome(name), {}
-    for clip in clips:
-        report, digest, failed = filter_and_write(job, name, clip)
-        if failed:
-            outcome.failures.append(failed)
-            continue
-        outcome.reports.append(report)
-        if digest:
-            digests[report["clip"]] = digest
-    outcome.reports.sort(key=lambda report: report["clip"])  # the order the graph's Record step sees
-    if not outcome.failures:
-        outcome.failures += record_unit(job, name, outcome.reports, digests)
-    return outcome
+    return write_unit(job, name, filter_unit(job, name, clips))
