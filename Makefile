@@ -9,7 +9,7 @@ OUT ?= out/demo
 ADT_EXCERPT ?= ../shared/data/adt_sample/aria_digital_twin_test_data
 export ADT_EXCERPT
 
-.PHONY: setup demo test bench
+.PHONY: setup demo test bench bench-full
 
 setup: $(VENV)/.installed
 
@@ -33,9 +33,17 @@ demo: setup
 	else echo "no ADT excerpt at $(ADT_EXCERPT): ADT skipped (python -m pipeline.run --source adt says how to get ADT)"; fi
 	$(PY) -m pipeline.validate $(OUT)
 
+# The suite on every core (at most 4 worker processes), one test file per worker so a file's
+# module-scoped runs happen once; `$(PY) -m pytest tests/<file>` runs one file in this process.
 test: setup
 	$(PY) -m ruff check pipeline tests benchmarks
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n auto --maxprocesses=4 --dist loadfile
 
+# bench: a few minutes (inputs as large per frame as the release's, fewer frames; units extrapolated),
+# one table at the end, also in out/bench/bench.json. bench-full: the full-size inputs (writing them
+# takes about 7 minutes the first time), table in out/bench/bench-full.json.
 bench: setup
 	$(PY) -m benchmarks all
+
+bench-full: setup
+	$(PY) -m benchmarks all --full --beam

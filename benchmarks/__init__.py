@@ -2,11 +2,12 @@
 package: they import ``pipeline`` and ``pipeline.samples``, never the other way round.
 
 One file per job:
-  cli.py               the command: ``python -m benchmarks {all,adt,drivetrack,pstudio} [--quick] [--micro]``
-  units.py             the per-unit benchmark of one source: prepare, run the scaling set, report
+  cli.py               the command: ``python -m benchmarks {all,adt,drivetrack,pstudio} [--quick|--full]``
+  units.py             the per-unit benchmark of one source: prepare, run the scaling set and the floor
   worker.py            one unit in a fresh single-threaded pinned process, through ``pipeline.unit.run_unit``
+  floors.py            the read+decode floor of a unit: reading and decoding its inputs, nothing else
   processes.py         spawning the worker processes, reaping them (wait4), their peak memory (VmHWM)
-  report.py            per-source figures, the summary table, CPU-hours
-  inputs_<source>.py   ``prepare(workdir, quick)``: the inputs of one source's unit (built once, cached)
+  report.py            per-source figures, the one table against the targets, its JSON, CPU-hours
+  inputs_<source>.py   ``prepare(workdir, quick[, full])``: one source's unit inputs (built once, cached)
   micro_<source>.py    ``run(frames)``: the source's micro-benchmarks (``--micro``)
 """

@@ -1,16 +1,49 @@
-"""The figures of one source's per-unit benchmark (printed, and returned for the summary), the
-summary table of all sources, and the CPU-hours of the whole benchmark."""
+"""The figures of one source's per-unit benchmark (printed, and returned for the table), the one
+table of every source with its targets (issue 15, point 4) and the JSON it is written as.
+
+Figures of a release unit (``unit_frames`` frames): ms/frame = its time on one core / its
+frames; CPU-hours = that time x the release's units; unit/floor = that time / the same for the
+bare reading and decoding of its inputs (``benchmarks.floors``). Where the measured input is
+shorter than a release unit (ADT's 2-frame excerpt; DriveTrack and Panoptic Studio at the default
+size), the unit is extrapolated: fixed cost (ADT: opening the sequence, measured apart) + frames x
+the measured per-frame cost, and its floor likewise; such figures carry ``*``. Peak memory (max
+RSS) is always the measured process's, at the size benched.
+
+"Time on one core" is the CPU time of the single-threaded process bound to one CPU: on an idle
+machine it equals its wall time; on a busy one the wall time also counts the waits for that CPU
+(the ``CPU/wall`` column: below ~0.95 the machine was busy, and the speed-up, a ratio of wall
+times, is not to be trusted). The wall-time figures are in the JSON too (``*_wall``).
+"""
 
 from __future__ import annotations
 
+import json
 import os
 from statistics import fmean
 
 from benchmarks.processes import UnitRun
 
 GIB = 1024**3
+# Targets (issue 15, point 4): per input frame on one core; memory (DriveTrack); 1 -> 2 workers;
+# the whole benchmark's CPU-hours; a unit's wall time over its read+decode floor.
+MS_PER_FRAME_TARGET = {"adt": 60.0, "drivetrack": 150.0, "pstudio": 100.0}
 MEMORY_TARGET_GIB = {"drivetrack": 2.5}
-SPEEDUP_TARGET = 1.6
+SPEEDUP_TARGET = 1.8
+CPU_HOURS_TARGET = 15.0
+FLOOR_RATIO_TARGET = 2.0
+SOURCES = ("drivetrack", "pstudio", "adt")
+
+# The table's figure columns: key, heading, format, target comparison, width.
+COLUMNS = (
+    ("ms_per_frame", "ms/frame", "{:.1f}", "<=", 19),
+    ("peak_rss_gib", "peak RSS GiB", "{:.2f}", "<=", 17),
+    ("speedup", "speed-up", "{:.2f}x", ">=", 17),
+    ("speedup_cpu", "(CPU)", "{:.2f}x", None, 8),
+    ("cpu_hours", "CPU-hours", "{:.2f}", "<=", 18),
+    ("floor_ratio", "unit/floor", "{:.2f}", "<=", 16),
+    ("cpu_per_wall", "CPU/wall", "{:.2f}", None, 8),
+)
+EXTRAPOLATED = ("ms_per_frame", "cpu_hours", "floor_ratio")
 
 
 def speedup_line(what: str, one_wall: float, many_wall: float, workers: int, tail: str = "") -> float:
@@ -25,10 +58,17 @@ def speedup_line(what: str, one_wall: float, many_wall: float, workers: int, tai
 
 
 def report(
-    setup, one: list[UnitRun], one_wall: float, many, many_wall, workers: int, pinned: bool = True
+    setup,
+    one: list[UnitRun],
+    one_wall: float,
+    many: list[UnitRun] | None,
+    many_wall: float | None,
+    floor: UnitRun,
+    workers: int,
+    pinned: bool = True,
 ) -> dict:
     """Print one source's figures (``setup``: its ``benchmarks.units.UnitSetup``; ``one`` / ``many``:
-    the runs with 1 and ``workers`` workers); returns them for ``print_summary``."""
+    the runs with 1 and ``workers`` workers; ``floor``: the floor process) and return them."""
     source = setup.source
     work = fmean(r.result["work_s"] for r in one)
     work_cpu = fmean(r.result["work_cpu_s"] for r in one)
@@ -46,42 +86,68 @@ def report(
     )
     print(f"    of which read + annotate {annotate:.2f} s, filter + encode + write {work - annotate:.2f} s")
     print(f"  CPU / wall of the unit work: {work_cpu / work:.2f} (1.00 = one busy core; above: threads)")
-    print(f"  per frame ({frames} input frames per unit):                {1000 * work / frames:8.1f} ms")
+    print(
+        f"  per frame ({frames} input frames measured):                {1000 * work / frames:8.1f} ms wall, "
+        f"{1000 * work_cpu / frames:8.1f} ms CPU"
+    )
     print(
         f"  whole process (+ interpreter start and imports):            {process_wall:8.2f} s wall, "
         f"{process_cpu:8.2f} s CPU"
     )
     print(
         f"  output: {first['clips']} candidate clip(s), {first['clips_written']} written, "
-        f"{first['tracks_written']} tracks, {first['clip_frames']} clip frames in all"
+        f"{first['tracks_written']} tracks, {first['clip_frames']} clip frames in all "
+        f"({first['clip_frames'] / frames:.1f} per input frame)"
     )
-    unit_cpu = work_cpu
-    unit_wall = work
+    unit_frames, unit_wall, unit_cpu = frames, work, work_cpu
     if setup.extrapolate_frames:
         # fixed_s: one opening, measured apart; fixed_in_work_s: the openings the repeated runs paid
-        fixed, fixed_cpu = first["fixed_s"], first["fixed_cpu_s"]
-        per_frame = fmean((r.result["work_s"] - r.result["fixed_in_work_s"]) / frames for r in one)
+        fixed, fixed_cpu = first.get("fixed_s", 0.0), first.get("fixed_cpu_s", 0.0)
+        per_frame = fmean((r.result["work_s"] - r.result.get("fixed_in_work_s", 0.0)) / frames for r in one)
         per_frame_cpu = fmean(
-            (r.result["work_cpu_s"] - r.result["fixed_in_work_cpu_s"]) / frames for r in one
+            (r.result["work_cpu_s"] - r.result.get("fixed_in_work_cpu_s", 0.0)) / frames for r in one
         )
-        n = setup.extrapolate_frames
-        unit_wall = fixed + n * per_frame
-        unit_cpu = fixed_cpu + n * per_frame_cpu
+        unit_frames = setup.extrapolate_frames
+        unit_wall = fixed + unit_frames * per_frame
+        unit_cpu = fixed_cpu + unit_frames * per_frame_cpu
+        if fixed:
+            print(
+                f"  per frame without the fixed cost (opening the sequence, {1000 * fixed:.0f} ms): "
+                f"{1000 * per_frame:.1f} ms wall, {1000 * per_frame_cpu:.1f} ms CPU"
+            )
         print(
-            f"  per frame without the fixed cost (opening the sequence, {1000 * fixed:.0f} ms): "
-            f"{1000 * per_frame:.1f} ms wall, {1000 * per_frame_cpu:.1f} ms CPU"
-        )
-        print(
-            f"  EXTRAPOLATED {n}-frame unit: {fixed:.2f} + {n} x {per_frame:.3f} = {unit_wall:.1f} s wall, "
-            f"{unit_cpu:.1f} s CPU"
+            f"  EXTRAPOLATED {unit_frames}-frame unit: {f'{fixed:.2f} + ' if fixed else ''}{unit_frames} x "
+            f"{per_frame:.3f} = {unit_wall:.1f} s wall, {unit_cpu:.1f} s CPU"
         )
     target = MEMORY_TARGET_GIB.get(source)
-    verdict = ""
-    if target:
-        verdict = f"   target <= {target} GiB: {'met' if max_rss <= target else 'MISSED'}"
+    verdict = f"   target <= {target} GiB: {'met' if max_rss <= target else 'MISSED'}" if target else ""
     print(f"  peak memory of the unit's process (max RSS, its VmHWM): {max_rss:.2f} GiB{verdict}")
-    speedup = None
+    # The floor, at the measured size, then for the release unit like the unit itself.
+    measured = floor.result
+    frames_read = measured["floor_frames"]
+    floor_open, floor_open_cpu = measured.get("floor_open_s", 0.0), measured.get("floor_open_cpu_s", 0.0)
+    floor_unit = floor_open + unit_frames * (measured["floor_s"] - floor_open) / frames_read
+    floor_unit_cpu = floor_open_cpu + unit_frames * (measured["floor_cpu_s"] - floor_open_cpu) / frames_read
+    floor_ratio = unit_cpu / floor_unit_cpu
+    print(
+        f"read+decode floor of the unit's inputs (a fresh process, {where}): {measured['floor_s']:.2f} s "
+        f"wall, {measured['floor_cpu_s']:.2f} s CPU for {frames_read} frames"
+        + (f" (opening {floor_open_cpu:.2f} s CPU)" if floor_open else "")
+        + f"; peak memory {floor.max_rss / GIB:.2f} GiB"
+    )
+    print(
+        f"  {'EXTRAPOLATED ' if setup.extrapolate_frames else ''}{unit_frames}-frame unit: floor "
+        f"{floor_unit_cpu:.1f} s CPU, unit {unit_cpu:.1f} s CPU -> unit/floor {floor_ratio:.2f} "
+        f"(target <= {FLOOR_RATIO_TARGET}: {'met' if floor_ratio <= FLOOR_RATIO_TARGET else 'MISSED'}; "
+        f"in wall time {floor_unit:.1f} s, {unit_wall:.1f} s -> {unit_wall / floor_unit:.2f})"
+    )
+    runs = one + (many or [])
+    cpu_per_wall = min(r.result["work_cpu_s"] / r.result["work_s"] for r in runs)
+    speedup = speedup_cpu = None
     if many is not None:
+        # Without the waits for a CPU (other processes on the machine): the 1-worker set's CPU
+        # time over the largest CPU time of a process of the N-worker set.
+        speedup_cpu = sum(r.cpu_s for r in one) / max(r.cpu_s for r in many)
         speedup = speedup_line(
             f"scaling: the same {len(one)} unit(s)",
             one_wall,
@@ -89,8 +155,20 @@ def report(
             workers,
             f"; {os.cpu_count()} CPU(s) here",
         )
+        for count, runs_of in ((1, one), (workers, many)):
+            print(
+                f"  {count} worker(s): each process (wall / CPU, s): "
+                + ", ".join(f"{r.wall_s:.1f} / {r.cpu_s:.1f}" for r in runs_of)
+                + "; CPU / wall of their unit work: "
+                + ", ".join(f"{r.result['work_cpu_s'] / r.result['work_s']:.2f}" for r in runs_of)
+            )
+        print(
+            f"  CPU speed-up (the waits for a CPU taken out: the 1-worker set's CPU time / the largest "
+            f"process CPU time with {workers} workers): {speedup_cpu:.2f}x"
+        )
         print(
             f"  peak memory per process with {workers} workers: {max(r.max_rss for r in many) / GIB:.2f} GiB"
+            " (CPU / wall below ~0.95: the CPUs were shared with other processes)"
         )
     cpu_hours = unit_cpu * setup.full_units / 3600
     print(
@@ -99,42 +177,138 @@ def report(
     )
     for note in setup.notes:
         print(f"  note: {note}")
-    figures = {
+    return {
         "source": source,
+        "size": setup.size,
+        "extrapolated": bool(setup.extrapolate_frames),
+        "measured_frames": frames,
+        "unit_frames": unit_frames,
         "unit_s": unit_wall,
         "unit_cpu_s": unit_cpu,
-        "per_frame_ms": 1000 * work / frames,
-        "max_rss_gib": max_rss,
+        "ms_per_frame": 1000 * unit_cpu / unit_frames,
+        "ms_per_frame_wall": 1000 * unit_wall / unit_frames,
+        "peak_rss_gib": max_rss,
         "speedup": speedup,
+        "speedup_cpu": speedup_cpu,
+        "full_units": setup.full_units,
         "cpu_hours": cpu_hours,
-        "extrapolated": bool(setup.extrapolate_frames),
+        "floor_s": floor_unit,
+        "floor_cpu_s": floor_unit_cpu,
+        "floor_ratio": floor_ratio,
+        "floor_ratio_wall": unit_wall / floor_unit,
+        "cpu_per_wall": cpu_per_wall,
+        "clips_written": first["clips_written"],
+        "tracks_written": first["tracks_written"],
+        "clip_frames_per_frame": first["clip_frames"] / frames,
+        "notes": list(setup.notes),
     }
-    print(
-        "RESULT "
-        + " ".join(
-            f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
-            for k, v in figures.items()
-            if k != "extrapolated"
-        )
-    )
-    return figures
 
 
-def print_summary(figures: list[dict]) -> None:
-    """The table of every source's figures, with the total CPU-hours."""
-    print("\n=== summary (provisional unless taken on an idle machine) ===")
-    print(
-        f"{'source':<11} {'unit s':>9} {'unit CPU s':>11} {'ms/frame':>9} {'max RSS GiB':>12} "
-        f"{'speed-up':>9} {'CPU-hours':>10}"
-    )
+def _verdict(value, op: str, target) -> bool | None:
+    if value is None or target is None:
+        return None
+    return value <= target if op == "<=" else value >= target
+
+
+def _targets(source: str) -> dict:
+    return {
+        "ms_per_frame": MS_PER_FRAME_TARGET.get(source),
+        "peak_rss_gib": MEMORY_TARGET_GIB.get(source),
+        "speedup": SPEEDUP_TARGET,
+        "cpu_hours": None,  # one target for the whole benchmark: the `all` row's
+        "floor_ratio": FLOOR_RATIO_TARGET,
+        "speedup_cpu": None,  # not judged: an estimate, next to the measured speed-up
+        "cpu_per_wall": None,  # not a target: how busy the machine was
+    }
+
+
+def summary_table(figures: list[dict], size: str) -> dict:
+    """The table as a JSON-able dict: ``rows`` = one per source (every figure, with
+    ``<key>_target`` and ``<key>_pass``, None where there is none) and last the ``all`` row (the
+    total CPU-hours; judged against ``CPU_HOURS_TARGET`` only when every source ran). Nothing is
+    judged at the quick size (its figures are meaningless): every ``_pass`` is None there."""
+    judged = size != "quick"
+    rows = []
     for f in figures:
-        speedup = f"{f['speedup']:.2f}x" if f["speedup"] else "-"
-        mark = "*" if f["extrapolated"] else " "
-        print(
-            f"{f['source']:<11} {f['unit_s']:8.1f}{mark} {f['unit_cpu_s']:10.1f}{mark} "
-            f"{f['per_frame_ms']:9.1f} {f['max_rss_gib']:12.2f} {speedup:>9} {f['cpu_hours']:10.2f}"
-        )
+        row = {"source": f["source"], "size": f["size"], "extrapolated": f["extrapolated"]}
+        for key, _, _, op, _ in COLUMNS:
+            target = _targets(f["source"])[key]
+            verdict = _verdict(f[key], op, target) if judged else None
+            row.update({key: f[key], f"{key}_target": target, f"{key}_pass": verdict})
+        row.update({k: f[k] for k in f if k not in row})
+        rows.append(row)
     total = sum(f["cpu_hours"] for f in figures)
-    print(f"{'all':<11} {'':>9} {'':>11} {'':>9} {'':>12} {'':>9} {total:10.2f}")
-    if any(f["extrapolated"] for f in figures):
-        print("* extrapolated to a 300-frame unit from the measured per-frame cost (ADT excerpt)")
+    complete = sorted(f["source"] for f in figures) == sorted(SOURCES)
+    every = {"source": "all", "size": size, "extrapolated": any(f["extrapolated"] for f in figures)}
+    for key, *_ in COLUMNS:
+        every.update({key: None, f"{key}_target": None, f"{key}_pass": None})
+    every.update(
+        {
+            "cpu_hours": total,
+            "cpu_hours_target": CPU_HOURS_TARGET,
+            "cpu_hours_pass": total <= CPU_HOURS_TARGET if complete and judged else None,
+            "full_units": sum(f["full_units"] for f in figures),
+            "sources": [f["source"] for f in figures],
+        }
+    )
+    rows.append(every)
+    return {
+        "size": size,
+        "columns": ["source", *(key for key, *_ in COLUMNS)],
+        "headings": {"source": "source", **{key: heading for key, heading, *_ in COLUMNS}},
+        "targets": {
+            "ms_per_frame": MS_PER_FRAME_TARGET,
+            "peak_rss_gib": MEMORY_TARGET_GIB,
+            "speedup": SPEEDUP_TARGET,
+            "cpu_hours_all": CPU_HOURS_TARGET,
+            "floor_ratio": FLOOR_RATIO_TARGET,
+        },
+        "rows": rows,
+    }
+
+
+def _cell(row: dict, key: str, form: str, op: str) -> str:
+    value = row[key]
+    if value is None:
+        return "-"
+    text = form.format(value) + ("*" if row["extrapolated"] and key in EXTRAPOLATED else "")
+    target = row[f"{key}_target"]
+    if target is not None:
+        verdict = {True: "pass", False: "FAIL", None: "n/a"}[row[f"{key}_pass"]]
+        text += f" {op}{target:g} {verdict}"
+    return text
+
+
+def format_table(table: dict) -> list[str]:
+    """The table's lines: a heading, one line per source, the `all` line, the footnotes."""
+    lines = [f"{'source':<11}" + "".join(f"{heading:<{width}}" for _, heading, *_, width in COLUMNS).rstrip()]
+    for row in table["rows"]:
+        cells = [(_cell(row, key, form, op), width) for key, _, form, op, width in COLUMNS]
+        lines.append(f"{row['source']:<11}" + "".join(f"{cell:<{width}}" for cell, width in cells).rstrip())
+    if table["size"] == "quick":
+        lines.append("--quick: reduced inputs; the figures only show that the code runs (n/a: not judged)")
+    else:
+        if table["rows"][-1]["cpu_hours_pass"] is None:
+            lines.append("n/a: the total is judged against the benchmark's target when every source ran")
+        lines += [
+            "ms/frame, CPU-hours, unit/floor: of a release unit (DriveTrack 199 frames, Panoptic Studio "
+            "150, ADT 300),",
+            "  in time on one core (the CPU time of a single-threaded process bound to one CPU: its wall "
+            "time on an idle machine);",
+            "  * = extrapolated from a shorter measured input (fixed cost + frames x per-frame cost);",
+            "  peak RSS: measured, at the size benched; CPU/wall: the lowest of the unit processes' (below "
+            "~0.95 the machine",
+            "  was busy: wall times, hence the speed-up, were stretched by other processes); (CPU): the "
+            "speed-up with the waits",
+            "  for a CPU taken out (the 1-worker set's CPU time / the largest process CPU time with N "
+            "workers; not judged)",
+        ]
+    return lines
+
+
+def write_json(table: dict, path: str, extra: dict) -> None:
+    """``table`` (``summary_table``) and ``extra`` (machine, command) as JSON at ``path``."""
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    with open(path, "w") as f:
+        json.dump({**extra, **table}, f, indent=1)
+        f.write("\n")

@@ -1,13 +1,16 @@
 """Per-unit benchmark of one source: the real work of one unit, its peak memory, the speed-up from
-1 to N workers, and the CPU-hours of the whole benchmark (``python -m benchmarks``).
+1 to N workers, its read+decode floor, and the CPU-hours of the whole benchmark
+(``python -m benchmarks``).
 
 A unit is what the Beam graph hands one worker: DriveTrack (segment, camera), Panoptic Studio
 (sequence, camera), ADT (sequence, 300-frame chunk). Its work is the graph's own,
 ``pipeline.unit.run_unit`` (``benchmarks.worker``), in a fresh single-threaded pinned process
-(``benchmarks.processes``); the figures are printed by ``benchmarks.report``.
+(``benchmarks.processes``); its floor (``benchmarks.floors``) is measured in one more such
+process; the figures are printed by ``benchmarks.report``.
 
 Each source's inputs are built (once, cached under the work folder) by
-``benchmarks/inputs_<source>.py``: ``prepare(workdir, quick) -> UnitSetup`` (or None: skipped).
+``benchmarks/inputs_<source>.py``: ``prepare(workdir, quick[, full]) -> UnitSetup`` (or None:
+skipped); ``full`` (full-size inputs) is passed only to a ``prepare`` that takes it.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import importlib
+import inspect
 import os
 import shutil
 import subprocess
@@ -31,10 +35,13 @@ class UnitSetup:
     """One source's benchmark unit, as ``prepare`` builds it.
 
     units: the units of the scaling run (the first one is "the" unit); each is JSON-able.
-    frames: frames of one unit's input (for the per-frame figure).
-    extrapolate_frames: when set (ADT), a unit of that many frames is extrapolated from the
-      measured one (fixed cost + per-frame cost x frames).
+    frames: frames of one unit's input as measured (for the per-frame figure).
+    extrapolate_frames: when set, the release's unit of that many frames is extrapolated from the
+      measured one: fixed cost (ADT: opening the sequence, measured apart; else 0) + per-frame
+      cost x frames (ADT: its excerpt holds 2 frames; DriveTrack and Panoptic Studio at the
+      default size: shorter inputs than the release's).
     full_units: units of the whole benchmark for the CPU-hours line, with ``full_units_note``.
+    size: "quick", "default" or "full" (ADT: its excerpt whatever the size).
     """
 
     source: str
@@ -46,6 +53,7 @@ class UnitSetup:
     full_units: int
     full_units_note: str
     extrapolate_frames: int | None = None
+    size: str = "excerpt"
     notes: list[str] = dataclasses.field(default_factory=list)
     extra: dict = dataclasses.field(default_factory=dict)  # passed to the worker in its spec
 
@@ -64,18 +72,46 @@ def _specs(setup: UnitSetup, workdir: str, tag: str) -> list[dict]:
     ]
 
 
-def bench_source(source: str, args: argparse.Namespace) -> dict:
-    """Prepare the source's unit, run the scaling set with 1 and ``args.workers`` workers, print."""
+def prepare_source(source: str, args: argparse.Namespace) -> tuple[UnitSetup | None, float]:
+    """The source's ``prepare`` (its inputs written once under the work folder): (setup, seconds)."""
     module = importlib.import_module(f"benchmarks.inputs_{source}")
     workdir = os.path.abspath(os.path.join(args.workdir, source))
     os.makedirs(workdir, exist_ok=True)
-    print(f"\n=== {source}{' (--quick: reduced sizes)' if args.quick else ''} ===", flush=True)
     started = time.perf_counter()
-    setup: UnitSetup | None = module.prepare(workdir, args.quick)
+    full = {"full": True} if args.full and "full" in inspect.signature(module.prepare).parameters else {}
+    return module.prepare(workdir, args.quick, **full), time.perf_counter() - started
+
+
+def prepare_side_by_side(sources, args: argparse.Namespace) -> dict:
+    """Each source's ``prepare_source`` result, the inputs written by one process per CPU at once
+    (before anything is timed); {} for a single source (``bench_source`` prepares it)."""
+    if len(sources) < 2:
+        return {}
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    print(f"preparing the inputs of {', '.join(sources)} side by side (written once, reused later) ...")
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(min(len(sources), os.cpu_count() or 1), mp_context=context) as pool:
+        futures = {source: pool.submit(prepare_source, source, args) for source in sources}
+        return {source: future.result() for source, future in futures.items()}
+
+
+def bench_source(
+    source: str, args: argparse.Namespace, prepared: tuple[UnitSetup | None, float] | None = None
+) -> dict:
+    """Prepare the source's unit (unless ``prepared``: ``prepare_source``'s result), run the scaling
+    set with 1 and ``args.workers`` workers, measure the unit's read+decode floor, print; returns
+    the figures (``report``), {} when skipped."""
+    module = importlib.import_module(f"benchmarks.inputs_{source}")
+    workdir = os.path.abspath(os.path.join(args.workdir, source))
+    size = "quick: reduced sizes, figures meaningless" if args.quick else "full size" if args.full else ""
+    print(f"\n=== {source}{f' ({size})' if size else ''} ===", flush=True)
+    setup, seconds = prepared or prepare_source(source, args)
     if setup is None:
         return {}
     setup.units = (setup.units * args.units)[: args.units]
-    print(f"input ready in {time.perf_counter() - started:.0f} s: {setup.input_root}")
+    print(f"input ready in {seconds:.0f} s: {setup.input_root}")
     for line in setup.description:
         print(f"  {line}")
     scratch = tempfile.mkdtemp(prefix="runs-", dir=workdir)
@@ -91,12 +127,15 @@ def bench_source(source: str, args: argparse.Namespace) -> dict:
             many, many_wall = run_processes(
                 _specs(setup, scratch, f"w{args.workers}"), args.workers, scratch, args.pin
             )
+        print("measuring the read+decode floor of the unit's inputs (one more such process) ...", flush=True)
+        floor_spec = dict(_specs(setup, scratch, "floor")[0], mode="floor")
+        (floor,), _ = run_processes([floor_spec], 1, scratch, args.pin)
         beam_args = getattr(module, "beam_run_args", None)
-        if beam_args and args.workers > 1 and len(setup.units) > 1:
+        if args.beam and beam_args and args.workers > 1 and len(setup.units) > 1:
             beam_scaling(setup, beam_args(setup.units), args.workers, scratch)
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
-    return report(setup, one, one_wall, many, many_wall, args.workers, args.pin)
+    return report(setup, one, one_wall, many, many_wall, floor, args.workers, args.pin)
 
 
 def beam_scaling(setup: UnitSetup, run_args: list[str], workers: int, scratch: str) -> float:

@@ -7,6 +7,9 @@ the inputs and annotate, filter, encode and write the clips, record the unit), `
 times (default 1). The source's ``annotate`` is wrapped only to time it. A source whose
 ``benchmarks/inputs_<source>.py`` defines ``measure_fixed_cost(spec, config)`` (ADT: opening the
 sequence) has that cost measured apart, before the runs, for the extrapolation in ``report``.
+
+With ``spec["mode"] == "floor"`` the process measures the unit's read+decode floor instead
+(``benchmarks.floors``): the bare cost of reading and decoding the unit's inputs.
 """
 
 from __future__ import annotations
@@ -40,6 +43,10 @@ def run(spec: dict) -> dict:
 
     if os.environ.get("OPENCV_FOR_THREADS_NUM") == "1":
         cv2.setNumThreads(1)
+    if spec.get("mode") == "floor":
+        from benchmarks.floors import measure
+
+        return {**measure(spec), "peak_rss": peak_rss()}
     from pipeline import sources
     from pipeline.core.config import RunConfig, with_overrides
     from pipeline.unit import UnitJob, run_unit

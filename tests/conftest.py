@@ -32,7 +32,7 @@ from pipeline.samples.dynamic3dgs_files import write_sequence
 from pipeline.samples.studio_world import StudioWorld
 from pipeline.samples.waymo_world import write_split
 from pipeline.samples.write_once import write_once
-from tests.cli import REPO, run_in_process
+from tests.cli import REPO, run_pipeline
 
 SAMPLE_CACHE = os.environ.get("TAPVID3D_SAMPLE_CACHE") or os.path.join(REPO, ".cache", "samples")
 CACHE_LAYOUT = "1"  # bump when what the fixtures below keep in a cache folder changes
@@ -118,19 +118,32 @@ def pstudio_links(pstudio_sample, tmp_path):
     return root
 
 
-@pytest.fixture(scope="session")
-def reference_run(tmp_path_factory, sample_split, pstudio_sample):
-    """``reference_run(source)``: the output folder of one plain DirectRunner run on that source's
-    sample (drivetrack or pstudio), made on first use and shared by the tests that compare bytes."""
-    inputs = {"drivetrack": sample_split[0], "pstudio": pstudio_sample[0]}
-    made: dict[str, str] = {}
+class ReferenceRuns:
+    """``runs(source)``: the output folder of one plain DirectRunner run on that source's sample
+    (drivetrack or pstudio), made on first use by ``python -m pipeline.run`` in a subprocess (the
+    CLI's end-to-end run, ``runs.result(source)`` its exit code and output) and shared by every
+    test that reads a finished run or compares bytes with one. Never write into it: copy it."""
 
-    def run(source: str) -> str:
-        if source not in made:
-            out = str(tmp_path_factory.mktemp(f"reference_{source}"))
-            result = run_in_process(source, "--input", inputs[source], "--output", out)
+    def __init__(self, factory: pytest.TempPathFactory, inputs: dict[str, str]):
+        self._factory, self._inputs = factory, inputs
+        self._made: dict[str, tuple[str, object]] = {}
+
+    def __call__(self, source: str) -> str:
+        return self._run(source)[0]
+
+    def result(self, source: str):
+        """The ``subprocess.CompletedProcess`` of that run."""
+        return self._run(source)[1]
+
+    def _run(self, source: str) -> tuple[str, object]:
+        if source not in self._made:
+            out = str(self._factory.mktemp(f"reference_{source}"))
+            result = run_pipeline(source, "--input", self._inputs[source], "--output", out)
             assert result.returncode == 0, result.stderr[-3000:]
-            made[source] = out
-        return made[source]
+            self._made[source] = (out, result)
+        return self._made[source]
 
-    return run
+
+@pytest.fixture(scope="session")
+def reference_run(tmp_path_factory, sample_split, pstudio_sample) -> ReferenceRuns:
+    return ReferenceRuns(tmp_path_factory, {"drivetrack": sample_split[0], "pstudio": pstudio_sample[0]})

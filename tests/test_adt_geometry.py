@@ -7,12 +7,14 @@ import pytest
 from pipeline.adt.annotate import (
     Chunk,
     Frame,
+    IdRuns,
     Instances,
     annotate_chunk,
     attach,
     carry,
     draw_query_pixels,
     frame_visibility,
+    interior,
     sample_depth,
 )
 from pipeline.adt.rectify import (
@@ -20,12 +22,17 @@ from pipeline.adt.rectify import (
     rotate_cw,
     rotate_pixels_cw,
     stored_cam_from_world,
+    stored_intrinsics,
     unrotate_pixels_cw,
 )
 from pipeline.core.config import RunConfig, with_overrides
 
 S, F = 512, 280.0
-K = np.array([F, F, S / 2, S / 2])
+# The generator's camera has its principal point at projectaria-tools' (256, 256), pixel centres at
+# integers: (256.5, 256.5) with centres at +0.5. After the clockwise turn (x, y) -> (512 - y, x).
+K_UNROTATED = np.array([F, F, 256.5, 256.5])
+K = np.array([F, F, 255.5, 256.5])
+CX, CY = K[2], K[3]
 
 
 def rot_z(angle):
@@ -39,8 +46,8 @@ def pose(rotation, translation):
     return out
 
 
-def pinhole(points):
-    return np.stack([F * points[:, 0] / points[:, 2] + S / 2, F * points[:, 1] / points[:, 2] + S / 2], 1)
+def pinhole(points, k=K):
+    return np.stack([k[0] * points[:, 0] / points[:, 2] + k[2], k[1] * points[:, 1] / points[:, 2] + k[3]], 1)
 
 
 def test_rotate_cw_moves_pixels_clockwise():
@@ -54,18 +61,23 @@ def test_rotate_cw_moves_pixels_clockwise():
     assert rotate_cw(corners)[0, 3] == 1
 
 
+def test_stored_intrinsics_are_the_rotated_generator_camera():
+    np.testing.assert_array_equal(stored_intrinsics(512, 280.0), [280.0, 280.0, 255.5, 256.5])
+    np.testing.assert_array_equal(stored_intrinsics(64, 50.0), [50.0, 50.0, 31.5, 32.5])
+
+
 def test_rotated_camera_projects_onto_rotated_pixels():
     rng = np.random.default_rng(0)
     points = rng.uniform([-1, -1, 0.5], [1, 1, 4], size=(200, 3))
     rotated_points = points @ CAM_ROT_FROM_CAM[:3, :3].T
-    # The same intrinsics serve the rotated camera: the rotation maps the image onto itself.
-    expected = rotate_pixels_cw(pinhole(points), S)
+    # The unrotated camera's axis (256.5, 256.5) lands at (255.5, 256.5): K serves the rotated one.
+    expected = rotate_pixels_cw(pinhole(points, K_UNROTATED), S)
     np.testing.assert_allclose(pinhole(rotated_points), expected, atol=1e-9)
-    np.testing.assert_allclose(unrotate_pixels_cw(expected, S), pinhole(points), atol=1e-9)
+    np.testing.assert_allclose(unrotate_pixels_cw(expected, S), pinhole(points, K_UNROTATED), atol=1e-9)
     # Pixel contents agree: mark the pixel under each point in the unrotated image, rotate the
     # image, and the rotated camera's projection falls in the marked pixel.
     image = np.zeros((S, S), np.int32)
-    uv = pinhole(points)
+    uv = pinhole(points, K_UNROTATED)
     keep = (uv >= 0).all(1) & (uv < S).all(1)
     image[np.floor(uv[keep, 1]).astype(int), np.floor(uv[keep, 0]).astype(int)] = np.arange(1, keep.sum() + 1)
     rotated = rotate_cw(image)
@@ -126,7 +138,7 @@ def visibility_scene():
 
 
 def on_wall(x, y, z=2.0):
-    return np.array([(x - S / 2) * z / F, (y - S / 2) * z / F, z])
+    return np.array([(x - CX) * z / F, (y - CY) * z / F, z])
 
 
 def test_visibility_depth_test_hand_term_and_frustum():
@@ -149,6 +161,39 @@ def test_visibility_depth_test_hand_term_and_frustum():
     visible, on_own = frame_visibility(points, object_ids, depth, ids, frozenset({9}), K, delta)
     assert visible.tolist() == [True, False, False, False, True, False, False, False, True]
     assert on_own.tolist() == [True, False, False, False, True, True, False, False, True]
+
+
+def blocky_ids(rng, shape=(61, 47)):
+    """Random rectangles of 5 ids over a [H, W] uint64 image, single pixels included."""
+    ids = np.zeros(shape, np.uint64)
+    for _ in range(80):
+        r, c = rng.integers(0, shape[0]), rng.integers(0, shape[1])
+        h, w = rng.integers(1, 12, size=2)
+        ids[r : r + h, c : c + w] = rng.integers(0, 5)
+    return ids
+
+
+def test_interior_is_the_one_id_3x3_neighbourhood():
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        ids = blocky_ids(rng)
+        # Definition: every pixel of the 3x3 window (edge-padded) holds the centre's id.
+        windows = np.lib.stride_tricks.sliding_window_view(np.pad(ids, 1, mode="edge"), (3, 3))
+        expected = (windows == ids[..., None, None]).all(axis=(-1, -2))
+        assert 0 < expected.mean() < 1
+        np.testing.assert_array_equal(interior(ids), expected)
+
+
+def test_id_runs_read_like_the_image():
+    rng = np.random.default_rng(4)
+    ids = blocky_ids(rng)
+    runs = IdRuns.of(ids)
+    assert len(runs.values) < ids.size / 3
+    np.testing.assert_array_equal(runs.unique(), np.unique(ids))
+    rows, cols = np.mgrid[0 : ids.shape[0], 0 : ids.shape[1]]
+    np.testing.assert_array_equal(runs[rows.ravel(), cols.ravel()], ids.ravel())
+    for chosen in ({1}, {0, 3, 4}, {7}):
+        np.testing.assert_array_equal(runs.isin(chosen), np.isin(ids, list(chosen)))
 
 
 def test_query_draw_honours_the_dynamic_share():
@@ -177,14 +222,15 @@ class CardWorld:
     def frame(self, t):
         cam_from_world = CAM_ROT_FROM_CAM.copy()  # world = unrotated camera
         rows, cols = np.mgrid[0:S, 0:S]
-        ray = np.stack([(cols + 0.5 - S / 2) / F, (rows + 0.5 - S / 2) / F], -1)  # stored camera
+        ray = np.stack([(cols + 0.5 - CX) / F, (rows + 0.5 - CY) / F], -1)  # stored camera
         # stored X' = -Y, Y' = X  =>  world X = Y', world Y = -X'
         world_x_card, world_y_card = ray[..., 1] * 1.5, -ray[..., 0] * 1.5
         on_card = (np.abs(world_x_card - self.STEP * t) < self.HALF) & (np.abs(world_y_card) < self.HALF)
         depth = np.where(on_card, 1.5, 3.0).astype(np.float32)
         ids = np.where(on_card, self.CARD, self.WALL).astype(np.uint64)
         depth[400:], ids[400:] = 0.8, self.HAND
-        return Frame(depth, ids, cam_from_world, {self.WALL: np.eye(4), self.CARD: self.card_pose(t)}, t)
+        depth_mm = 1000 * depth
+        return Frame(depth_mm, ids, cam_from_world, {self.WALL: np.eye(4), self.CARD: self.card_pose(t)}, t)
 
     def instances(self, ids):
         present = set(ids.tolist())
@@ -194,11 +240,19 @@ class CardWorld:
 def test_annotate_chunk_matches_the_card_world():
     world = CardWorld()
     config = with_overrides(RunConfig(), ["adt.tracks_per_clip=100", "adt.oversample=2"])
+    reads = []
+
+    def read_frame(t):
+        reads.append(t)
+        return world.frame(t)
+
     clip = annotate_chunk(
-        Chunk("card_0", "card/chunk_0", np.arange(4)), world.frame, lambda t: b"jpeg", world.instances, config
+        Chunk("card_0", "card/chunk_0", np.arange(4)), read_frame, lambda t: b"jpeg", world.instances, config
     )
+    assert reads == [0, 1, 2, 3]  # each frame's depth and ids are read once
     n = clip.num_tracks
     assert n == 200 and clip.tracks_xyz.shape == (4, n, 3)
+    np.testing.assert_array_equal(clip.fx_fy_cx_cy, [280.0, 280.0, 255.5, 256.5])
     t_q = clip.queries_xyt[:, 2].astype(int)
     object_ids = clip.track_stats["object_id"]
     assert set(object_ids.tolist()) <= {1, 2}  # never the hand

@@ -19,6 +19,9 @@ from pipeline.validate import main as validate_main
 from tests.adt_excerpt import SAMPLE, SETTINGS, needs_excerpt
 
 S, F = 512, 280.0
+# The stored frames' camera, pixel centres at +0.5: the generator's principal point (256, 256) in
+# projectaria-tools' integer-centre pixels is (256.5, 256.5), (255.5, 256.5) after the turn.
+CX, CY = 255.5, 256.5
 # Stored camera from the unrotated pinhole camera: X' = -Y, Y' = X (90 degrees clockwise).
 ROTATION = np.array([[0.0, -1, 0, 0], [1, 0, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
 
@@ -84,12 +87,11 @@ class Truth:
         self.stream = StreamId("214-1")
         self.calibration = calibration
         self.source = self.provider.get_aria_camera_calibration(self.stream)
-        # projectaria-tools puts pixel centres at integers: 255.5 is the centre of a 512 image.
-        self.target = calibration.get_linear_camera_calibration(S, S, F)
+        # The release's generator's camera: principal point (W/2, H/2), integer pixel centres.
         self.target = calibration.CameraCalibration(
             "pinhole",
             calibration.CameraModelType.LINEAR,
-            np.array([F, F, 255.5, 255.5]),
+            np.array([F, F, S / 2, S / 2]),
             self.source.get_transform_device_camera(),
             S,
             S,
@@ -112,10 +114,10 @@ class Truth:
             .data()
             .to_numpy_array()
         )
-        return (
-            np.rot90(self.calibration.distort_depth_by_calibration(raw, self.target, self.source), -1)
-            / 1000.0
+        depth = self.calibration.distort_depth_by_calibration(
+            raw.astype(np.float32), self.target, self.source
         )
+        return np.rot90(depth, -1).astype(np.float64) / 1000.0
 
     def ids(self, t):
         raw = (
@@ -141,9 +143,7 @@ def sample_run(tmp_path_factory):
 
 
 def project(points):
-    return np.stack(
-        [F * points[..., 0] / points[..., 2] + S / 2, F * points[..., 1] / points[..., 2] + S / 2], -1
-    )
+    return np.stack([F * points[..., 0] / points[..., 2] + CX, F * points[..., 1] / points[..., 2] + CY], -1)
 
 
 def test_clip_is_valid_and_named_after_the_v1_sequence(sample_run):
@@ -151,7 +151,7 @@ def test_clip_is_valid_and_named_after_the_v1_sequence(sample_run):
     assert validate_main([str(out)]) == 0
     assert sorted(os.listdir(out / "adt")) == ["aria_digital_twin_test_data_0.npz"]
     assert clip["tracks_XYZ"].shape == (2, 1024, 3)
-    np.testing.assert_array_equal(clip["fx_fy_cx_cy"], [280, 280, 256, 256])
+    np.testing.assert_array_equal(clip["fx_fy_cx_cy"], [280, 280, 255.5, 256.5])
     record = json.loads((out / "run_adt.json").read_text())
     assert record["config"]["adt"]["depth_delta_m"] == 0.02 and record["summary"]["failures"] == 0
 
@@ -174,7 +174,7 @@ def test_query_depth_matches_the_undistorted_depth(sample_run, truth):
         mine = t_q == t
         rows, cols = np.floor(queries[mine, 1]).astype(int), np.floor(queries[mine, 0]).astype(int)
         errors[mine] = np.abs(tracks[t, mine, 2] - depth[rows, cols])
-    assert errors.max() < 0.01, errors.max()
+    assert errors.max() < 1e-5, errors.max()  # float32 metres in the file
 
 
 def dynamic_tracks(clip, truth):
@@ -232,7 +232,8 @@ def test_tracks_sit_on_their_objects_and_overlay(sample_run, truth, tmp_path):
         for x, y in uv:
             cv2.circle(image, (int(x), int(y)), 2, (0, 255, 255), -1)
         cv2.imwrite(str(tmp_path / f"overlay_{t}.png"), image)
-    # The stored frame is the upright re-rendering: compare with projectaria-tools' own.
+    # The stored frame is the generator's upright re-rendering, JPEG-encoded: the mean difference
+    # is JPEG's alone (2.07 on this frame; 3.6 with the principal point half a pixel off).
     raw = (
         truth.provider.get_aria_image_by_timestamp_ns(int(truth.stamps[0]), truth.stream)
         .data()
@@ -240,7 +241,7 @@ def test_tracks_sit_on_their_objects_and_overlay(sample_run, truth, tmp_path):
     )
     upright = np.rot90(truth.calibration.distort_by_calibration(raw, truth.target, truth.source), -1)
     stored = cv2.imdecode(np.frombuffer(clip["images_jpeg_bytes"][0], np.uint8), cv2.IMREAD_COLOR)[..., ::-1]
-    assert np.abs(stored.astype(int) - upright.astype(int)).mean() < 3.0
+    assert np.abs(stored.astype(int) - upright.astype(int)).mean() < 2.3
 
 
 def test_without_input_explains_how_to_get_adt(tmp_path, capsys):

@@ -9,7 +9,13 @@ import pytest
 from scipy import stats
 
 from pipeline.audit.compare import compare_dirs, main, read_reference
-from pipeline.audit.metrics import PIXEL_THRESHOLDS, eval_intrinsics, median_error, tapvid3d_metrics
+from pipeline.audit.metrics import (
+    PIXEL_THRESHOLDS,
+    eval_intrinsics,
+    median_error,
+    query_frame_indices,
+    tapvid3d_metrics,
+)
 from pipeline.export.clip_reader import DEFAULT_LIMITS
 from pipeline.export.npz_writer import encode_npz
 
@@ -94,6 +100,16 @@ def test_per_trajectory_rescaling_undoes_a_scale_per_track():
     assert score(gt, vis, pred, vis, "median")["average_pts_within"] < 0.5
 
 
+def test_query_frames_are_rounded_and_negative_ones_count_from_the_end():
+    # T = 3: round(0.4) = 0, round(1.6) = 2, -1 -> 2, round(0.5) = 0 and round(2.5) = 2 (half to even),
+    # -3.2 -> -3 -> 0.
+    frames = query_frame_indices(np.array([0.4, 1.6, -1.0, 0.5, 2.5, -3.2]), 3)
+    assert frames.tolist() == [0, 2, 2, 0, 2, 0]
+    # round(2.6) = 3 and round(-3.6) = -4 are no index of 3 frames, nor is NaN.
+    for bad in (2.6, -3.6, np.nan):
+        assert query_frame_indices(np.array([0.0, bad]), 3) is None
+
+
 def test_evaluation_intrinsics_put_the_smaller_side_at_256_px():
     np.testing.assert_allclose(eval_intrinsics([280, 280, 256, 256], 512, 512), [140, 140, 128, 128])
     # 640x360 (Panoptic Studio): factor 256 / 360.
@@ -165,20 +181,25 @@ def test_compare_a_folder_with_itself_scores_one_and_never_unpickles(ref_dir, tm
         for key in SCORE_KEYS:
             assert row[key] == 1.0, (row, key)
         assert row["oa"] == 1.0 and row["median_error_m"] == 0.0
-    assert "| adt | a_0.npz | 10 | 200 | 1.0000" in out.with_suffix(".md").read_text()
+    assert "| adt | a_0.npz | scored | 10 | 200 | 1.0000" in out.with_suffix(".md").read_text()
 
 
-def test_mismatched_clips_are_error_rows_and_unmatched_clips_are_listed(ref_dir, tmp_path):
+def test_mismatched_and_missing_predictions_count_zero_and_unmatched_clips_are_listed(ref_dir, tmp_path):
     new = tmp_path / "new"
     write_clip(new, "adt", "a_0.npz", synthetic_clip(0, tracks=150))
     write_clip(new, "adt", "a_1.npz", synthetic_clip(1))
     write_clip(new, "drivetrack", "extra.npz", synthetic_clip(3))
     report = compare_dirs(str(ref_dir), str(new))
-    first, second = report["clips"]
-    assert "shapes differ" in first["error"] and second["aj_median"] == 1.0
-    assert report["only_in_ref"] == ["pstudio/tennis_1.npz"]
+    first, second, third = report["clips"]
+    assert first["status"] == "zero" and "shapes differ" in first["error"] and first["aj_median"] == 0.0
+    assert second["status"] == "scored" and second["aj_median"] == 1.0
+    assert third["status"] == "zero" and third["error"] == "no prediction file"
     assert report["only_in_new"] == ["drivetrack/extra.npz"]
-    assert report["sources"][0]["source"] == "adt" and report["sources"][0]["errors"] == 1
+    # adt: (0 + 1) / 2; pstudio: 0; all: the mean of the two source means.
+    adt, pstudio, overall = report["sources"]
+    assert (adt["clips"], adt["zero"], adt["aj_median"]) == (2, 1, 0.5)
+    assert (pstudio["clips"], pstudio["zero"], pstudio["aj_median"]) == (1, 1, 0.0)
+    assert overall["aj_median"] == 0.25 and overall["median_error_m"] == 0.0
     assert main([str(ref_dir), str(tmp_path / "absent")]) == 2
     (tmp_path / "empty").mkdir()
     assert main([str(ref_dir), str(tmp_path / "empty")]) == 1

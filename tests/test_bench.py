@@ -1,27 +1,87 @@
-"""``python -m benchmarks pstudio --quick``: the per-unit benchmark runs end to end and prints
-every figure (no timing assertions: only that each figure is there and positive)."""
+"""The benchmark's table and its JSON (``python -m benchmarks``): built from given figures (the
+verdicts against the targets, the ``all`` row), and one tiny real run end to end
+(``pstudio --quick --units 1 --workers 1``: a unit process and a floor process). No timing
+assertions: only that every column is there, each figure positive, and ``all`` sums the sources."""
 
 from __future__ import annotations
 
-import re
+import json
+
+import pytest
 
 from benchmarks import cli
+from benchmarks.report import COLUMNS, CPU_HOURS_TARGET, format_table, summary_table
+
+KEYS = ["source", *(key for key, *_ in COLUMNS)]
 
 
-def test_quick_unit_bench_prints_every_figure(tmp_path, capsys):
-    assert cli.main(["pstudio", "--quick", "--units", "2", "--workdir", str(tmp_path)]) == 0
+def given(source: str, ms: float, rss: float, speedup: float | None, cpu_hours: float, ratio: float) -> dict:
+    """The figures ``benchmarks.report.report`` returns, with the ones the table reads set."""
+    return {
+        "source": source,
+        "size": "default",
+        "extrapolated": source != "drivetrack",
+        "ms_per_frame": ms,
+        "peak_rss_gib": rss,
+        "speedup": speedup,
+        "speedup_cpu": speedup and speedup + 0.05,
+        "cpu_hours": cpu_hours,
+        "floor_ratio": ratio,
+        "cpu_per_wall": 0.98,
+        "full_units": 10,
+        "notes": [],
+    }
+
+
+def test_table_judges_each_figure_and_sums_the_cpu_hours():
+    figures = [
+        given("drivetrack", 140.0, 1.9, 1.85, 9.5, 1.5),
+        given("pstudio", 120.0, 0.6, 1.7, 1.25, 2.5),
+        given("adt", 50.0, 0.3, None, 4.0, 1.9),
+    ]
+    table = summary_table(figures, "default")
+    rows = {row["source"]: row for row in table["rows"]}
+    assert [row["source"] for row in table["rows"]] == ["drivetrack", "pstudio", "adt", "all"]
+    assert table["columns"] == KEYS
+    for row in table["rows"]:
+        for key in KEYS[1:]:
+            assert {key, f"{key}_target", f"{key}_pass"} <= row.keys(), (row["source"], key)
+    assert rows["drivetrack"]["ms_per_frame_pass"] is True  # 140 <= 150
+    assert rows["pstudio"]["ms_per_frame_pass"] is False  # 120 > 100
+    assert rows["adt"]["ms_per_frame_pass"] is True  # 50 <= 60
+    assert rows["drivetrack"]["peak_rss_gib_pass"] is True and rows["pstudio"]["peak_rss_gib_target"] is None
+    assert (rows["drivetrack"]["speedup_pass"], rows["pstudio"]["speedup_pass"]) == (True, False)
+    assert rows["adt"]["speedup_pass"] is None  # not measured
+    assert [rows[s]["floor_ratio_pass"] for s in ("drivetrack", "pstudio", "adt")] == [True, False, True]
+    assert rows["all"]["cpu_hours"] == pytest.approx(14.75)
+    assert (rows["all"]["cpu_hours_target"], rows["all"]["cpu_hours_pass"]) == (CPU_HOURS_TARGET, True)
+    assert rows["all"]["full_units"] == 30
+    lines = format_table(table)
+    assert lines[0].split()[0] == "source" and lines[4].startswith("all")
+    assert "120.0* <=100 FAIL" in lines[2] and "14.75* <=15 pass" in lines[4]
+    # Without every source, the total is not judged against the whole benchmark's target.
+    partial = summary_table(figures[:2], "default")["rows"][-1]
+    assert partial["cpu_hours"] == pytest.approx(10.75) and partial["cpu_hours_pass"] is None
+
+
+def test_quick_run_prints_the_table_and_writes_it_as_json(tmp_path, capsys):
+    path = tmp_path / "table.json"
+    argv = ["pstudio", "--quick", "--units", "1", "--workers", "1", "--workdir", str(tmp_path)]
+    assert cli.main([*argv, "--json", str(path)]) == 0
     out = capsys.readouterr().out
-    for phrase in (
-        "unit work (read inputs + annotate + filter + encode/write)",
-        "per frame",
-        "max RSS",
-        "speed-up",
-        "CPU-hours, full benchmark",
-    ):
-        assert phrase in out, f"{phrase!r} missing from:\n{out}"
-    (line,) = [line for line in out.splitlines() if line.startswith("RESULT ")]
-    figures = dict(item.split("=", 1) for item in line.split()[1:])
-    assert figures["source"] == "pstudio"
-    for key in ("unit_s", "unit_cpu_s", "per_frame_ms", "max_rss_gib", "speedup", "cpu_hours"):
-        assert float(figures[key]) > 0, (key, line)
-    assert re.search(r"written, [1-9]\d* tracks", out), out
+    data = json.loads(path.read_text())
+    assert data["columns"] == KEYS and data["size"] == "quick"
+    pstudio, every = data["rows"]
+    assert (pstudio["source"], every["source"]) == ("pstudio", "all")
+    for key in ("ms_per_frame", "peak_rss_gib", "cpu_hours", "floor_ratio", "cpu_per_wall", "unit_s"):
+        assert pstudio[key] > 0, (key, pstudio[key])
+    assert pstudio["unit_cpu_s"] > 0 and pstudio["floor_s"] > 0 and pstudio["floor_cpu_s"] > 0
+    assert pstudio["speedup"] is None and pstudio["speedup_cpu"] is None  # one worker: no speed-up
+    assert pstudio["ms_per_frame_pass"] is None and pstudio["ms_per_frame_target"] == 100  # quick: not judged
+    assert pstudio["tracks_written"] > 0
+    assert every["cpu_hours"] == pytest.approx(pstudio["cpu_hours"])
+    assert every["cpu_hours_pass"] is None  # one source of three
+    summary = out[out.index("=== summary") :].splitlines()
+    assert summary[1].split()[:2] == ["source", "ms/frame"]
+    assert summary[2].startswith("pstudio") and summary[3].startswith("all")
+    assert f"table written to {path}" in out

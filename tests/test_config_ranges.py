@@ -81,7 +81,7 @@ ALLOWED = [
     "flicker.max_fraction=1",
     "drivetrack.mask_min_agreement=0",
     "pstudio.mask_min_agreement=1",
-    "pstudio.min_alpha=0",
+    "pstudio.mask_min_agreement=0",
     "drivetrack.occlusion_margin=0",
     "drivetrack.mask_closing_px=0",
     "drivetrack.cameras=1,2,3,4,5",
@@ -136,7 +136,7 @@ def test_a_config_rebuilt_from_a_run_record_is_checked_too():
     record = RunConfig().to_dict()
     record["seed"] = True
     record["adt"]["image_size"] = 512.0
-    record["pstudio"]["min_alpha"] = float("nan")
+    record["pstudio"]["mask_min_agreement"] = float("nan")
     record["drivetrack"]["cameras"] = [1, 6]
     with pytest.raises(ValueError) as error:
         check_ranges(config_from_dict(RunConfig, record))
@@ -144,7 +144,7 @@ def test_a_config_rebuilt_from_a_run_record_is_checked_too():
         "seed=True: must be an integer in [0, 4294967295]; "
         "adt.image_size=512.0: must be an integer in [2, 8192] and even; "
         "drivetrack.cameras=1,6: must be one or more distinct integers in [1, 5]; "
-        "pstudio.min_alpha=nan: must be a number in [0, 1]"
+        "pstudio.mask_min_agreement=nan: must be a number in [0, 1]"
     )
     check_ranges(config_from_dict(RunConfig, RunConfig().to_dict()))
 

@@ -22,8 +22,10 @@ def unproject(uv, z, fx_fy_cx_cy):
 def test_pstudio_dense_depth_matches_ray_cast_truth(pstudio_sample, tmp_path):
     root, studio = pstudio_sample
     out = tmp_path / "out"
-    assert run_main(["--source", "pstudio", "--input", root, "--output", str(out), "--export-depth"]) == 0
     camera = studio.cameras[0]
+    only = f"pstudio.cameras={camera.camera_id}"  # the camera read below: one unit's dense depth
+    command = ["--source", "pstudio", "--input", root, "--output", str(out), "--export-depth", "--set", only]
+    assert run_main(command) == 0
     with np.load(out / "depth" / "pstudio" / f"dome_{camera.camera_id}.npz", allow_pickle=False) as depth:
         assert str(depth["kind"]) == "dense" and depth["depth_mm"].dtype == np.uint16
         depth_mm = depth["depth_mm"]
@@ -31,7 +33,7 @@ def test_pstudio_dense_depth_matches_ray_cast_truth(pstudio_sample, tmp_path):
     errors = []
     for t in (0, 20, 39):
         cast = studio.cast_image(camera, t)
-        v, u = np.mgrid[0 : depth_mm.shape[1], 0 : depth_mm.shape[2]]
+        v, u = np.mgrid[0 : depth_mm.shape[1], 0 : depth_mm.shape[2]] + 0.5  # pixel centres
         fx, fy, cx, cy = camera.fx_fy_cx_cy
         ray_length = np.sqrt(((u - cx) / fx) ** 2 + ((v - cy) / fy) ** 2 + 1)
         true_z = cast["t_hit"] / ray_length
@@ -45,7 +47,9 @@ def test_drivetrack_sparse_depth_lies_on_visible_surfaces(sample_split, world, t
     out = tmp_path / "out"
     assert (
         run_main(
+            # camera 1, whose clip is read below
             ["--source", "drivetrack", "--input", sample_split[0], "--output", str(out), "--export-depth"]
+            + ["--set", "drivetrack.cameras=1"]
         )
         == 0
     )

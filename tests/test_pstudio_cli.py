@@ -1,5 +1,5 @@
-"""``python -m pipeline.run --source pstudio`` end to end: valid clips, determinism
-(bad input: tests/test_bad_input_pstudio.py)."""
+"""``python -m pipeline.run --source pstudio`` end to end: valid clips (determinism across worker
+processes: tests/test_dask_runner.py; bad input: tests/test_bad_input_pstudio.py)."""
 
 from __future__ import annotations
 
@@ -10,11 +10,6 @@ import numpy as np
 import pytest
 
 from pipeline.validate import main as validate_main
-from tests.cli import run_pipeline
-
-
-def run_cli(*args):
-    return run_pipeline("pstudio", *args)
 
 
 def clip_files(out):
@@ -23,11 +18,9 @@ def clip_files(out):
 
 
 @pytest.fixture(scope="module")
-def direct_run(pstudio_sample, tmp_path_factory):
-    out = str(tmp_path_factory.mktemp("pstudio_direct"))
-    result = run_cli("--input", pstudio_sample[0], "--output", out)
-    assert result.returncode == 0, result.stderr[-3000:]
-    return out, result
+def direct_run(reference_run):
+    """(output folder, completed process) of the session's end-to-end DirectRunner run."""
+    return reference_run("pstudio"), reference_run.result("pstudio")
 
 
 def test_run_writes_valid_clips(direct_run):
@@ -41,23 +34,3 @@ def test_run_writes_valid_clips(direct_run):
         assert "extrinsics_w2c" not in clip.files
         assert clip["tracks_XYZ"].shape == (40, 50, 3)
     assert "pstudio: 4 unit(s), 0 finished earlier, 0 failed" in result.stdout
-
-
-def test_multiprocessing_runner_writes_identical_bytes(direct_run, pstudio_sample, tmp_path):
-    out, _ = direct_run
-    other = str(tmp_path / "mp")
-    result = run_cli(
-        "--input",
-        pstudio_sample[0],
-        "--output",
-        other,
-        "--direct_running_mode=multi_processing",
-        "--direct_num_workers=2",
-    )
-    assert result.returncode == 0, result.stderr[-3000:]
-    for name in clip_files(out):
-        with (
-            open(os.path.join(out, "pstudio", name), "rb") as a,
-            open(os.path.join(other, "pstudio", name), "rb") as b,
-        ):
-            assert a.read() == b.read(), name

@@ -10,8 +10,14 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from pipeline.pstudio.render import render_depth_at, render_depth_image
-from pipeline.pstudio.splats import Splats2D, project_splats
+from pipeline.pstudio.splats import Splats2D, gaussian_constants, project_splats
 from pipeline.samples.studio_world import HEIGHT, WIDTH
+
+
+def project(means, quaternions, scales, opacities, w2c, fx_fy_cx_cy, width, height, points_uv=None):
+    """``project_splats`` of Gaussians given by scales and opacities."""
+    constants = gaussian_constants(scales, opacities)
+    return project_splats(means, quaternions, constants, w2c, fx_fy_cx_cy, width, height, points_uv)
 
 
 def reference_splats(means, quaternions, scales, opacities, w2c, fx_fy_cx_cy):
@@ -36,23 +42,24 @@ def reference_splats(means, quaternions, scales, opacities, w2c, fx_fy_cx_cy):
     return centre[order], cov[order], z[order], opacities[order]
 
 
-def reference_depth(splats, pixel, min_alpha=0.5):
-    """Brute-force compositing at one pixel over every Gaussian: (depth or NaN, accumulated alpha)."""
+def reference_depth(splats, pixel):
+    """Brute-force median depth at one point over every Gaussian, written from the rasterizer's
+    loop (alpha capped at 0.99, 1/255 skip, stop under T = 1e-4, depth where T first drops
+    below 0.5, else 15 m): (depth, surface)."""
     centre, cov, z, opacity = splats
     offset = centre - pixel
     mahalanobis = np.einsum("ni,ni->n", offset, np.linalg.solve(cov, offset[:, :, None])[:, :, 0])
-    transmittance, weighted, accumulated = 1.0, 0.0, 0.0
+    transmittance, depth, surface = 1.0, 15.0, False
     for i in range(len(z)):
         alpha = min(0.99, opacity[i] * math.exp(-0.5 * mahalanobis[i]))
         if alpha < 1 / 255:
             continue
         if transmittance * (1 - alpha) < 1e-4:
             break
-        weighted += alpha * transmittance * z[i]
-        accumulated += alpha * transmittance
+        if transmittance > 0.5 and transmittance * (1 - alpha) < 0.5:
+            depth, surface = z[i], True
         transmittance *= 1 - alpha
-    depth = weighted / accumulated if accumulated >= min_alpha else math.nan
-    return depth, accumulated
+    return depth, surface
 
 
 @pytest.fixture(scope="module")
@@ -74,50 +81,46 @@ def frame(pstudio_sample):
 
 
 def test_depth_matches_brute_force_reference(frame):
-    splats = project_splats(**frame, width=WIDTH, height=HEIGHT)
-    full_depth, full_alpha = render_depth_image(splats, 0.5)
+    splats = project(**frame, width=WIDTH, height=HEIGHT)
+    full_depth, full_surface = render_depth_image(splats)
     rng = np.random.default_rng(1)
-    # Random pixels, plus pixels where alpha is between 0.2 and 0.8 (silhouettes, blends).
-    edges = np.argwhere((full_alpha > 0.2) & (full_alpha < 0.8))
+    # Random points, plus points in pixels beside a silhouette or a depth step of over 5 cm.
+    step = np.zeros_like(full_surface)
+    step[:, 1:] = (full_surface[:, 1:] != full_surface[:, :-1]) | (np.abs(np.diff(full_depth, axis=1)) > 0.05)
+    edges = np.argwhere(step)
     pixels = np.concatenate(
         [
             rng.uniform([0, 0], [WIDTH, HEIGHT], size=(60, 2)),
-            edges[rng.choice(len(edges), 40, replace=False)][:, ::-1] + rng.uniform(-0.5, 0.5, (40, 2)),
+            edges[rng.choice(len(edges), 60, replace=False)][:, ::-1] + rng.uniform(0, 1, (60, 2)),
         ]
     )
-    depth, alpha = render_depth_at(splats, pixels, 0.5)
+    depth, surface = render_depth_at(splats, pixels)
     reference = reference_splats(**frame)
-    surfaces = 0
-    for pixel, ours, ours_alpha in zip(pixels, depth, alpha, strict=True):
-        expected, expected_alpha = reference_depth(reference, pixel)
-        assert ours_alpha == pytest.approx(expected_alpha, abs=1e-9)
-        if math.isnan(expected):
-            assert math.isnan(ours)
-        else:
-            surfaces += 1
-            assert abs(ours - expected) < 1e-3, (pixel, ours, expected)
-    assert surfaces >= 50
+    expected = [reference_depth(reference, pixel) for pixel in pixels]
+    np.testing.assert_array_equal(surface, [hit for _, hit in expected])
+    np.testing.assert_allclose(depth, [z for z, _ in expected], rtol=0, atol=1e-9)
+    assert surface.sum() >= 60 and (~surface).sum() >= 20
 
 
 def test_selected_pixels_equal_the_full_frame(frame):
-    """The pipeline's path (only the splats that reach the selected pixels' tiles) against a
-    full-frame render: bit-identical at those pixels."""
-    full_depth, full_alpha = render_depth_image(project_splats(**frame, width=WIDTH, height=HEIGHT), 0.5)
+    """The pipeline's path (only the splats that reach the selected points' tiles) against a
+    full-frame render: bit-identical at those pixels' centres."""
+    full_depth, full_surface = render_depth_image(project(**frame, width=WIDTH, height=HEIGHT))
     rng = np.random.default_rng(2)
     cols, rows = rng.integers(0, WIDTH, 300), rng.integers(0, HEIGHT, 300)
-    pixels = np.stack([cols, rows], 1).astype(float)
-    selected = project_splats(**frame, width=WIDTH, height=HEIGHT, points_uv=pixels)
-    depth, alpha = render_depth_at(selected, pixels, 0.5)
-    np.testing.assert_array_equal(alpha, full_alpha[rows, cols])
+    pixels = np.stack([cols, rows], 1) + 0.5
+    selected = project(**frame, width=WIDTH, height=HEIGHT, points_uv=pixels)
+    depth, surface = render_depth_at(selected, pixels)
     np.testing.assert_array_equal(depth, full_depth[rows, cols])
-    assert np.isfinite(depth).sum() > 50
+    np.testing.assert_array_equal(surface, full_surface[rows, cols])
+    assert surface.sum() > 50
     few = pixels[:5]
-    assert len(project_splats(**frame, width=WIDTH, height=HEIGHT, points_uv=few)) < len(selected)
+    assert len(project(**frame, width=WIDTH, height=HEIGHT, points_uv=few)) < len(selected)
 
 
 def test_isotropic_gaussian_projects_to_scaled_disc():
     """A sphere of sigma 0.01 m at z = 2 on the axis: 2D variance (f sigma / z)^2 + 0.3 px^2."""
-    splats = project_splats(
+    splats = project(
         np.array([[0.0, 0.0, 2.0]]),
         np.array([[2.0, 0.0, 0.0, 0.0]]),
         np.array([[0.01, 0.01, 0.01]]),
@@ -152,26 +155,63 @@ def splats_2d(depths, opacities, offsets=None) -> Splats2D:
     )
 
 
-def test_compositing_hand_worked():
-    # Four splats of opacity 0.95 at the pixel: weights 0.95, 0.0475, 0.002375 leave T = 1.25e-4;
-    # the fourth would take T to 6.25e-6 < 1e-4, so compositing stops before it.
-    depth, alpha = render_depth_at(splats_2d([1.0, 2.0, 3.0, 4.0], [0.95] * 4), np.array([[8.0, 8.0]]), 0.5)
-    assert alpha[0] == pytest.approx(1 - 1.25e-4)
-    assert depth[0] == pytest.approx((0.95 * 1 + 0.0475 * 2 + 0.002375 * 3) / (1 - 1.25e-4))
-    # Alpha is capped at 0.99: an opaque splat leaves 1% to the next (opacity 0.5: weight 0.005).
-    depth, alpha = render_depth_at(splats_2d([1.0, 5.0], [1.0, 0.5]), np.array([[8.0, 8.0]]), 0.5)
-    assert alpha[0] == pytest.approx(0.995)
-    assert depth[0] == pytest.approx((0.99 * 1 + 0.005 * 5) / 0.995)
-    # 3 px off a splat of variance 4: alpha = 0.5 exp(-9/8) = 0.162; below 0.5 alpha: no surface.
-    depth, alpha = render_depth_at(splats_2d([2.0], [0.5]), np.array([[11.0, 8.0]]), 0.5)
-    assert alpha[0] == pytest.approx(0.5 * math.exp(-9 / 8))
-    assert math.isnan(depth[0])
-    # A contribution below 1/255 is skipped: 8 px off, alpha = 0.9 exp(-8) = 3.0e-4.
-    depth, alpha = render_depth_at(
-        splats_2d([2.0, 3.0], [0.9, 0.9], [[8.0, 0.0], [0.0, 0.0]]), np.array([[8.0, 8.0]]), 0.5
+def median_at_centre(depths, opacities, offsets=None):
+    """(depth, surface) at (8, 8) of ``splats_2d``."""
+    depth, surface = render_depth_at(splats_2d(depths, opacities, offsets), np.array([[8.0, 8.0]]))
+    return depth[0], bool(surface[0])
+
+
+def test_median_depth_is_where_transmittance_crosses_one_half():
+    # 0.4 in front of 0.9: T = 0.6, then 0.06; the second splat crosses 0.5. The alpha-weighted
+    # mean would be (0.4 x 1 + 0.54 x 3) / 0.94 = 2.15 m.
+    assert median_at_centre([1.0, 3.0], [0.4, 0.9]) == (3.0, True)
+    # 0.6 in front: T = 0.4 after the first splat, which holds the median whatever lies behind.
+    assert median_at_centre([1.0, 3.0], [0.6, 0.9]) == (1.0, True)
+    # Three of 0.25: T = 0.75, 0.5625, 0.421875: the third.
+    assert median_at_centre([1.0, 2.0, 3.0], [0.25, 0.25, 0.25]) == (3.0, True)
+    # 3 px off a splat of variance 4, alpha = 0.9 exp(-9/8) = 0.29: T = 0.71 never below 0.5.
+    depth, surface = render_depth_at(splats_2d([2.0], [0.9]), np.array([[11.0, 8.0]]))
+    assert (depth[0], surface[0]) == (15.0, False)
+
+
+def test_transmittance_never_below_one_half_gives_the_15_m_background():
+    # T = 0.8, then 0.56.
+    assert median_at_centre([1.0, 2.0], [0.2, 0.3]) == (15.0, False)
+    # T = 0.5 exactly after the first splat: not below 0.5 there, and not above it before the
+    # second (the rasterizer's strict T > 0.5 and T (1 - alpha) < 0.5): no median, though T ends
+    # at 0.05.
+    assert median_at_centre([1.0, 2.0], [0.5, 0.9]) == (15.0, False)
+
+
+def test_contributions_below_1_over_255_are_skipped():
+    # T = 0.501 after the first splat; the second, 6.75 px off (alpha = 0.9 exp(-6.75^2 / 8)
+    # = 0.0030 < 1/255), would take T to 0.4995 but is skipped; the third crosses.
+    assert median_at_centre([1.0, 2.0, 3.0], [0.499, 0.9, 0.9], [[0, 0], [6.75, 0], [0, 0]]) == (3.0, True)
+    # 6 px off: alpha = 0.9 exp(-4.5) = 0.0100 counts, T = 0.496: the second splat crosses.
+    assert median_at_centre([1.0, 2.0, 3.0], [0.499, 0.9, 0.9], [[0, 0], [6.0, 0], [0, 0]]) == (2.0, True)
+
+
+def test_pixel_i_j_is_rendered_at_its_centre():
+    """A tiny Gaussian on the axis, with the principal point at (100.5, 50.5): its splat (2D
+    variance 0.3 px^2, the low-pass) gives alpha 0.9 at pixel (100, 50)'s centre, 0.9 exp(-1/0.6)
+    = 0.17 one pixel away, and 0.9 exp(-0.5/0.6) = 0.39 at the pixel's corner (100, 50)."""
+    splats = project(
+        np.array([[0.0, 0.0, 2.0]]),
+        np.array([[1.0, 0.0, 0.0, 0.0]]),
+        np.full((1, 3), 1e-6),
+        np.array([0.9]),
+        np.eye(4),
+        np.array([500.0, 500.0, 100.5, 50.5]),
+        WIDTH,
+        HEIGHT,
     )
-    assert depth[0] == pytest.approx(3.0)
-    assert alpha[0] == pytest.approx(0.9)
-    # Outside the image: no depth.
-    depth, alpha = render_depth_at(splats_2d([2.0], [0.9]), np.array([[-1.0, 8.0], [8.0, 32.0]]), 0.5)
-    assert np.isnan(depth).all() and (alpha == 0).all()
+    depth, surface = render_depth_image(splats)
+    np.testing.assert_array_equal(np.argwhere(surface), [[50, 100]])
+    assert depth[50, 100] == 2.0 and (depth[~surface] == 15.0).all()
+    _, hit = render_depth_at(splats, np.array([[100.0, 50.0], [100.5, 50.5]]))
+    np.testing.assert_array_equal(hit, [False, True])
+
+
+def test_points_outside_the_image_have_no_depth():
+    depth, surface = render_depth_at(splats_2d([2.0], [0.9]), np.array([[-0.5, 8.0], [8.0, 32.0]]))
+    assert np.isnan(depth).all() and not surface.any()

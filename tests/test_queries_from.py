@@ -19,10 +19,9 @@ def same_bytes(first: pathlib.Path, second: pathlib.Path, source: str) -> list[s
     return [n for n in names if (first / source / n).read_bytes() != (second / source / n).read_bytes()]
 
 
-def test_pstudio_rerun_reproduces_and_filters_drop_nothing(pstudio_sample, tmp_path):
+def test_pstudio_rerun_reproduces_and_filters_drop_nothing(pstudio_sample, reference_run, tmp_path):
     root = pstudio_sample[0]
-    first, second, third = tmp_path / "first", tmp_path / "second", tmp_path / "third"
-    assert run_main(["--source", "pstudio", "--input", root, "--output", str(first)]) == 0
+    first, second, third = pathlib.Path(reference_run("pstudio")), tmp_path / "second", tmp_path / "third"
     assert (
         run_main(
             ["--source", "pstudio", "--input", root, "--output", str(second), "--queries-from", str(first)]
@@ -68,9 +67,8 @@ def test_pstudio_rerun_reproduces_and_filters_drop_nothing(pstudio_sample, tmp_p
     assert failing > 0
 
 
-def test_drivetrack_rerun_reproduces(sample_split, tmp_path):
-    first, second = tmp_path / "first", tmp_path / "second"
-    assert run_main(["--source", "drivetrack", "--input", sample_split[0], "--output", str(first)]) == 0
+def test_drivetrack_rerun_reproduces(sample_split, reference_run, tmp_path):
+    first, second = pathlib.Path(reference_run("drivetrack")), tmp_path / "second"
     command = ["--source", "drivetrack", "--input", sample_split[0], "--output", str(second)]
     assert run_main(command + ["--queries-from", str(first)]) == 0
     assert same_bytes(first, second, "drivetrack") == []

@@ -7,8 +7,12 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
+from pipeline.core.config import RunConfig
 from pipeline.core.errors import InputError
+from pipeline.drivetrack import columns as C
+from pipeline.drivetrack.annotate import unit_camera
 from pipeline.drivetrack.reader import SegmentReader, list_segments, transforms_from_column
+from pipeline.drivetrack.source import load_unit
 from pipeline.samples.waymo_world import SEGMENT, camera_to_vehicle
 
 
@@ -66,3 +70,47 @@ def test_empty_split_folder_is_explained(tmp_path):
     (tmp_path / "camera_image").mkdir()
     with pytest.raises(InputError, match="no segments"):
         list_segments(str(tmp_path))
+
+
+def test_rolling_shutter_columns_are_read_where_present(split_copy):
+    path = os.path.join(split_copy, C.CAMERA_IMAGE, f"{SEGMENT}.parquet")
+    table = pq.read_table(path)
+    reader = SegmentReader(split_copy, SEGMENT)
+    assert reader.camera_calibration(2).rolling_shutter_direction == 2
+    motion = reader.camera_frames(2).motion
+    readout = motion.readout_done - motion.trigger - motion.shutter
+    np.testing.assert_allclose(readout, 0.030, atol=1e-6)
+    assert motion.linear_velocity.shape == (40, 3) and (motion.angular_velocity[:, 2] > 0).all()
+    # A null cell: that frame has no record (global shutter there); the others keep theirs.
+    trigger = C.IMAGE_SHUTTER[1]
+    values = table.column(trigger).to_pylist()
+    values[0] = None
+    index = table.schema.get_field_index(trigger)
+    pq.write_table(table.set_column(index, trigger, pa.array(values, pa.float64())), path)
+    frames = SegmentReader(split_copy, SEGMENT).camera_frames(table.column(C.CAMERA_NAME)[0].as_py())
+    assert np.isnan(frames.motion.trigger[0]) and np.isfinite(frames.motion.trigger[1:]).all()
+    # A column missing: no rolling shutter at all.
+    pq.write_table(table.drop_columns([trigger]), path)
+    assert SegmentReader(split_copy, SEGMENT).camera_frames(2).motion is None
+
+
+def test_bad_rolling_shutter_values_are_named(split_copy):
+    path = os.path.join(split_copy, C.CAMERA_IMAGE, f"{SEGMENT}.parquet")
+    table = pq.read_table(path)
+    done = C.IMAGE_SHUTTER[2]
+    index = table.schema.get_field_index(done)
+    early = np.asarray(table.column(done)) - 1.0  # readout done before the trigger
+    pq.write_table(table.set_column(index, done, pa.array(early)), path)
+    stamp = int(np.asarray(table.column(C.TIMESTAMP))[0])
+    camera = table.column(C.CAMERA_NAME)[0].as_py()
+    with pytest.raises(
+        InputError, match=rf"camera_image/{SEGMENT} camera {camera} frame {stamp}: rolling shutter"
+    ):
+        unit_camera(load_unit(split_copy, SEGMENT, camera), RunConfig())
+    nan = np.asarray(table.column(done)).copy()
+    nan[3] = np.nan
+    pq.write_table(table.set_column(index, done, pa.array(nan)), path)
+    with pytest.raises(
+        InputError, match=rf"camera_image/{SEGMENT} camera \d: column .*readout_done_time holds NaN"
+    ):
+        SegmentReader(split_copy, SEGMENT).camera_frames(int(table.column(C.CAMERA_NAME)[3].as_py()))

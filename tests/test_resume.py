@@ -58,17 +58,19 @@ def test_rerun_skips_finished_units_and_redoes_a_damaged_clip(finished_copy, ref
 def test_changed_settings_or_overwrite_redo_every_unit(finished_copy):
     source_input, out = finished_copy
     before = clip_bytes(out, "pstudio")
-    changed = run_in_process("pstudio", "--input", source_input, "--output", out, "--set", "seed=7")
+    # Two of the four cameras: their units are redone, the other two clips are left as they were.
+    settings = ("--set", "seed=7", "--set", "pstudio.cameras=3,8")
+    redone = {"dome_3.npz", "dome_8.npz"}
+    changed = run_in_process("pstudio", "--input", source_input, "--output", out, *settings)
     assert changed.returncode == 0, changed.stderr[-3000:]
     assert skipped_units(changed.stderr) == 0
     after = clip_bytes(out, "pstudio")
-    assert set(after) == set(before) and all(after[name] != before[name] for name in before)
+    assert set(after) == set(before) and redone < set(before)
+    assert all((after[name] != before[name]) == (name in redone) for name in before)
 
-    again = run_in_process("pstudio", "--input", source_input, "--output", out, "--set", "seed=7")
-    assert skipped_units(again.stderr) == 4
-    forced = run_in_process(
-        "pstudio", "--input", source_input, "--output", out, "--set", "seed=7", "--overwrite"
-    )
+    again = run_in_process("pstudio", "--input", source_input, "--output", out, *settings)
+    assert skipped_units(again.stderr) == 2
+    forced = run_in_process("pstudio", "--input", source_input, "--output", out, *settings, "--overwrite")
     assert forced.returncode == 0 and skipped_units(forced.stderr) == 0
     assert clip_bytes(out, "pstudio") == after
 
@@ -105,9 +107,7 @@ def test_sigkill_mid_run_then_rerun_completes_with_identical_bytes(reference_run
     # Killed part-way: some clips, not all; every visible file is whole.
     written = clip_bytes(out, "pstudio")
     assert 1 <= len(written) < len(expected)
-    assert all(
-        not check_clip_bytes(data) and data == expected[name] for name, data in written.items()
-    )
+    assert all(not check_clip_bytes(data) and data == expected[name] for name, data in written.items())
     assert not os.path.exists(os.path.join(out, "run_pstudio.json"))
     # A hidden temporary of an interrupted write, as a kill during a write leaves one.
     # Its name carries the writer's host and pid: the killed process, gone now.

@@ -20,11 +20,9 @@ def npz_files(folder):
 
 
 @pytest.fixture(scope="module")
-def direct_run(sample_split, tmp_path_factory):
-    out = str(tmp_path_factory.mktemp("direct"))
-    result = run_cli("--input", sample_split[0], "--output", out, "--runner", "DirectRunner")
-    assert result.returncode == 0, result.stderr[-3000:]
-    return out, result
+def direct_run(reference_run):
+    """(output folder, completed process) of the session's end-to-end DirectRunner run."""
+    return reference_run("drivetrack"), reference_run.result("drivetrack")
 
 
 def test_run_writes_valid_clips_manifests_and_provenance(direct_run):

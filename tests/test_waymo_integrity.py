@@ -42,9 +42,13 @@ def test_exact_copies_give_the_clean_clips_byte_for_byte(split_copy, reference_r
     for component, keys in copies.items():
         change(split_copy, component, repeat_row(**keys))
     out = str(tmp_path / "out")
-    result = run_in_process("drivetrack", "--input", split_copy, "--output", out)
+    # Camera 1 reads every component (camera 2 has no vehicle, so it never reads the lidar).
+    only_camera_1 = ("--set", "drivetrack.cameras=1")
+    result = run_in_process("drivetrack", "--input", split_copy, "--output", out, *only_camera_1)
     assert result.returncode == 0, result.stderr[-3000:]
-    clean = clip_bytes(reference_run("drivetrack"), "drivetrack")
+    camera_1 = f"tapvid3d_{SEGMENT}_1_"
+    reference = clip_bytes(reference_run("drivetrack"), "drivetrack")
+    clean = {name: data for name, data in reference.items() if name.startswith(camera_1)}
     assert clean and clip_bytes(out, "drivetrack") == clean
 
 

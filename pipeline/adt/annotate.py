@@ -1,16 +1,19 @@
 """Annotate one ADT chunk: queries on object pixels, rigid attachment, depth-test visibility.
 
 Pure NumPy on frames already re-rendered to the stored camera (``rectify.py``): no
-projectaria-tools here. All geometry is in the stored (upright pinhole) camera with the
-intrinsics ``fx_fy_cx_cy`` and pixel centres at +0.5 (pixel [r, c] covers [c, c+1) x [r, r+1)).
+projectaria-tools here. All geometry is in the stored (upright pinhole) camera with its true
+intrinsics (``stored_intrinsics``: (280, 280, 255.5, 256.5) for the release's camera, which is
+what the clip's ``fx_fy_cx_cy`` holds) and pixel centres at +0.5 (pixel [r, c] covers
+[c, c+1) x [r, r+1)).
 
 Paper (docs/formats.md, section 2): Q_cam = K^-1 (x, y, 1) D(x, y); Q_obj = P_obj<-world(t_q)
 P_world<-cam(t_q) Q_cam; Q_cam(t) = P_cam<-world(t) P_world<-obj(t) Q_obj; visible when in front,
 in the image, |z - D_t(u, v)| < delta and not on the wearer's (human) pixels.
 
-The chunk is read twice, one frame at a time: pass 1 encodes the frames and draws the queries;
-pass 2 carries every track through every frame. Only [T, N] / [T, N, 3] track arrays and the
-JPEG bytes are kept, never a [T, S, S] stack.
+Each frame is read once: pass 1 encodes it, draws its queries and keeps its depth (float32
+millimetres, 1 MiB at 512x512) and ids (``IdRuns``, about 0.1 MiB); pass 2 carries every track
+through every kept frame. A 300-frame chunk keeps about 0.35 GiB of frames besides its JPEG bytes
+and [T, N] / [T, N, 3] track arrays.
 """
 
 from __future__ import annotations
@@ -19,8 +22,8 @@ import dataclasses
 from collections.abc import Callable
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
 
+from pipeline.adt.rectify import stored_intrinsics
 from pipeline.core.clip import ClipRecord
 from pipeline.core.config import AdtConfig, RunConfig
 from pipeline.core.errors import InputError
@@ -34,18 +37,56 @@ from pipeline.export.given_queries import given_queries, given_query_frames
 class Frame:
     """One stored frame's geometry (S = image size).
 
-    depth: [S, S] float32 z-depth in metres (0 = no surface).
-    ids: [S, S] uint64 instance ids (0 = none).
+    depth_mm: [S, S] float32 z-depth in millimetres (0 = no surface), as re-rendered.
+    ids: [S, S] uint64 instance ids (0 = none); ``IdRuns`` in the frames pass 2 keeps.
     cam_from_world: [4, 4] world-to-stored-camera.
     world_from_object: object id -> [4, 4] pose (``transform_scene_object``).
     timestamp: the frame's RGB timestamp (ns), for messages.
     """
 
-    depth: np.ndarray
-    ids: np.ndarray
+    depth_mm: np.ndarray
+    ids: np.ndarray | IdRuns
     cam_from_world: np.ndarray
     world_from_object: dict[int, np.ndarray]
     timestamp: int
+
+    def depth_m(self) -> np.ndarray:
+        """[S, S] float64 z-depth in metres (0 = no surface)."""
+        return self.depth_mm.astype(np.float64) / 1000.0
+
+
+@dataclasses.dataclass(frozen=True)
+class IdRuns:
+    """An id image [S, S] as runs of one id along its rows, row-major (a few thousand runs on
+    ADT's segmentation). ``runs[rows, cols]`` reads ids [N] like the image.
+
+    starts: [R] int64 flat index of each run's first pixel (starts[0] = 0); values: [R] its id;
+    shape: the image's (S, S).
+    """
+
+    starts: np.ndarray
+    values: np.ndarray
+    shape: tuple[int, int]
+
+    @classmethod
+    def of(cls, ids: np.ndarray) -> IdRuns:
+        flat = ids.reshape(-1)
+        starts = np.concatenate([[0], np.flatnonzero(flat[1:] != flat[:-1]) + 1])
+        return cls(starts, flat[starts], ids.shape)
+
+    def unique(self) -> np.ndarray:
+        """The sorted distinct ids [K] (``np.unique`` of the image)."""
+        return np.unique(self.values)
+
+    def isin(self, chosen) -> np.ndarray:
+        """[S, S] bool: pixels whose id is one of ``chosen`` (``np.isin`` of the image)."""
+        lengths = np.diff(np.append(self.starts, self.shape[0] * self.shape[1]))
+        return np.repeat(np.isin(self.values, list(chosen)), lengths).reshape(self.shape)
+
+    def __getitem__(self, index: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        rows, cols = index
+        flat = np.asarray(rows, np.int64) * self.shape[1] + np.asarray(cols, np.int64)
+        return self.values[np.searchsorted(self.starts, flat, side="right") - 1]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -96,26 +137,36 @@ def sample_depth(depth: np.ndarray, xy: np.ndarray, max_spread: float = np.inf) 
 
 
 def interior(ids: np.ndarray) -> np.ndarray:
-    """[S, S] bool: pixels whose 3x3 neighbourhood holds one id (their depth is not a blend of
-    two surfaces: the re-rendering interpolates depth bilinearly across edges)."""
-    windows = sliding_window_view(np.pad(ids, 1, mode="edge"), (3, 3))
-    return (windows == ids[..., None, None]).all(axis=(-1, -2))
+    """[S, S] bool: pixels whose 3x3 neighbourhood (inside the image) holds one id (their depth
+    is not a blend of two surfaces: the re-rendering interpolates depth bilinearly across edges).
+
+    Each of the 4 neighbour directions is compared once; both pixels of an unequal pair fail.
+    """
+    height, width = ids.shape
+    same = np.ones(ids.shape, bool)
+    for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
+        here = (slice(0, height - dr), slice(max(0, -dc), width - max(0, dc)))
+        there = (slice(dr, height), slice(max(0, dc), width + min(0, dc)))
+        equal = ids[here] == ids[there]
+        same[here] &= equal
+        same[there] &= equal
+    return same
 
 
 # ------------------------------------------------------------------------------------ queries
 
 
-def query_pixel_pools(frame: Frame, instances: Instances) -> tuple[np.ndarray, np.ndarray]:
+def query_pixel_pools(frame: Frame, runs: IdRuns, instances: Instances) -> tuple[np.ndarray, np.ndarray]:
     """Flat pixel indices that may hold a query: (on dynamic objects, on static objects).
 
     A query pixel has a surface (depth > 0), an object id (not 0, not the human) and lies
-    inside its object's region (``interior``).
+    inside its object's region (``interior``). ``runs``: the frame's ids as ``IdRuns``.
     """
     ids = frame.ids
-    ok = (frame.depth > 0) & (ids != 0) & interior(ids)
+    ok = (frame.depth_mm > 0) & (ids != 0) & interior(ids)
     if instances.human:
-        ok &= ~np.isin(ids, list(instances.human))
-    dynamic = ok & np.isin(ids, list(instances.dynamic)) if instances.dynamic else np.zeros_like(ok)
+        ok &= ~runs.isin(instances.human)
+    dynamic = ok & runs.isin(instances.dynamic) if instances.dynamic else np.zeros_like(ok)
     return np.flatnonzero(dynamic), np.flatnonzero(ok & ~dynamic)
 
 
@@ -166,7 +217,7 @@ def frame_visibility(
     points_cam: np.ndarray,
     object_ids: np.ndarray,
     depth: np.ndarray,
-    ids: np.ndarray,
+    ids: np.ndarray | IdRuns,
     human_ids: frozenset[int],
     fx_fy_cx_cy: np.ndarray,
     delta: float,
@@ -175,7 +226,8 @@ def frame_visibility(
 
     Args:
       points_cam: [N, 3] stored-camera points; object_ids: [N] each point's object.
-      depth: [S, S] metres; ids: [S, S] instance ids; human_ids: the wearer's ids (the hand term).
+      depth: [S, S] metres; ids: [S, S] instance ids (an array or ``IdRuns``); human_ids: the
+        wearer's ids (the hand term).
     Returns:
       visible: [N] bool, in front, inside the image, |z - D(u, v)| < delta, not on a human pixel.
         D is bilinear where the four pixels around (u, v) agree within delta, else the
@@ -201,9 +253,9 @@ def frame_visibility(
     return visible, on_own
 
 
-def check_object_poses(frame: Frame, instances: Instances, where: str) -> None:
-    """Every object id in the frame's segmentation must have a pose."""
-    for object_id in np.unique(frame.ids).tolist():
+def check_object_poses(frame: Frame, present: np.ndarray, instances: Instances, where: str) -> None:
+    """Every object id in the frame's segmentation (``present`` [K]) must have a pose."""
+    for object_id in present.tolist():
         if object_id and object_id not in instances.human and object_id not in frame.world_from_object:
             raise InputError(f"{where}: object {object_id} has no pose at t={frame.timestamp} ns")
 
@@ -242,13 +294,13 @@ def annotate_chunk(
     """Candidate tracks of one chunk (``oversample`` x ``tracks_per_clip`` before filtering).
 
     Args:
-      read_frame: timestamp -> Frame (re-rendered depth, ids and poses), called twice per frame.
+      read_frame: timestamp -> Frame (re-rendered depth, ids and poses), called once per frame.
       read_jpeg: timestamp -> the stored RGB frame as JPEG bytes, called once per frame.
       instances_of: the ids present in a frame [K] -> which are human / dynamic.
     """
     rules: AdtConfig = config.adt
     size = rules.image_size
-    intrinsics = np.array([rules.focal, rules.focal, size / 2.0, size / 2.0])
+    intrinsics = stored_intrinsics(size, rules.focal)
     num_frames = len(chunk.timestamps)
     given = given_queries(config.queries_from, "adt", chunk.name) if config.queries_from else None
     if given is not None:
@@ -258,30 +310,35 @@ def annotate_chunk(
         query_frames = rng_for(config.seed, f"{chunk.name}/query_frames").integers(0, num_frames, total)
     per_frame = np.bincount(query_frames, minlength=num_frames)
 
-    # Pass 1: frames, queries, attachment.
-    jpegs, extrinsics = [], []
+    # Pass 1: frames, queries, attachment; each frame kept (ids as runs, with its human ids).
+    jpegs, extrinsics, kept, depth_maps = [], [], [], []
     q_xy, q_t, q_obj_points, q_ids, q_index = [], [], [], [], []
     for t, timestamp in enumerate(chunk.timestamps.tolist()):
         jpegs.append(read_jpeg(timestamp))
         frame = read_frame(timestamp)
         extrinsics.append(frame.cam_from_world)
-        instances = instances_of(np.unique(frame.ids))
-        check_object_poses(frame, instances, chunk.unit)
+        runs = IdRuns.of(frame.ids)
+        present = runs.unique()
+        instances = instances_of(present)
+        check_object_poses(frame, present, instances, chunk.unit)
+        kept.append((dataclasses.replace(frame, ids=runs), instances.human))
+        if config.export_depth:
+            depth_maps.append(dense_depth_mm(frame.depth_m()))
         if not per_frame[t]:
             continue
         if given is not None:
             index = np.nonzero(query_frames == t)[0]
             xy = given[index, :2]
             rows, cols = pixel_at(xy, size)
-            depth = sample_depth(frame.depth, xy, max_spread=rules.depth_delta_m)
+            depth = sample_depth(frame.depth_m(), xy, max_spread=rules.depth_delta_m)
             check_given_queries(chunk, index, xy, depth, frame.ids[rows, cols], instances, frame)
         else:
-            dynamic_pool, static_pool = query_pixel_pools(frame, instances)
+            dynamic_pool, static_pool = query_pixel_pools(frame, runs, instances)
             rng = rng_for(config.seed, f"{chunk.name}/query_pixels/{t}")
             flat = draw_query_pixels(dynamic_pool, static_pool, int(per_frame[t]), rules.dynamic_share, rng)
             rows, cols = np.divmod(flat, size)
             xy = pixel_centres(rows, cols)
-            depth = frame.depth[rows, cols].astype(np.float64)
+            depth = frame.depth_mm[rows, cols].astype(np.float64) / 1000.0
             index = np.arange(len(flat))
         ids = frame.ids[rows, cols]
         poses = (
@@ -299,27 +356,22 @@ def annotate_chunk(
     points_object, object_ids = np.concatenate(q_obj_points)[order], np.concatenate(q_ids)[order]
     count = len(xy)
 
-    # Pass 2: every track through every frame.
+    # Pass 2: every track through every kept frame.
     tracks = np.zeros((num_frames, count, 3))
     visibility = np.zeros((num_frames, count), bool)
     agree = np.zeros(count, np.int64)
-    depth_maps = []
     unique_ids, track_object = np.unique(object_ids, return_inverse=True)
-    for t, timestamp in enumerate(chunk.timestamps.tolist()):
-        frame = read_frame(timestamp)
+    for t, (frame, human) in enumerate(kept):
         missing = [i for i in unique_ids.tolist() if i not in frame.world_from_object]
         if missing:
-            raise InputError(f"{chunk.unit}: object {missing[0]} has no pose at t={timestamp} ns")
+            raise InputError(f"{chunk.unit}: object {missing[0]} has no pose at t={frame.timestamp} ns")
         poses = np.stack([frame.world_from_object[i] for i in unique_ids.tolist()])[track_object]
         points = carry(points_object, frame.cam_from_world, poses)
-        human = instances_of(np.unique(frame.ids)).human
         visible, on_own = frame_visibility(
-            points, object_ids, frame.depth, frame.ids, human, intrinsics, rules.depth_delta_m
+            points, object_ids, frame.depth_m(), frame.ids, human, intrinsics, rules.depth_delta_m
         )
         tracks[t], visibility[t] = points, visible
         agree += visible & on_own
-        if config.export_depth:
-            depth_maps.append(dense_depth_mm(frame.depth))
 
     visible_frames = visibility.sum(axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):

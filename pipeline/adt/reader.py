@@ -299,6 +299,8 @@ class SequenceReader:
         if calibration is None:
             raise InputError(f"{self.name}: video.vrs has no {RGB_LABEL} calibration (stream {RGB_STREAM})")
         self.calibration = calibration
+        width, height = (int(n) for n in calibration.get_image_size())
+        self.image_shape = (height, width)
         self.device_from_camera = _se3(self.provider.get_aria_transform_device_camera(self.stream))
         self._instances: dict[int, tuple[str, str]] = {}
 
@@ -328,26 +330,31 @@ class SequenceReader:
                 f"{abs(int(result.dt_ns())) / 1e6:.1f} ms away (limit {self.max_offset_ns / 1e6:.1f} ms)"
             )
 
+    def _image(self, what: str, timestamp: int, result, shape: tuple[int, ...], dtype) -> np.ndarray:
+        """The image of a provider result, which must be the calibration's size and ``dtype``."""
+        self._check_offset(what, timestamp, result)
+        image = result.data().to_numpy_array()
+        if image.shape != shape or image.dtype != dtype:
+            raise InputError(
+                f"{self.name}: the {what} at t={timestamp} ns is {image.shape} {image.dtype}, "
+                f"not {shape} {np.dtype(dtype)} (the {RGB_LABEL} calibration's size)"
+            )
+        return image
+
     def rgb(self, timestamp: int) -> np.ndarray:
         """The fisheye RGB frame [H, W, 3] uint8."""
         result = self.provider.get_aria_image_by_timestamp_ns(int(timestamp), self.stream)
-        self._check_offset("RGB image", timestamp, result)
-        image = result.data().to_numpy_array()
-        if image.ndim != 3 or image.shape[2] != 3:
-            raise InputError(f"{self.name}: RGB frame at t={timestamp} ns has shape {image.shape}")
-        return image
+        return self._image("RGB image", timestamp, result, (*self.image_shape, 3), np.uint8)
 
     def depth_mm(self, timestamp: int) -> np.ndarray:
         """The fisheye depth image [H, W] uint16 millimetres (0 = no surface)."""
         result = self.provider.get_depth_image_by_timestamp_ns(int(timestamp), self.stream)
-        self._check_offset("depth image", timestamp, result)
-        return result.data().to_numpy_array()
+        return self._image("depth image", timestamp, result, self.image_shape, np.uint16)
 
     def ids(self, timestamp: int) -> np.ndarray:
         """The fisheye instance-id image [H, W] uint64 (0 = none)."""
         result = self.provider.get_segmentation_image_by_timestamp_ns(int(timestamp), self.stream)
-        self._check_offset("segmentation image", timestamp, result)
-        return result.data().to_numpy_array()
+        return self._image("segmentation image", timestamp, result, self.image_shape, np.uint64)
 
     # ----------------------------------------------------------------- poses
 

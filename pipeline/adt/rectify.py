@@ -1,20 +1,28 @@
-"""Re-render ADT frames to the release's upright pinhole camera: 512x512, focal 280, then a
-90-degree clockwise rotation (docs/formats.md, section 4).
+"""Re-render ADT frames as the release's generator does (tapnet ``adt_utils.py``; docs/formats.md,
+section 4): projectaria-tools' ``distort_by_calibration`` to a linear camera of 512x512, focal
+280, principal point (W/2, H/2) = (256, 256), then a 90-degree clockwise rotation. The frames are
+pixel for pixel the generator's before JPEG encoding (``tests/test_adt_frames.py``).
 
-Pixel convention of the stored frames: pixel [row r, column c] covers [c, c+1) x [r, r+1), so
-its centre is (c + 0.5, r + 0.5) and the intrinsics (280, 280, 256, 256) put the optical axis at
-the image centre. projectaria-tools samples pixel index i at coordinate i (centre at the
-integer), so the camera it renders is built with principal point 255.5: the same camera. With
-the axis at the centre, the rotation maps the image onto itself and the intrinsics stay
-(280, 280, 256, 256) exactly.
+Pixel convention of the stored frames (TAP-Vid's): pixel [row r, column c] covers [c, c+1) x
+[r, r+1), its centre is (c + 0.5, r + 0.5). projectaria-tools puts pixel centres at integers, so
+its principal point 256 is 256.5 here, in both axes, before the rotation; the rotation
+(x, y) -> (S - y, x) moves it to (255.5, 256.5). The stored frames' true intrinsics are
+therefore (280, 280, 255.5, 256.5) (``stored_intrinsics``), not the nominal (280, 280, 256, 256)
+the release writes.
 
 The rotation is pure NumPy (``rotate_cw``, ``rotate_pixels_cw``, ``CAM_ROT_FROM_CAM``);
-``Rectifier`` wraps projectaria-tools' ``distort_by_calibration`` family.
+``Rectifier`` applies one ``Remap`` per sequence (``remap.py``): the library's own projection
+gives each stored pixel its fisheye point once, then every frame is a NumPy gather.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import functools
+
 import numpy as np
+
+from pipeline.adt.remap import Remap, source_points
 
 # Clockwise rotation of the image by 90 degrees as a camera rotation: X' = -Y, Y' = X, Z' = Z.
 # Applied to points in the unrotated pinhole camera [3] it gives points in the stored camera.
@@ -28,7 +36,8 @@ def rotate_cw(image: np.ndarray) -> np.ndarray:
 
     Pixel mapping (indices): ``out[r, c] = image[S - 1 - c, r]``; equivalently the source pixel
     at (row v, column u) lands at (row u, column S - 1 - v). In continuous coordinates with
-    pixel centres at +0.5: (x, y) -> (S - y, x), which is ``rotate_pixels_cw``.
+    pixel centres at +0.5: (x, y) -> (S - y, x), which is ``rotate_pixels_cw``. The same pixels
+    as the generator's ``PIL.Image.fromarray(image).rotate(-90)`` (a transpose for a square image).
     """
     if image.shape[0] != image.shape[1]:
         raise ValueError(f"rotate_cw expects a square image, got {image.shape}")
@@ -47,6 +56,16 @@ def unrotate_pixels_cw(xy: np.ndarray, size: int) -> np.ndarray:
     return np.stack([xy[..., 1], size - xy[..., 0]], axis=-1)
 
 
+def stored_intrinsics(size: int, focal: float) -> np.ndarray:
+    """The stored (rotated) frames' true intrinsics [4] (fx, fy, cx, cy), pixel centres at +0.5.
+
+    Before the rotation the optical axis is at (S/2 + 0.5, S/2 + 0.5) (projectaria's S/2 with
+    integer centres); (x, y) -> (S - y, x) moves it to (S/2 - 0.5, S/2 + 0.5).
+    """
+    half = size / 2.0
+    return np.array([focal, focal, half - 0.5, half + 0.5], dtype=np.float64)
+
+
 def stored_cam_from_world(world_from_camera: np.ndarray) -> np.ndarray:
     """World-to-stored-camera [..., 4, 4] from the RGB camera's pose(s) in the world [..., 4, 4]."""
     from pipeline.core.geometry import invert_se3
@@ -54,8 +73,72 @@ def stored_cam_from_world(world_from_camera: np.ndarray) -> np.ndarray:
     return CAM_ROT_FROM_CAM @ invert_se3(world_from_camera)
 
 
+def target_calibration(source_calibration, size: int, focal: float):
+    """The release generator's LINEAR camera [S, S]: focal ``focal``, principal point (S/2, S/2) in
+    projectaria-tools' integer-centre pixels, i.e. (S/2 + 0.5, S/2 + 0.5) in ours
+    (``stored_intrinsics``). Its pose is unused (distort_by_calibration ignores both poses)."""
+    from projectaria_tools.core import calibration
+
+    return calibration.CameraCalibration(
+        source_calibration.get_label(),
+        calibration.CameraModelType.LINEAR,
+        np.array([focal, focal, size / 2.0, size / 2.0], dtype=np.float64),
+        source_calibration.get_transform_device_camera(),
+        size,
+        size,
+        None,
+        np.pi,
+        "pinhole",
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class _Camera:
+    """A source calibration with the stored frame's size and focal, equal by value: everything
+    ``project`` depends on."""
+
+    model: str
+    params: bytes
+    image_size: tuple[int, int]
+    valid_radius: float
+    max_solid_angle: float
+    size: int
+    focal: float
+    calibration: object = dataclasses.field(compare=False)
+
+    @classmethod
+    def of(cls, calibration, size: int, focal: float) -> _Camera:
+        return cls(
+            str(calibration.get_model_name()),
+            np.asarray(calibration.get_projection_params(), np.float64).tobytes(),
+            tuple(int(n) for n in calibration.get_image_size()),
+            float(calibration.get_valid_radius()),
+            float(calibration.get_max_solid_angle()),
+            int(size),
+            float(focal),
+            calibration,
+        )
+
+
+@functools.lru_cache(maxsize=2)  # 16 MiB each at 512x512
+def _stored_remap(camera: _Camera) -> Remap:
+    target = target_calibration(camera.calibration, camera.size, camera.focal)
+    points = rotate_cw(source_points(camera.calibration, target))  # the rotation, once
+    width, height = camera.image_size
+    return Remap(points, (height, width))
+
+
+def stored_remap(source_calibration, size: int, focal: float) -> Remap:
+    """Fisheye [H, W] -> stored frame [S, S] (re-rendered, then rotated clockwise) as one
+    ``Remap``, built once per calibration per process (S^2 calls of projectaria-tools'
+    ``project``, about 0.5 s)."""
+    return _stored_remap(_Camera.of(source_calibration, size, focal))
+
+
 class Rectifier:
-    """Fisheye RGB / depth / id images -> the stored upright pinhole frames.
+    """Fisheye RGB / depth / id images [H, W, ...] -> the stored upright pinhole frames [S, S, ...]:
+    the release generator's ``distort_*_by_calibration`` then ``rotate_cw``, pixel for pixel
+    (``Remap``; ``tests/test_adt_remap.py`` holds them against the library).
 
     Args:
       source_calibration: the RGB camera's projectaria-tools ``CameraCalibration`` (Fisheye624).
@@ -63,38 +146,22 @@ class Rectifier:
     """
 
     def __init__(self, source_calibration, size: int, focal: float):
-        from projectaria_tools.core import calibration
-
-        self._calibration = calibration
-        self.source = source_calibration
-        self.size = int(size)
-        centre = self.size / 2.0 - 0.5  # projectaria-tools: pixel centres at integers
-        self.target = calibration.CameraCalibration(
-            source_calibration.get_label(),
-            calibration.CameraModelType.LINEAR,
-            np.array([focal, focal, centre, centre], dtype=np.float64),
-            source_calibration.get_transform_device_camera(),
-            self.size,
-            self.size,
-            None,
-            np.pi,
-            "pinhole",
-        )
+        self.remap = stored_remap(source_calibration, int(size), float(focal))
 
     def rgb(self, image: np.ndarray) -> np.ndarray:
         """Fisheye RGB [H, W, 3] uint8 -> stored frame [S, S, 3] uint8 (bilinear)."""
-        return rotate_cw(self._calibration.distort_by_calibration(image, self.target, self.source))
+        return self.remap.rgb(image)
 
-    def depth_m(self, depth_mm: np.ndarray) -> np.ndarray:
-        """Fisheye z-depth [H, W] uint16 mm -> stored depth [S, S] float32 metres (0 = none).
+    def depth_mm(self, depth_mm: np.ndarray) -> np.ndarray:
+        """Fisheye z-depth [H, W] uint16 mm -> stored depth [S, S] float32 mm (0 = none).
 
-        ``distort_depth_by_calibration`` interpolates bilinearly and keeps the values: ADT depth is
-        the z of the RGB camera, which the pinhole camera shares (same frame, only the projection
-        changes), so no per-pixel conversion is needed.
+        Bilinear in float millimetres (the library on the float32 image; on uint16 it would cut
+        the interpolation to whole millimetres). ADT depth is the z of the RGB camera, which the
+        pinhole camera shares (same frame, only the projection changes), so no per-pixel
+        conversion is needed.
         """
-        depth = self._calibration.distort_depth_by_calibration(depth_mm, self.target, self.source)
-        return rotate_cw(depth.astype(np.float32) / np.float32(1000.0))
+        return self.remap.depth(depth_mm)
 
     def ids(self, ids: np.ndarray) -> np.ndarray:
         """Fisheye instance ids [H, W] uint64 -> stored ids [S, S] uint64 (nearest neighbour)."""
-        return rotate_cw(self._calibration.distort_label_by_calibration(ids, self.target, self.source))
+        return self.remap.labels(ids)

@@ -88,7 +88,8 @@ def encode_jpeg(image_rgb: np.ndarray) -> bytes:
 
 
 class SequenceFrames:
-    """A sequence's frames in the stored camera, read one at a time (the callables annotate uses)."""
+    """A sequence's frames in the stored camera, read one at a time (the callables annotate uses);
+    the re-rendering tables are built on construction (once per calibration per process)."""
 
     def __init__(self, reader: SequenceReader, config: RunConfig):
         self.reader = reader
@@ -96,7 +97,7 @@ class SequenceFrames:
 
     def frame(self, timestamp: int) -> Frame:
         return Frame(
-            depth=self.rectifier.depth_m(self.reader.depth_mm(timestamp)),
+            depth_mm=self.rectifier.depth_mm(self.reader.depth_mm(timestamp)),
             ids=self.rectifier.ids(self.reader.ids(timestamp)),
             cam_from_world=stored_cam_from_world(self.reader.world_from_camera(timestamp)),
             world_from_object=self.reader.object_poses(timestamp),

@@ -31,6 +31,9 @@ class ClipRecord:
         (pipeline/export/depth_export.py), written beside the clip; else None.
       given_queries: the queries came from an existing clip (``--queries-from``): filters report
         on every track but drop none, so old and new tracks correspond one to one.
+      track_keys: [N] uint64 per-track draw keys, or None. With keys, the final subsample keeps
+        the survivors with the lowest keys, so whether a track is kept does not depend on which
+        other tracks exist (DriveTrack); without, a seeded draw among the survivors.
     """
 
     source: str
@@ -48,6 +51,7 @@ class ClipRecord:
     target_tracks: int
     given_queries: bool = False
     depth_export: dict[str, np.ndarray] | None = None
+    track_keys: np.ndarray | None = None
 
     @property
     def num_frames(self) -> int:
@@ -65,4 +69,5 @@ class ClipRecord:
             visibility=self.visibility[:, indices],
             queries_xyt=self.queries_xyt[indices],
             track_stats={key: value[indices] for key, value in self.track_stats.items()},
+            track_keys=None if self.track_keys is None else self.track_keys[indices],
         )

@@ -98,6 +98,13 @@ class DriveTrackConfig:
       read as ``<masks_dir>/<clip name>/<frame id>.png`` (non-zero = object).
     mask_closing_px: kernel of the morphological closing of the lidar silhouette;
       0 picks it from the spacing of the projected lidar points in each frame.
+    undistort_frames: Waymo's frames carry lens distortion (up to ~8 px at the corners of a
+      1920x1280 frame), which no pinhole ``fx_fy_cx_cy`` describes. True writes each frame
+      undistorted with OpenCV (same intrinsics, re-encoded JPEG), so the pinhole projection of
+      ``tracks_XYZ`` lands on the point in the stored frame; false keeps Waymo's JPEGs as the
+      release did, and queries sit where the point appears in them, off the pinhole projection by
+      the distortion (``pipeline.validate`` reports it per clip). Tracks and queries include the
+      rolling shutter either way (drivetrack/camera_model.py).
     """
 
     cameras: tuple[int, ...] = ranged((1, 2, 3), "[1, 5]", nonempty=True)
@@ -112,6 +119,7 @@ class DriveTrackConfig:
     mask_min_agreement: float = ranged(0.5, "[0, 1]")
     masks_dir: str = ""
     mask_closing_px: int = ranged(0, "[0, 1000]")
+    undistort_frames: bool = True
 
 
 @dataclasses.dataclass(frozen=True)
@@ -126,8 +134,10 @@ class AdtConfig:
       poses used for it (projectaria-tools' CLOSEST sample); a frame beyond it fails its unit.
       Real sequences are within 0.1 ms; the shared 3-frame excerpt needs 40 (its depth stops
       one frame early, 33.2 ms before its last RGB frame).
-    image_size, focal: the square pinhole camera every frame is re-rendered to, then rotated
-      90 degrees clockwise; intrinsics (focal, focal, size / 2, size / 2).
+    image_size, focal: the square pinhole camera every frame is re-rendered to (principal point
+      size / 2 in projectaria-tools' integer-centre pixels, as the release's generator), then
+      rotated 90 degrees clockwise; written intrinsics are the stored frames' true ones,
+      (focal, focal, size / 2 - 0.5, size / 2 + 0.5) with pixel centres at +0.5.
     depth_delta_m: depth-test tolerance |z - D(u, v)| < delta. On the real sample, points on
       objects carried between its two depth frames match the rendered depth within 2.1 mm
       (95%), 11.3 mm (99%), with 99.5% under 2 cm; points that land on another object's pixels
@@ -159,16 +169,17 @@ class PstudioConfig:
     params_dir: folder holding ``<sequence>/params.npz``; empty = ``<input>/output/<exp>``
       when ``<input>/output`` holds exactly one experiment.
     cameras: the unit cameras; empty = every camera of train_meta.json.
-    depth_delta_m: depth-test tolerance |z - D(u, v)| < delta on the splat depth (metres).
-      0.05 measured best on the sample world (agreement with ray-cast truth over all body
-      candidates: 0.02 m 94.6%, 0.03 m 97.0%, 0.04 m 97.4%, 0.05 m 97.5%, 0.06 m 97.4%,
-      0.08 m 97.3%): below it, points seen at grazing angles fail because nearer splats of
-      the same surface blend into their depth; above it, points just behind an edge pass.
-    min_alpha: a pixel whose accumulated alpha is below this has no surface (depth unknown).
+    depth_delta_m: depth-test tolerance |z - D(u, v)| < delta on the splats' median depth
+      (metres); no point is visible where the transmittance never drops below 0.5 (the
+      renderer's 15 m background). 0.05 measured best on the sample world (agreement with
+      ray-cast truth over every attached body query: 0.02 m 91.3%, 0.03 m 96.7%, 0.04 m 97.4%,
+      0.05 m 97.5%, 0.06 m 97.5%, 0.08 m 97.4%, 0.10 m 97.3%): below it, points seen at grazing
+      angles fail because a nearer splat of the same surface holds the median; above it,
+      points just behind an edge pass.
     max_attach_distance_m: a query whose unprojected point is farther than this from the
-      nearest foreground centre is refused (ours): at silhouettes the normalised depth blends
-      the body with what lies behind it, and the point lands in mid-air (up to 18 cm away on
-      the sample world; the median is under 1 cm).
+      nearest foreground centre is refused (ours). The median depth is one splat's depth, so
+      the point lies within a footprint of some centre: on the sample world median 1.0 cm,
+      99% under 1.7 cm, 1 query in 2,449 beyond 3 cm (3.3 cm).
     mask_min_agreement: keep a track whose centre lies on the foreground mask in at least this
       fraction of the (frame, camera) pairs where it projects into the image.
     """
@@ -176,7 +187,6 @@ class PstudioConfig:
     params_dir: str = ""
     cameras: tuple[int, ...] = ranged((), "[0, 999]")
     depth_delta_m: float = ranged(0.05, "(0, 10]")
-    min_alpha: float = ranged(0.5, "[0, 1]")
     max_attach_distance_m: float = ranged(0.03, "(0, 10]")
     mask_min_agreement: float = ranged(0.75, "[0, 1]")
     tracks_per_clip: int = ranged(50, "[1, 100000]")

@@ -1,10 +1,11 @@
 """Annotate one DriveTrack unit (segment, camera): one clip per vehicle assigned to the camera.
 
 Pure computation on the reader's records; no Beam. The steps, a module each: ``poses.py``
-(vehicle and camera per frame), ``objects.py`` (which vehicles, on which frames), ``evidence.py``
-(the TOP lidar: depth samples, each object's points), ``tracks.py`` (which points),
-``visibility.py`` (in view, facing, not occluded), ``silhouette.py`` (object masks) and
-``queries.py``; this module runs them and assembles each clip.
+(vehicle and camera per frame), ``camera_model.py`` (where a point appears in a frame),
+``objects.py`` (which vehicles, on which frames), ``evidence.py`` (the TOP lidar: depth samples,
+each object's points), ``tracks.py`` and ``draws.py`` (which points), ``visibility.py`` (in view,
+facing, not occluded), ``silhouette.py`` (object masks), ``queries.py`` and ``undistort.py``
+(the stored frames); this module runs them and assembles each clip.
 """
 
 from __future__ import annotations
@@ -15,15 +16,17 @@ import numpy as np
 
 from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
-from pipeline.core.geometry import project, transform_directions_batch, transform_points_batch
+from pipeline.core.geometry import transform_directions_batch, transform_points_batch
 from pipeline.core.images import check_jpeg
-from pipeline.core.sampling import rng_for
+from pipeline.drivetrack.camera_model import UnitCamera
+from pipeline.drivetrack.draws import point_keys, query_draws
 from pipeline.drivetrack.evidence import LidarEvidence, gather_lidar
 from pipeline.drivetrack.objects import ObjectRun, select_objects
 from pipeline.drivetrack.poses import camera_from_world, frame_poses
 from pipeline.drivetrack.queries import clip_queries
 from pipeline.drivetrack.silhouette import object_masks
 from pipeline.drivetrack.tracks import choose_points, point_pool
+from pipeline.drivetrack.undistort import undistort_jpeg, undistortion_maps
 from pipeline.drivetrack.unit_input import UnitInput
 from pipeline.drivetrack.visibility import track_visibility
 from pipeline.export.depth_export import sparse_record
@@ -42,68 +45,66 @@ def track_object(
     unit: UnitInput,
     run: ObjectRun,
     evidence: LidarEvidence,
-    cam_from_world: np.ndarray,
+    camera: UnitCamera,
+    stored_jpegs: dict[int, bytes],
     config: RunConfig,
 ) -> ClipRecord | None:
     """Candidate tracks on one vehicle, with visibility, queries and filter statistics; None when
     its box holds no lidar point, or when ``--queries-from`` holds no clip of its name.
 
-    cam_from_world: [T, 4, 4] per camera frame of the unit.
+    stored_jpegs: the stored frame per unit frame index, for the run's frames.
     """
     name = clip_name(unit.segment, unit.camera, run.object_id)
-    calibration = unit.calibration
     rules = config.drivetrack
-    pool = point_pool(evidence, run)
+    pool = point_pool(evidence, run, unit.frames.timestamps)
     if pool is None:
         log.info("%s: object %s has no lidar points in its box; no clip", unit.name, run.object_id)
         return None
-    points, normals = pool
-    rng = rng_for(config.seed, name)
+    keys = point_keys(config.seed, name, pool.timestamps, pool.pixels)
     frames = range(run.start, run.stop)
-    cam_from_box = cam_from_world[run.start : run.stop] @ run.world_from_box
     given = given_queries(config.queries_from, "drivetrack", name) if config.queries_from else None
     if config.queries_from and given is None:
         return None  # --queries-from re-annotates only the clips it holds
-    chosen = choose_points(
-        points,
-        given,
-        cam_from_box,
-        calibration.fx_fy_cx_cy,
-        name,
-        rules.oversample * rules.tracks_per_clip,
-        rng,
-    )
-    tracks = transform_points_batch(cam_from_box, points[chosen])
-    uv = project(tracks, calibration.fx_fy_cx_cy)
+    count = rules.oversample * rules.tracks_per_clip
+    chosen = choose_points(pool.points, keys, given, run, camera, name, count)
+    world = transform_points_batch(run.world_from_box, pool.points[chosen])
+    seen = [camera.project(t, world[i]) for i, t in enumerate(frames)]
+    tracks = np.stack([s.points for s in seen])
+    uv = np.stack([s.pixels for s in seen])
+    # Normals turn with the frame's pose (the camera turns by under a milliradian during a readout).
+    cam_from_box = camera.cam_from_world[run.start : run.stop] @ run.world_from_box
     depth_uv, depth_z = [evidence.depth_uv[t] for t in frames], [evidence.depth_z[t] for t in frames]
     visibility = track_visibility(
         tracks,
         uv,
-        transform_directions_batch(cam_from_box, normals[chosen]) if rules.facing_test else None,
+        np.stack([s.in_view for s in seen]),
+        transform_directions_batch(cam_from_box, pool.normals[chosen]) if rules.facing_test else None,
         depth_uv,
         depth_z,
-        calibration,
+        [evidence.depth_tree(t) for t in frames],
+        (unit.calibration.width, unit.calibration.height),
         rules.occlusion_margin,
     )
-    masks, has_mask = object_masks(unit, run, name, evidence, cam_from_box, config)
+    masks, has_mask = object_masks(unit, run, name, evidence, camera, config)
     on_object = np.stack(
         [
             on_mask(mask, uv[i]) if mask is not None else np.zeros(len(chosen), bool)
             for i, mask in enumerate(masks)
         ]
     )
+    calibration = unit.calibration
     frame_ids = unit.frames.timestamps[run.start : run.stop]
     return ClipRecord(
         source="drivetrack",
         name=name,
         unit=unit.name,
-        images_jpeg=[unit.frames.jpegs[t] for t in frames],
+        images_jpeg=[stored_jpegs[t] for t in frames],
         fx_fy_cx_cy=calibration.fx_fy_cx_cy.copy(),
         image_size=(calibration.width, calibration.height),
-        extrinsics_w2c=cam_from_world[run.start : run.stop].copy(),
+        extrinsics_w2c=camera.cam_from_world[run.start : run.stop].copy(),
         tracks_xyz=tracks,
         visibility=visibility,
-        queries_xyt=clip_queries(tracks, visibility, given, rng, calibration.fx_fy_cx_cy),
+        queries_xyt=clip_queries(uv, visibility, given, query_draws(keys[chosen])),
         frame_ids=frame_ids.copy(),
         track_stats={
             "visible_frames": visibility.sum(axis=0).astype(np.int64),
@@ -112,27 +113,46 @@ def track_object(
         target_tracks=rules.tracks_per_clip,
         given_queries=given is not None,
         depth_export=sparse_record(depth_uv, depth_z, frame_ids) if config.export_depth else None,
+        track_keys=keys[chosen],
+    )
+
+
+def stored_frames(unit: UnitInput, frames: list[int], undistorted: bool) -> dict[int, bytes]:
+    """The JPEG written for each of ``frames`` (unit frame indices), checked: Waymo's, or undistorted."""
+    calibration = unit.calibration
+    maps = undistortion_maps(calibration) if undistorted else None
+    stored = {}
+    for t in frames:
+        what = f"camera_image/{unit.segment} camera {unit.camera} frame {unit.frames.timestamps[t]}"
+        jpeg = unit.frames.jpegs[t]
+        check_jpeg(jpeg, calibration.width, calibration.height, what)
+        stored[t] = undistort_jpeg(jpeg, maps, calibration, what) if undistorted else jpeg
+    return stored
+
+
+def unit_camera(unit: UnitInput, config: RunConfig) -> UnitCamera:
+    """The unit's camera model; frames are stored undistorted when ``drivetrack.undistort_frames``
+    and the lens has any distortion."""
+    calibration = unit.calibration
+    return UnitCamera(
+        calibration,
+        unit.frames,
+        camera_from_world(unit.frames, calibration),
+        config.drivetrack.undistort_frames and bool(np.any(calibration.distortion != 0)),
+        f"camera_image/{unit.segment} camera {unit.camera}",
     )
 
 
 def annotate_unit(unit: UnitInput, config: RunConfig) -> list[ClipRecord]:
     """All candidate clips of one (segment, camera) unit, in object-id order."""
     world_from_frame = frame_poses(unit)
-    cam_from_world = camera_from_world(unit.frames, unit.calibration)
-    runs = select_objects(unit, cam_from_world, world_from_frame, config)
+    rules = config.drivetrack
+    camera = unit_camera(unit, config)
+    runs = select_objects(unit, camera, world_from_frame, config)
     if not runs:
         return []
-    calibration = unit.calibration
-    for t in sorted({t for run in runs for t in range(run.start, run.stop)}):
-        check_jpeg(
-            unit.frames.jpegs[t],
-            calibration.width,
-            calibration.height,
-            f"camera_image/{unit.segment} camera {unit.camera} frame {unit.frames.timestamps[t]}",
-        )
-    rules = config.drivetrack
-    evidence = gather_lidar(
-        unit, runs, cam_from_world, world_from_frame, rules.box_shrink_m, rules.occlusion_margin
-    )
-    clips = [track_object(unit, run, evidence, cam_from_world, config) for run in runs]
+    needed = sorted({t for run in runs for t in range(run.start, run.stop)})
+    stored = stored_frames(unit, needed, camera.undistorted)
+    evidence = gather_lidar(unit, runs, camera, world_from_frame, rules.box_shrink_m, rules.occlusion_margin)
+    clips = [track_object(unit, run, evidence, camera, stored, config) for run in runs]
     return [clip for clip in clips if clip is not None]

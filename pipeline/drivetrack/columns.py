@@ -9,6 +9,15 @@ OBJECT_ID = "key.laser_object_id"
 CAMERA_IMAGE = "camera_image"
 IMAGE_JPEG = "[CameraImageComponent].image"
 IMAGE_POSE = "[CameraImageComponent].pose.transform"
+# The rolling shutter's inputs (optional: a file without them is read as a global shutter).
+IMAGE_POSE_TIMESTAMP = "[CameraImageComponent].pose_timestamp"
+IMAGE_LINEAR_VELOCITY = tuple(f"[CameraImageComponent].velocity.linear_velocity.{k}" for k in "xyz")
+IMAGE_ANGULAR_VELOCITY = tuple(f"[CameraImageComponent].velocity.angular_velocity.{k}" for k in "xyz")
+IMAGE_SHUTTER = tuple(
+    f"[CameraImageComponent].rolling_shutter_params.{k}"
+    for k in ("shutter", "camera_trigger_time", "camera_readout_done_time")
+)
+ROLLING_SHUTTER = (IMAGE_POSE_TIMESTAMP, *IMAGE_LINEAR_VELOCITY, *IMAGE_ANGULAR_VELOCITY, *IMAGE_SHUTTER)
 
 CAMERA_CALIBRATION = "camera_calibration"
 _CC = "[CameraCalibrationComponent]"
@@ -17,6 +26,7 @@ CAM_DISTORTION = tuple(f"{_CC}.intrinsic.{k}" for k in ("k1", "k2", "p1", "p2", 
 CAM_EXTRINSIC = f"{_CC}.extrinsic.transform"
 CAM_WIDTH = f"{_CC}.width"
 CAM_HEIGHT = f"{_CC}.height"
+CAM_ROLLING_SHUTTER_DIRECTION = f"{_CC}.rolling_shutter_direction"  # optional
 
 LIDAR = "lidar"
 LIDAR_RANGE_VALUES = "[LiDARComponent].range_image_return1.values"

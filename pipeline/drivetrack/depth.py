@@ -26,19 +26,30 @@ def _four_neighbours(query_uv: np.ndarray, width: int, height: int) -> tuple[np.
     return cols, rows
 
 
+def depth_tree(lidar_uv: np.ndarray) -> cKDTree:
+    """The KD-tree ``nearest_depth_max4`` queries, of lidar pixels [M, 2]."""
+    return cKDTree(np.asarray(lidar_uv, dtype=np.float64))
+
+
 def nearest_depth_max4(
-    lidar_uv: np.ndarray, lidar_depth: np.ndarray, query_uv: np.ndarray, width: int, height: int
+    lidar_uv: np.ndarray,
+    lidar_depth: np.ndarray,
+    query_uv: np.ndarray,
+    width: int,
+    height: int,
+    tree: cKDTree | None = None,
 ) -> np.ndarray:
     """Reference depth [N] for query pixels [N, 2] from lidar pixels [M, 2] and depths [M].
 
-    NaN where there is no lidar point in the image (no evidence either way).
+    NaN where there is no lidar point in the image (no evidence either way). tree: ``depth_tree``
+    of lidar_uv when the caller holds it (a frame's samples serve every clip of the unit).
     """
     if len(lidar_depth) == 0:
         return np.full(len(query_uv), np.nan)
     if len(query_uv) == 0:
         return np.zeros(0)
     cols, rows = _four_neighbours(query_uv, width, height)
-    tree = cKDTree(np.asarray(lidar_uv, dtype=np.float64))
+    tree = depth_tree(lidar_uv) if tree is None else tree
     _, index = tree.query(np.stack([cols.ravel(), rows.ravel()], axis=1))
     return lidar_depth[index].reshape(-1, 4).max(axis=1)
 

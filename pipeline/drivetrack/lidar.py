@@ -1,11 +1,14 @@
-"""Waymo range images to 3D points, following the dataset's own convention."""
+"""Waymo range images to 3D points and surface normals, following the dataset's own convention."""
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 
 from pipeline.core.errors import InputError
 from pipeline.core.geometry import rotation_from_roll_pitch_yaw
+from pipeline.drivetrack.normals import range_image_normals
 from pipeline.drivetrack.reader import LidarCalibration
 
 
@@ -29,6 +32,20 @@ def beam_inclinations(calibration: LidarCalibration, height: int, what: str = "l
     return inclinations[::-1].astype(np.float64)
 
 
+def sensor_points(
+    range_image: np.ndarray, lidar_to_vehicle: np.ndarray, inclinations: np.ndarray
+) -> np.ndarray:
+    """Every pixel of a range image [H, W] as a point [H, W, 3] in the lidar frame (whatever its
+    range); column j looks along azimuth ``(2 (W - j - 0.5) / W - 1) pi - atan2(E[1,0], E[0,0])``."""
+    width = range_image.shape[1]
+    az_correction = np.arctan2(lidar_to_vehicle[1, 0], lidar_to_vehicle[0, 0])
+    ratio = (width - np.arange(width) - 0.5) / width
+    azimuth = (2.0 * ratio - 1.0) * np.pi - az_correction
+    incl, az = inclinations[:, None], azimuth[None, :]
+    r = range_image.astype(np.float64)
+    return np.stack([r * np.cos(az) * np.cos(incl), r * np.sin(az) * np.cos(incl), r * np.sin(incl)], -1)
+
+
 def range_image_to_vehicle(
     range_image: np.ndarray, lidar_to_vehicle: np.ndarray, inclinations: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -41,29 +58,45 @@ def range_image_to_vehicle(
     Returns:
       points [M, 3] in row-major order of the kept pixels, and kept [H, W] bool.
     """
-    height, width = range_image.shape
-    az_correction = np.arctan2(lidar_to_vehicle[1, 0], lidar_to_vehicle[0, 0])
-    ratio = (width - np.arange(width) - 0.5) / width
-    azimuth = (2.0 * ratio - 1.0) * np.pi - az_correction
     kept = range_image > 0
-    rows, cols = np.nonzero(kept)
-    r = range_image[rows, cols].astype(np.float64)
-    incl, az = inclinations[rows], azimuth[cols]
-    sensor = np.stack(
-        [r * np.cos(az) * np.cos(incl), r * np.sin(az) * np.cos(incl), r * np.sin(incl)], axis=1
-    )
-    points = sensor @ lidar_to_vehicle[:3, :3].T + lidar_to_vehicle[:3, 3]
-    return points, kept
+    sensor = sensor_points(range_image, lidar_to_vehicle, inclinations)[kept]
+    return sensor @ lidar_to_vehicle[:3, :3].T + lidar_to_vehicle[:3, 3], kept
 
 
-def apply_pixel_poses(points_vehicle: np.ndarray, pixel_poses: np.ndarray) -> np.ndarray:
-    """World points [M, 3] from vehicle-frame points [M, 3] and per-pixel poses [M, 6].
+@dataclasses.dataclass(frozen=True)
+class TopSweep:
+    """A TOP sweep in the world: points [M, 3] of the kept pixels (range > 0, row-major), kept
+    [H, W], and what their normals need: the lidar-frame grid [H, W, 3] of every pixel, the ranges
+    [H, W], each kept point's world-from-vehicle rotation [M, 3, 3] and the vehicle-from-lidar
+    rotation [3, 3]."""
 
-    A pose is (roll, pitch, yaw, x, y, z): the vehicle's pose when that pixel was fired
-    (TOP lidar rolling-shutter correction), rotation Rz(yaw) Ry(pitch) Rx(roll).
-    """
-    rotation = rotation_from_roll_pitch_yaw(pixel_poses[:, 0], pixel_poses[:, 1], pixel_poses[:, 2])
-    return np.einsum("mij,mj->mi", rotation, points_vehicle) + pixel_poses[:, 3:6]
+    points: np.ndarray
+    kept: np.ndarray
+    grid: np.ndarray
+    ranges: np.ndarray
+    rotations: np.ndarray
+    lidar_rotation: np.ndarray
+
+    def normals(self, index: np.ndarray) -> np.ndarray:
+        """Unit world-frame normals [K, 3], facing the lidar, of the kept points ``index`` [K]."""
+        local = range_image_normals(self.grid, self.ranges, np.flatnonzero(self.kept)[index])
+        return np.einsum("kij,kj->ki", self.rotations[index] @ self.lidar_rotation, local)
+
+
+def kept_poses(pixel_pose: np.ndarray, kept: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray]:
+    """World-from-vehicle rotations [M, 3, 3] and translations [M, 3] of the kept pixels [H, W]
+    (row-major) from the pixel poses [H, W, 6]. Where each column holds one pose (the TOP lidar
+    fires a column at once) they are computed once per column: the same numbers, H times fewer."""
+    if np.all(pixel_pose == pixel_pose[:1]):
+        used = kept.any(axis=0)
+        poses = pixel_pose[0, used].astype(np.float64)  # [C, 6], the columns with a kept pixel
+        column = (np.cumsum(used) - 1)[np.flatnonzero(kept) % kept.shape[1]]  # [M] into poses
+    else:
+        poses, column = pixel_pose[kept].astype(np.float64), slice(None)
+    if not np.isfinite(poses).all():
+        raise InputError(f"{what}: per-pixel lidar pose contains NaN or infinity")
+    rotation = rotation_from_roll_pitch_yaw(poses[:, 0], poses[:, 1], poses[:, 2])
+    return rotation[column], poses[column, 3:6]
 
 
 def top_lidar_world_points(
@@ -71,10 +104,11 @@ def top_lidar_world_points(
     pixel_pose: np.ndarray,
     calibration: LidarCalibration,
     what: str,
-) -> tuple[np.ndarray, np.ndarray]:
-    """World points [M, 3] of a TOP range image [H, W] with its pixel poses [H, W, 6].
+) -> TopSweep:
+    """The world points of a TOP range image [H, W] with its pixel poses [H, W, 6].
 
-    Returns the points and the kept-pixel mask [H, W] (range > 0).
+    A pixel pose is (roll, pitch, yaw, x, y, z): the vehicle's pose in the world when that pixel
+    was fired (the TOP lidar's rolling-shutter correction), rotation Rz(yaw) Ry(pitch) Rx(roll).
     """
     if not np.isfinite(range_image).all():
         raise InputError(f"{what}: range image contains NaN or infinity")
@@ -82,11 +116,13 @@ def top_lidar_world_points(
         raise InputError(
             f"{what}: lidar_pose shape {pixel_pose.shape[:2]} != range image {range_image.shape}"
         )
+    extrinsic = calibration.lidar_to_vehicle
     inclinations = beam_inclinations(calibration, range_image.shape[0], what)
-    points, kept = range_image_to_vehicle(range_image, calibration.lidar_to_vehicle, inclinations)
+    kept = range_image > 0
     if not kept.any():
         raise InputError(f"{what}: no returns (every range <= 0)")
-    poses = pixel_pose[kept].astype(np.float64)
-    if not np.isfinite(poses).all():
-        raise InputError(f"{what}: per-pixel lidar pose contains NaN or infinity")
-    return apply_pixel_poses(points, poses), kept
+    grid = sensor_points(range_image, extrinsic, inclinations)
+    points = grid[kept] @ extrinsic[:3, :3].T + extrinsic[:3, 3]
+    rotation, translation = kept_poses(pixel_pose, kept, what)
+    world = np.einsum("mij,mj->mi", rotation, points) + translation
+    return TopSweep(world, kept, grid, range_image.astype(np.float64), rotation, extrinsic[:3, :3])

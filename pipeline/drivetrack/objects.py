@@ -10,9 +10,9 @@ import numpy as np
 
 from pipeline.core.config import RunConfig
 from pipeline.core.errors import InputError
-from pipeline.core.geometry import project, transform_points
+from pipeline.core.geometry import transform_points
 from pipeline.drivetrack.boxes import box_corners_local, box_poses, longest_run
-from pipeline.drivetrack.reader import CameraCalibration
+from pipeline.drivetrack.camera_model import Projection, UnitCamera
 from pipeline.drivetrack.unit_input import UnitInput
 
 
@@ -64,30 +64,29 @@ def boxes_per_frame(unit: UnitInput, object_id: str, rows: np.ndarray) -> tuple[
     return synced, lidar
 
 
-def box_in_view(corners_cam: np.ndarray, calibration: CameraCalibration) -> bool:
-    """True when a box's corners [8, 3] (camera frame) project onto the image."""
-    front = corners_cam[:, 2] > 0
+def box_in_view(corners: Projection, width: int, height: int) -> bool:
+    """True when the rectangle around a box's corners [8] in front of the camera, as they appear in
+    the stored frame, overlaps the ``width`` x ``height`` image."""
+    front = corners.points[:, 2] > 0
     if not front.any():
         return False
-    uv = project(corners_cam[front], calibration.fx_fy_cx_cy)
+    uv = corners.pixels[front]
     return bool(
-        uv[:, 0].max() >= 0
-        and uv[:, 0].min() < calibration.width
-        and uv[:, 1].max() >= 0
-        and uv[:, 1].min() < calibration.height
+        uv[:, 0].max() >= 0 and uv[:, 0].min() < width and uv[:, 1].max() >= 0 and uv[:, 1].min() < height
     )
 
 
 def select_objects(
-    unit: UnitInput, cam_from_world: np.ndarray, world_from_frame: np.ndarray, config: RunConfig
+    unit: UnitInput, camera: UnitCamera, world_from_frame: np.ndarray, config: RunConfig
 ) -> list[ObjectRun]:
     """Vehicles assigned to this camera whose box projects on enough contiguous frames, each on its
     longest such run, with a box corner within reach on one of its frames; in object-id order.
 
-    cam_from_world, world_from_frame: [T, 4, 4] per camera frame (``poses.py``).
+    world_from_frame: [T, 4, 4] vehicle pose per camera frame (``poses.py``).
     """
     rules = config.drivetrack
     boxes = unit.boxes
+    size = (unit.calibration.width, unit.calibration.height)
     runs = []
     for object_id in sorted(set(boxes.object_ids.tolist())):
         rows = np.nonzero(boxes.object_ids == object_id)[0]
@@ -102,9 +101,9 @@ def select_objects(
         in_view_flags = np.zeros(len(synced), bool)
         nearest = np.full(len(synced), np.inf)
         for t in np.nonzero(labelled)[0]:
-            corners = transform_points(cam_from_world[t] @ world_from_box[t], box_corners_local(synced[t]))
-            in_view_flags[t] = box_in_view(corners, unit.calibration)
-            nearest[t] = np.linalg.norm(corners, axis=1).min()
+            corners = camera.project(t, transform_points(world_from_box[t], box_corners_local(synced[t])))
+            in_view_flags[t] = box_in_view(corners, *size)
+            nearest[t] = np.linalg.norm(corners.points, axis=1).min()
         start, stop = longest_run(in_view_flags)
         if stop - start < rules.min_contiguous_frames:
             continue

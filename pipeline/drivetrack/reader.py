@@ -37,13 +37,16 @@ KEY_BATCH_ROWS = 1 << 16
 
 @dataclasses.dataclass(frozen=True)
 class CameraCalibration:
-    """fx_fy_cx_cy [4], distortion [5] (k1, k2, p1, p2, k3), camera_to_vehicle [4, 4]."""
+    """fx_fy_cx_cy [4], distortion [5] (k1, k2, p1, p2, k3), camera_to_vehicle [4, 4];
+    rolling_shutter_direction: Waymo's enum (1 top to bottom, 2 left to right, 3 bottom to top,
+    4 right to left, 5 global shutter; 0 unknown, also when the file has no such column)."""
 
     fx_fy_cx_cy: np.ndarray
     distortion: np.ndarray
     camera_to_vehicle: np.ndarray
     width: int
     height: int
+    rolling_shutter_direction: int = 0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -57,12 +60,28 @@ class LidarCalibration:
 
 
 @dataclasses.dataclass(frozen=True)
+class CameraMotion:
+    """A camera's rolling-shutter inputs per frame [T] (NaN where a cell is null): pose_timestamp
+    (of the frame's vehicle pose), shutter, trigger, readout_done (seconds), and the vehicle's
+    linear_velocity [T, 3] (world frame, m/s) and angular_velocity [T, 3] (rad/s) at that pose."""
+
+    pose_timestamp: np.ndarray
+    shutter: np.ndarray
+    trigger: np.ndarray
+    readout_done: np.ndarray
+    linear_velocity: np.ndarray
+    angular_velocity: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
 class CameraFrames:
-    """One camera's frames sorted by time: timestamps [T], JPEG bytes, vehicle poses [T, 4, 4]."""
+    """One camera's frames sorted by time: timestamps [T], JPEG bytes, vehicle poses [T, 4, 4], and
+    the rolling shutter's inputs (None when the file has not all of their columns)."""
 
     timestamps: np.ndarray
     jpegs: list[bytes]
     world_from_vehicle_at_exposure: np.ndarray
+    motion: CameraMotion | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -194,6 +213,18 @@ def _top_rows(batch: pa.RecordBatch, timestamps: pa.Array) -> pa.Array:
     )
 
 
+def _optional_numbers(table: pa.Table, name: str, what: str) -> np.ndarray:
+    """A numeric column as float64, NaN where null; InputError for a NaN or infinite value."""
+    column = table.column(name)
+    if not (pa.types.is_floating(column.type) or pa.types.is_integer(column.type)):
+        raise InputError(f"{what}: column {name} has type {column.type}, expected numbers")
+    values = column.to_numpy(zero_copy_only=False).astype(np.float64)
+    valid = column.is_valid().to_numpy(zero_copy_only=False)
+    if not np.isfinite(values[valid]).all():
+        raise InputError(f"{what}: column {name} holds NaN or infinity")
+    return np.where(valid, values, np.nan)
+
+
 def _numbers(table: pa.Table, name: str, what: str, dtype=np.float64) -> np.ndarray:
     column = table.column(name)
     if not (pa.types.is_floating(column.type) or pa.types.is_integer(column.type)):
@@ -220,11 +251,16 @@ class SegmentReader:
                 raise InputError(f"missing component file {component}/{self.segment}.parquet")
 
     def batches(
-        self, component: str, columns: list[str], batch_rows: int = BATCH_ROWS
+        self,
+        component: str,
+        columns: list[str],
+        batch_rows: int = BATCH_ROWS,
+        optional: tuple[str, ...] = (),
     ) -> Iterator[pa.RecordBatch]:
         """Columns of one component file, ``batch_rows`` rows at a time (a segment's lidar files
-        decode to several GiB; only the rows a unit keeps are ever held); clear errors for bad files,
-        key columns of the wrong type among them (from the schema, before any row is read)."""
+        decode to several GiB; only the rows a unit keeps are ever held), and those of ``optional``
+        the file has; clear errors for bad files, key columns of the wrong type among them (from
+        the schema, before any row is read)."""
         path = self._path(component)
         label = f"{component}/{self.segment}.parquet"
         if not FileSystems.exists(path):
@@ -239,16 +275,21 @@ class SegmentReader:
                 for name in columns:
                     if name in C.KEY_WORDS:
                         _check_key_type(label, name, parquet.schema_arrow.field(name).type)
+                columns = columns + [name for name in optional if name in present]
                 yield from parquet.iter_batches(batch_size=batch_rows, columns=columns)
         except InputError:
             raise
         except (pa.ArrowException, OSError, ValueError) as error:
             raise InputError(f"{label}: unreadable Parquet ({error})") from error
 
-    def read(self, component: str, columns: list[str], filters=None) -> pa.Table:
+    def read(
+        self, component: str, columns: list[str], filters=None, optional: tuple[str, ...] = ()
+    ) -> pa.Table:
         """The rows of one component file that pass ``filters`` (a pyarrow expression), as a table,
-        one row per key (``columns`` must hold the component's key columns; see the module's doc)."""
-        parts = [pa.Table.from_batches([batch]) for batch in self.batches(component, columns)]
+        one row per key (``columns`` must hold the component's key columns; see the module's doc),
+        with the columns of ``optional`` that the file has."""
+        batches = self.batches(component, columns, optional=optional)
+        parts = [pa.Table.from_batches([batch]) for batch in batches]
         if filters is not None:
             parts = [part.filter(filters) for part in parts]
         if not parts:
@@ -259,7 +300,10 @@ class SegmentReader:
     def camera_calibration(self, camera: int) -> CameraCalibration:
         names = [C.CAMERA_NAME, *C.CAM_INTRINSICS, *C.CAM_DISTORTION, C.CAM_EXTRINSIC]
         names += [C.CAM_WIDTH, C.CAM_HEIGHT]
-        table = self.read(C.CAMERA_CALIBRATION, names, pc.field(C.CAMERA_NAME) == camera)
+        direction = C.CAM_ROLLING_SHUTTER_DIRECTION
+        table = self.read(
+            C.CAMERA_CALIBRATION, names, pc.field(C.CAMERA_NAME) == camera, optional=(direction,)
+        )
         what = f"camera_calibration/{self.segment} camera {camera}"
         if table.num_rows != 1:
             raise InputError(f"{what}: expected 1 row, found {table.num_rows}")
@@ -270,7 +314,11 @@ class SegmentReader:
         height = int(_numbers(table, C.CAM_HEIGHT, what, np.int64)[0])
         if not np.all(np.isfinite(intrinsics)) or (intrinsics[:2] <= 0).any():
             raise InputError(f"{what}: invalid intrinsics {intrinsics.tolist()}")
-        return CameraCalibration(intrinsics, distortion, extrinsic, width, height)
+        if not np.all(np.isfinite(distortion)):
+            raise InputError(f"{what}: invalid distortion {distortion.tolist()}")
+        readout = _optional_numbers(table, direction, what)[0] if direction in table.column_names else 0
+        readout = 0 if np.isnan(readout) else int(readout)
+        return CameraCalibration(intrinsics, distortion, extrinsic, width, height, readout)
 
     def lidar_calibration(self) -> LidarCalibration:
         names = [C.LASER_NAME, C.LIDAR_EXTRINSIC, C.BEAM_INCLINATION_VALUES]
@@ -299,7 +347,8 @@ class SegmentReader:
 
     def camera_frames(self, camera: int) -> CameraFrames:
         names = [C.TIMESTAMP, C.CAMERA_NAME, C.IMAGE_JPEG, C.IMAGE_POSE]
-        table = self.read(C.CAMERA_IMAGE, names, pc.field(C.CAMERA_NAME) == camera)
+        filters = pc.field(C.CAMERA_NAME) == camera
+        table = self.read(C.CAMERA_IMAGE, names, filters, optional=C.ROLLING_SHUTTER)
         what = f"camera_image/{self.segment} camera {camera}"
         if table.num_rows == 0:
             raise InputError(f"{what}: no frames")
@@ -307,7 +356,15 @@ class SegmentReader:
         order = np.argsort(stamps, kind="stable")
         jpegs = table.column(C.IMAGE_JPEG).to_pylist()
         poses = transforms_from_column(table.column(C.IMAGE_POSE), what)
-        return CameraFrames(stamps[order], [jpegs[i] for i in order], poses[order])
+        motion = None
+        if set(C.ROLLING_SHUTTER) <= set(table.column_names):
+            values = {name: _optional_numbers(table, name, what)[order] for name in C.ROLLING_SHUTTER}
+            motion = CameraMotion(
+                *(values[name] for name in (C.IMAGE_POSE_TIMESTAMP, *C.IMAGE_SHUTTER)),
+                np.stack([values[name] for name in C.IMAGE_LINEAR_VELOCITY], 1),
+                np.stack([values[name] for name in C.IMAGE_ANGULAR_VELOCITY], 1),
+            )
+        return CameraFrames(stamps[order], [jpegs[i] for i in order], poses[order], motion)
 
     def box_labels(self) -> BoxLabels:
         what = f"lidar_box/{self.segment}"
@@ -388,13 +445,16 @@ class SegmentReader:
         self._check_top_repeats(component, [values, shape], wanted)
         seen: set[int] = set()
         for batch in self.batches(component, [C.TIMESTAMP, C.LASER_NAME, values, shape]):
-            rows = batch.filter(_top_rows(batch, wanted))
-            for row, timestamp in enumerate(rows.column(C.TIMESTAMP).to_pylist()):
+            # Row indices, not batch.filter: filtering copies every kept range image (slow for lists).
+            rows = np.flatnonzero(_top_rows(batch, wanted).to_numpy(zero_copy_only=False))
+            stamps = batch.column(C.TIMESTAMP).to_numpy()
+            for row in rows.tolist():
+                timestamp = int(stamps[row])
                 if timestamp in seen:
                     continue  # an exact copy of a row handed on already (checked above)
                 seen.add(timestamp)
                 what = f"{component}/{self.segment} TOP frame {timestamp}"
-                image = _range_image(rows, row, values, shape, channels, what)
+                image = _range_image(batch, row, values, shape, channels, what)
                 yield timestamp, image.copy()  # a copy: the batch's buffers are let go
 
     def _check_top_repeats(self, component: str, columns: list[str], wanted: pa.Array) -> None:

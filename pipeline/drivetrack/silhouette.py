@@ -10,8 +10,9 @@ from apache_beam.io.filesystems import FileSystems
 from scipy.spatial import cKDTree
 
 from pipeline.core.config import RunConfig
-from pipeline.core.geometry import in_image, project, transform_points
+from pipeline.core.geometry import in_image, transform_points
 from pipeline.core.images import decode_image
+from pipeline.drivetrack.camera_model import UnitCamera
 from pipeline.drivetrack.evidence import LidarEvidence
 from pipeline.drivetrack.objects import ObjectRun
 from pipeline.drivetrack.unit_input import UnitInput
@@ -69,13 +70,13 @@ def object_masks(
     run: ObjectRun,
     clip_name: str,
     evidence: LidarEvidence,
-    cam_from_box: np.ndarray,
+    camera: UnitCamera,
     config: RunConfig,
 ) -> tuple[list[np.ndarray | None], np.ndarray]:
     """Object mask per clip frame ([H, W] bool, or None where there is none) and [T] has-mask
     flags: ``<masks_dir>/<clip name>/<frame id>.png`` when ``drivetrack.masks_dir`` is set, else
-    the silhouette of the object's lidar points of that frame, placed with ``cam_from_box``
-    [T, 4, 4]."""
+    the silhouette of the object's lidar points of that frame, where they appear in the stored
+    frame (placed by the run's boxes)."""
     calibration = unit.calibration
     masks = []
     for i, t in enumerate(range(run.start, run.stop)):
@@ -84,9 +85,8 @@ def object_masks(
             masks.append(read_mask_png(path, calibration.width, calibration.height))
             continue
         body = evidence.body_points[run.object_id].get(t, np.zeros((0, 3)))
-        points_cam = transform_points(cam_from_box[i], body)
-        points_cam = points_cam[points_cam[:, 2] > 0]
-        uv = project(points_cam, calibration.fx_fy_cx_cy)
+        seen = camera.project(t, transform_points(run.world_from_box[i], body))
+        uv = seen.pixels[seen.in_view]
         masks.append(
             silhouette_mask(uv, calibration.width, calibration.height, config.drivetrack.mask_closing_px)
             if len(uv)

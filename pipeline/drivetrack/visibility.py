@@ -8,10 +8,10 @@ pixels around the track point, ``depth.py``) is < (1 - margin) x the track's dep
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import cKDTree
 
-from pipeline.core.visibility import in_view, passes_relative_depth_test
+from pipeline.core.visibility import passes_relative_depth_test
 from pipeline.drivetrack.depth import nearest_depth_max4
-from pipeline.drivetrack.reader import CameraCalibration
 
 
 def facing_camera(tracks: np.ndarray, normals: np.ndarray) -> np.ndarray:
@@ -24,25 +24,28 @@ def facing_camera(tracks: np.ndarray, normals: np.ndarray) -> np.ndarray:
 def track_visibility(
     tracks: np.ndarray,
     uv: np.ndarray,
+    in_view: np.ndarray,
     normals: np.ndarray | None,
     depth_uv: list[np.ndarray],
     depth_z: list[np.ndarray],
-    calibration: CameraCalibration,
+    depth_trees: list[cKDTree],
+    image_size: tuple[int, int],
     occlusion_margin: float,
 ) -> np.ndarray:
-    """Visibility [T, N] bool of track points [T, N, 3] (camera frame) projecting to uv [T, N, 2].
+    """Visibility [T, N] bool of track points [T, N, 3] (camera frame) appearing at uv [T, N, 2] in
+    the stored frames of ``image_size`` (width, height), where ``in_view`` [T, N]
+    (``camera_model.Projection``).
 
     normals: [T, N, 3] surface normals (camera frame), or None to skip the facing test.
-    depth_uv, depth_z: per frame, the lidar depth samples' pixels [M, 2] and depths [M].
+    depth_uv, depth_z, depth_trees: per frame, the lidar depth samples' pixels [M, 2], depths [M]
+    and the pixels' KD-tree (``depth.depth_tree``).
     """
-    visibility = in_view(tracks, calibration.fx_fy_cx_cy, calibration.width, calibration.height)
+    visibility = in_view.copy()
     if normals is not None:
         visibility &= facing_camera(tracks, normals)
-    for i, (lidar_uv, lidar_z) in enumerate(zip(depth_uv, depth_z, strict=True)):
+    for i, (lidar_uv, lidar_z, tree) in enumerate(zip(depth_uv, depth_z, depth_trees, strict=True)):
         candidates = np.nonzero(visibility[i])[0]
-        depth = nearest_depth_max4(
-            lidar_uv, lidar_z, uv[i, candidates], calibration.width, calibration.height
-        )
+        depth = nearest_depth_max4(lidar_uv, lidar_z, uv[i, candidates], *image_size, tree)
         visibility[i, candidates] = passes_relative_depth_test(
             tracks[i, candidates, 2], depth, occlusion_margin
         )

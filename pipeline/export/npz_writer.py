@@ -20,7 +20,8 @@ def clip_arrays(clip: ClipRecord) -> dict[str, np.ndarray]:
     """The released schema's arrays for a clip: frames as a fixed-width bytes array ``|S<longest>``
     [T] (what ``np.savez`` makes of the release's list of JPEG bytes; NumPy strips the NUL
     padding on read and a JPEG ends in FF D9), float32 tracks and queries, bool visibility,
-    float64 intrinsics as the release writes them. No object array: the file opens with a
+    float64 intrinsics as the release writes them, float64 extrinsics (a camera 15 km from the
+    world's origin is rounded by ~1 mm in float32). No object array: the file opens with a
     plain ``np.load``."""
     arrays = {
         "images_jpeg_bytes": np.array([bytes(frame) for frame in clip.images_jpeg], dtype=np.bytes_),
@@ -30,7 +31,7 @@ def clip_arrays(clip: ClipRecord) -> dict[str, np.ndarray]:
         "fx_fy_cx_cy": np.asarray(clip.fx_fy_cx_cy, dtype=np.float64),
     }
     if clip.extrinsics_w2c is not None:
-        arrays["extrinsics_w2c"] = clip.extrinsics_w2c.astype(np.float32)
+        arrays["extrinsics_w2c"] = clip.extrinsics_w2c.astype(np.float64)
     return arrays
 
 

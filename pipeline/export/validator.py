@@ -22,7 +22,9 @@ FLOATS = (np.dtype(np.float32), np.dtype(np.float64))
 QUERY_TOLERANCE_PX = 0.5
 FLICKER_MAX_FRACTION = FlickerConfig().max_fraction
 FINDINGS = ("hidden_queries", "off_image_visible", "flickering")
-NO_FINDINGS = dict.fromkeys(("tracks", "frames", "image_hw", *FINDINGS))
+# Per clip, how far queries lie from their track's pinhole projection (pixels), median and worst.
+RESIDUALS = ("query_residual_median_px", "query_residual_max_px")
+NO_FINDINGS = dict.fromkeys(("tracks", "frames", "image_hw", *FINDINGS, *RESIDUALS))
 
 
 def check_arrays(arrays: dict[str, np.ndarray]) -> list[str]:
@@ -165,8 +167,12 @@ def quality_findings(
     ``hidden_queries``: tracks with visibility[t_q, i] False; ``off_image_visible``: tracks marked
     visible [T, N] on some frame where tracks_XYZ [T, N, 3] has z <= 0 or projects outside
     [0, W) x [0, H) (None when the first frame's JPEG header gives no size); ``flickering``: tracks
-    whose visibility changes state more than ``flicker_max_fraction`` x T times. Every value is
-    None when the arrays are too malformed to look at (``check_arrays`` says why).
+    whose visibility changes state more than ``flicker_max_fraction`` x T times;
+    ``query_residual_median_px`` and ``query_residual_max_px``: the distance from each query to the
+    pinhole projection of its track at its query frame (tracks in front of the camera; None when
+    none is), which the schema bounds by 0.5 px and a lens left in the frames exceeds (DriveTrack
+    with ``drivetrack.undistort_frames=false``). Every value is None when the arrays are too
+    malformed to look at (``check_arrays`` says why).
     """
     names = ("images_jpeg_bytes", "queries_xyt", "tracks_XYZ", "visibility", "fx_fy_cx_cy")
     if not set(names) <= set(arrays):
@@ -193,6 +199,11 @@ def quality_findings(
         inside = in_image(project(xyz, intrinsics.astype(np.float64)), width, height) & (xyz[..., 2] > 0)
         off_image = int(np.count_nonzero((visibility & ~inside).any(axis=0)))
     flicker_ok = passes_flicker(visibility_flips(visibility), num_frames, flicker_max_fraction)
+    at_query = tracks[t_q, np.arange(num_tracks)].astype(np.float64)
+    front = (at_query[:, 2] > 0) & np.isfinite(at_query).all(1) & np.isfinite(queries[:, :2]).all(1)
+    residual = np.linalg.norm(
+        project(at_query[front], intrinsics.astype(np.float64)) - queries[front, :2], axis=1
+    )
     return {
         "tracks": num_tracks,
         "frames": num_frames,
@@ -200,4 +211,6 @@ def quality_findings(
         "hidden_queries": int(np.count_nonzero(~visibility[t_q, np.arange(num_tracks)])),
         "off_image_visible": off_image,
         "flickering": int(np.count_nonzero(~flicker_ok)),
+        "query_residual_median_px": round(float(np.median(residual)), 4) if len(residual) else None,
+        "query_residual_max_px": round(float(residual.max()), 4) if len(residual) else None,
     }

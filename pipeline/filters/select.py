@@ -92,12 +92,17 @@ def decide(
 def apply_filters(
     clip: ClipRecord, config: RunConfig, mask_min_agreement: float
 ) -> tuple[ClipRecord, FilterOutcome]:
-    """Keep the tracks every filter passes, then draw the clip's target count (seeded); a clip of
-    given queries keeps every track, in order (the verdicts are still recorded)."""
+    """Keep the tracks every filter passes, then the clip's target count of them: those with the
+    lowest ``track_keys`` when the clip has keys, else a seeded draw; a clip of given queries keeps
+    every track, in order (the verdicts are still recorded)."""
     verdicts, stats = decide(clip, config, mask_min_agreement)
     survivors = np.nonzero(np.logical_and.reduce([verdicts[name] for name in FILTER_ORDER]))[0]
-    rng = rng_for(config.seed, f"{clip.name}/subsample")
-    selected = survivors[choose_subset(len(survivors), clip.target_tracks, rng)]
+    if clip.track_keys is not None:
+        lowest = np.argsort(clip.track_keys[survivors], kind="stable")[: clip.target_tracks]
+        selected = survivors[np.sort(lowest)]
+    else:
+        rng = rng_for(config.seed, f"{clip.name}/subsample")
+        selected = survivors[choose_subset(len(survivors), clip.target_tracks, rng)]
     if clip.given_queries:
         selected = np.arange(clip.num_tracks)
     outcome = FilterOutcome(

@@ -1,10 +1,12 @@
 """Panoptic Studio annotation of one (sequence, camera) unit, on arrays (no Beam, no files).
 
-1. Queries: pixels on the unit camera's foreground mask at random frames; depth rendered from
-   the splats at those pixels; unprojected; attached to the nearest foreground Gaussian centre
-   at that frame (a KD-tree). The track is that centre at every frame, in the camera frame.
-2. Visibility per frame: in the image, in front, and |z - D(u, v)| < delta, with D rendered
-   from all Gaussians at the track's projection (no hand term for this source).
+1. Queries: pixels on the unit camera's foreground mask at random frames; the splats' median
+   depth (pipeline/pstudio/render.py) rendered at those pixels' centres; unprojected; attached
+   to the nearest foreground Gaussian centre at that frame (pipeline/pstudio/nearest.py). The
+   track is that centre at every frame, in the camera frame.
+2. Visibility per frame: in the image, in front, and |z - D(u, v)| < delta, with D the median
+   depth of all Gaussians at the track's projection, where the transmittance drops below 0.5
+   there (no hand term for this source).
 3. A candidate is kept only if it is visible at its own query frame; the query (x, y) is the
    centre's projection there.
 4. Multi-view mask statistic: over every (frame, camera) pair where the centre projects into
@@ -14,10 +16,10 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
@@ -27,8 +29,9 @@ from pipeline.core.sampling import rng_for
 from pipeline.core.visibility import in_view
 from pipeline.export.depth_export import dense_depth_mm, dense_record
 from pipeline.export.given_queries import given_queries, given_query_frames
+from pipeline.pstudio.nearest import nearest_centres
 from pipeline.pstudio.render import render_depth_at, render_depth_image
-from pipeline.pstudio.splats import Splats2D, project_splats
+from pipeline.pstudio.splats import GaussianConstants, Splats2D, gaussian_constants, project_splats
 
 
 @dataclasses.dataclass
@@ -48,7 +51,8 @@ class Views:
 @dataclasses.dataclass
 class Gaussians:
     """Dynamic 3D Gaussians: means [T, N, 3], quaternions [T, N, 4] (w, x, y, z, unnormalised),
-    scales [N, 3], opacities [N], foreground [N] bool."""
+    scales [N, 3], opacities [N], foreground [N] bool; ``constants`` (what no frame changes) is
+    computed on first use, once for every frame and camera."""
 
     means: np.ndarray
     quaternions: np.ndarray
@@ -59,6 +63,10 @@ class Gaussians:
     @property
     def num_frames(self) -> int:
         return int(self.means.shape[0])
+
+    @functools.cached_property
+    def constants(self) -> GaussianConstants:
+        return gaussian_constants(self.scales, self.opacities)
 
 
 @dataclasses.dataclass
@@ -85,8 +93,7 @@ def splats_in_view(unit: UnitInput, view: int, t: int, points_uv: np.ndarray | N
     return project_splats(
         g.means[t],
         g.quaternions[t],
-        g.scales,
-        g.opacities,
+        g.constants,
         v.w2c[view],
         v.fx_fy_cx_cy[view],
         v.width,
@@ -98,8 +105,8 @@ def splats_in_view(unit: UnitInput, view: int, t: int, points_uv: np.ndarray | N
 def attach_queries(
     unit: UnitInput, attempts: int, config: RunConfig
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Draw ``attempts`` query pixels on the unit camera's mask at random frames; attach each
-    to the nearest foreground Gaussian centre at its frame.
+    """Draw ``attempts`` query pixels on the unit camera's mask at random frames; attach the
+    surface rendered at each pixel's centre to the nearest foreground Gaussian centre there.
 
     Returns (query frames [A], Gaussian indices [A], attachment distances [A] in metres) for the
     attempts that hit a surface within ``max_attach_distance_m`` of a centre, in draw order,
@@ -120,14 +127,10 @@ def attach_queries(
         if not len(rows):
             continue
         choice = np.minimum((draws[picked] * len(rows)).astype(np.int64), len(rows) - 1)
-        pixels = np.stack([cols[choice], rows[choice]], axis=1).astype(np.float64)
-        depth, _ = render_depth_at(
-            splats_in_view(unit, view, int(t), pixels), pixels, config.pstudio.min_alpha
-        )
-        surface = np.isfinite(depth)
+        pixels = np.stack([cols[choice], rows[choice]], axis=1) + 0.5
+        depth, surface = render_depth_at(splats_in_view(unit, view, int(t), pixels), pixels)
         points = transform_points(world_from_cam, unproject(pixels[surface], depth[surface], intrinsics))
-        tree = cKDTree(unit.gaussians.means[t, foreground].astype(np.float64))
-        nearest_distance, nearest = tree.query(points)
+        nearest_distance, nearest = nearest_centres(unit.gaussians.means[t], foreground, points)
         close = nearest_distance <= config.pstudio.max_attach_distance_m
         gaussian[picked[surface][close]] = foreground[nearest[close]]
         distance[picked[surface][close]] = nearest_distance[close]
@@ -151,23 +154,18 @@ def match_given_queries(unit: UnitInput, queries: np.ndarray, config: RunConfig)
     for t in np.unique(frames):
         rows = np.nonzero(frames == t)[0]
         pixels = queries[rows, :2]
-        depth, _ = render_depth_at(
-            splats_in_view(unit, view, int(t), pixels), pixels, config.pstudio.min_alpha
-        )
+        depth, surface = render_depth_at(splats_in_view(unit, view, int(t), pixels), pixels)
         centres = transform_points(
             unit.views.w2c[view], unit.gaussians.means[t, foreground].astype(np.float64)
         )
         projected = project(centres, intrinsics)
-        tree = cKDTree(unit.gaussians.means[t, foreground].astype(np.float64))
-        for row, pixel, surface in zip(rows, pixels, depth, strict=True):
+        for row, pixel, z, hit in zip(rows, pixels, depth, surface, strict=True):
             near = np.nonzero((centres[:, 2] > 0) & (np.linalg.norm(projected - pixel, axis=1) <= 0.5))[0]
-            if len(near) and np.isfinite(surface):
-                chosen[row] = foreground[near[np.argmin(np.abs(centres[near, 2] - surface))]]
-            elif np.isfinite(surface):
-                point = transform_points(
-                    world_from_cam, unproject(pixel[None], np.array([surface]), intrinsics)
-                )
-                chosen[row] = foreground[tree.query(point[0])[1]]
+            if len(near) and hit:
+                chosen[row] = foreground[near[np.argmin(np.abs(centres[near, 2] - z))]]
+            elif hit:
+                point = transform_points(world_from_cam, unproject(pixel[None], np.array([z]), intrinsics))
+                chosen[row] = foreground[nearest_centres(unit.gaussians.means[t], foreground, point)[1][0]]
             else:
                 raise InputError(
                     f"{unit.clip_name}: given query {row} at ({pixel[0]:.1f}, {pixel[1]:.1f}, t={t}) "
@@ -180,7 +178,8 @@ def track_visibility(
     unit: UnitInput, gaussians: np.ndarray, config: RunConfig
 ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
     """Tracks [T, K, 3] (camera frame) of Gaussian centres [K] and their visibility [T, K]; with
-    ``export_depth``, also each frame's full depth map as uint16 millimetres [H, W] (else [])."""
+    ``export_depth``, also each frame's full depth map as uint16 millimetres [H, W], 0 where
+    there is no surface (else [])."""
     view = unit.views.index(unit.camera_id)
     intrinsics = unit.views.fx_fy_cx_cy[view]
     frames = unit.gaussians.num_frames
@@ -196,18 +195,20 @@ def track_visibility(
         # Exporting needs every splat for the full frame; the same projection serves the tracks.
         splats = splats_in_view(unit, view, t, None if config.export_depth else pixels)
         if config.export_depth:
-            depth_maps.append(dense_depth_mm(render_depth_image(splats, config.pstudio.min_alpha)[0]))
+            depth_image, surface_image = render_depth_image(splats)
+            depth_maps.append(dense_depth_mm(np.where(surface_image, depth_image, np.nan)))
         if not seen.any():
             continue
-        depth, _ = render_depth_at(splats, pixels, config.pstudio.min_alpha)
-        with np.errstate(invalid="ignore"):
-            visible[t, seen] = np.abs(tracks[t, seen, 2] - depth) < config.pstudio.depth_delta_m
+        # Where no splat takes the transmittance below 0.5 the depth is the 15 m background:
+        # nothing is seen there, whatever the track's depth.
+        depth, surface = render_depth_at(splats, pixels)
+        visible[t, seen] = surface & (np.abs(tracks[t, seen, 2] - depth) < config.pstudio.depth_delta_m)
     return tracks, visible, depth_maps
 
 
 def multiview_mask_fraction(unit: UnitInput, gaussians: np.ndarray) -> np.ndarray:
-    """[K] fraction of (frame, camera) pairs with the centre in the image that land on that
-    camera's foreground mask (NaN when it is never in any image)."""
+    """[K] fraction of (frame, camera) pairs with the centre in the image whose pixel
+    (floor(u), floor(v)) is on that camera's foreground mask (NaN when never in any image)."""
     views = unit.views
     on_mask = np.zeros(len(gaussians))
     in_image = np.zeros(len(gaussians))
@@ -216,8 +217,7 @@ def multiview_mask_fraction(unit: UnitInput, gaussians: np.ndarray) -> np.ndarra
         for view in range(len(views.camera_ids)):
             points = transform_points(views.w2c[view], centres)
             seen = in_view(points, views.fx_fy_cx_cy[view], views.width, views.height)
-            pixels = np.floor(project(points[seen], views.fx_fy_cx_cy[view]) + 0.5).astype(np.int64)
-            pixels = np.minimum(pixels, [views.width - 1, views.height - 1])
+            pixels = np.floor(project(points[seen], views.fx_fy_cx_cy[view])).astype(np.int64)
             mask = unit.mask(view, t)
             in_image[seen] += 1
             on_mask[seen] += mask[pixels[:, 1], pixels[:, 0]]

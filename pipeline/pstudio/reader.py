@@ -13,10 +13,11 @@ from apache_beam.io.filesystems import FileSystems
 
 from pipeline.core.config import PstudioConfig
 from pipeline.core.errors import InputError
-from pipeline.core.images import check_jpeg, decode_image
+from pipeline.core.images import check_jpeg
 from pipeline.export.files import open_binary, read_input
 from pipeline.export.npz_reader import NpzArchive, NpzError
 from pipeline.pstudio.annotate import Gaussians, Views
+from pipeline.pstudio.masks import MASKS
 
 # More Gaussians than any Dynamic 3D Gaussians scene holds (a few hundred thousand): a header claiming
 # more is refused before anything is allocated.
@@ -192,7 +193,7 @@ class SequenceFiles:
         return data
 
     def mask(self, view: int, t: int) -> np.ndarray:
-        """Foreground mask [H, W] bool (seg PNG, non-zero = foreground)."""
+        """Foreground mask [H, W] bool (seg PNG, non-zero = foreground), decoded once per process
+        (``pipeline.pstudio.masks``)."""
         path = FileSystems.join(self.folder, "seg", self.names[t][view].rsplit(".", 1)[0] + ".png")
-        image = decode_image(read_input(path), self.views.width, self.views.height, path, noun="mask")
-        return image > 0
+        return MASKS.mask(read_input(path), self.views.width, self.views.height, path)

@@ -13,9 +13,16 @@ reaches 1/255 (the compositing cut-off), not the rasterizer's 3-sigma square rou
 16-pixel tiles. A pixel's value then depends on no tiling: it equals compositing over all
 Gaussians (tests/test_pstudio_render.py checks this against a brute-force reference).
 
-Pixel convention: OpenCV's (pixel centres at integer coordinates, u = fx x / z + cx). The
-reference rasterizer samples at u + 0.5 instead; for depth lookups at the track's own
-projection this half-pixel shift has no bearing on the result.
+What no frame changes (scales, opacities and what follows from them) is computed once per
+sequence (``gaussian_constants``); per frame, only the means and rotations are read (float32 as
+stored, or float64). When depth is wanted at some points, a splat is dropped on its projected
+centre and a bound of its footprint (its largest scale, whatever its rotation) before its
+covariance is computed: only the splats that can reach a BLOCK x BLOCK-pixel block holding one
+of the points are projected in full, and of those, the ones whose footprint does are kept.
+
+Pixel convention: TAP-Vid's (docs/formats.md), as the reference rasterizer's: u = fx x / z + cx
+is a continuous coordinate, pixel (i, j) covers [i, i + 1) x [j, j + 1) and its centre is
+(i + 0.5, j + 0.5).
 """
 
 from __future__ import annotations
@@ -26,6 +33,38 @@ import numba
 import numpy as np
 
 TILE = 16  # pixels per side of the square tiles splats are binned into
+BLOCK = 4  # pixels per side of the blocks a point's splat list is cut to (TILE / BLOCK blocks a side)
+CHUNK = 1024  # splats bounded together before their boxes are tested (_candidates)
+
+
+@dataclasses.dataclass(frozen=True)
+class GaussianConstants:
+    """Per-Gaussian quantities no frame changes (N Gaussians), float64: scales [N, 3], opacity [N],
+    reach [N] = 2 ln(255 opacity), the squared Mahalanobis radius where alpha falls to 1/255, and
+    max_variance [N], the largest scale squared."""
+
+    scales: np.ndarray
+    opacity: np.ndarray
+    reach: np.ndarray
+    max_variance: np.ndarray
+
+
+@numba.njit(cache=True)
+def _reach_and_variance(scales, opacity, reach, max_variance):
+    for i in range(opacity.shape[0]):
+        reach[i] = 2.0 * np.log(255.0 * opacity[i])
+        largest = max(scales[i, 0], scales[i, 1], scales[i, 2])
+        max_variance[i] = largest * largest
+
+
+def gaussian_constants(scales: np.ndarray, opacities: np.ndarray) -> GaussianConstants:
+    """The constants of Gaussians with scales [N, 3] (standard deviations along the local axes)
+    and opacities [N] in [0, 1]."""
+    scales = np.ascontiguousarray(scales, dtype=np.float64)
+    opacity = np.ascontiguousarray(opacities, dtype=np.float64)
+    reach, max_variance = np.empty(len(opacity)), np.empty(len(opacity))
+    _reach_and_variance(scales, opacity, reach, max_variance)
+    return GaussianConstants(scales, opacity, reach, max_variance)
 
 
 @dataclasses.dataclass
@@ -51,21 +90,96 @@ class Splats2D:
         return len(self.depth)
 
 
+@numba.njit(cache=True)
+def _reaches(u, v, ext_x, ext_y, width, height, wanted):
+    """Whether the box [u +- ext_x] x [v +- ext_y] meets the image and a wanted block
+    (``wanted``: ``wanted_blocks``' summed-area table)."""
+    if u + ext_x < 0 or u - ext_x >= width or v + ext_y < 0 or v - ext_y >= height:
+        return False
+    x0 = max(0, int(np.floor((u - ext_x) / BLOCK)))
+    x1 = min(wanted.shape[1] - 2, int(np.floor((u + ext_x) / BLOCK))) + 1
+    y0 = max(0, int(np.floor((v - ext_y) / BLOCK)))
+    y1 = min(wanted.shape[0] - 2, int(np.floor((v + ext_y) / BLOCK))) + 1
+    return wanted[y1, x1] - wanted[y0, x1] - wanted[y1, x0] + wanted[y0, x0] > 0
+
+
 @numba.njit(parallel=True, cache=True)
-def _preprocess(means, quaternions, scales, opacities, w2c, intrinsics, width, height, wanted, out, keep):
-    """Per splat: out[i] = (u, v, conic a, b, c, z, extent x, extent y); keep[i] = its footprint
-    touches a wanted tile (``wanted``: [tiles_y * tiles_x] bool, row-major)."""
+def _candidates(means, opacity, reach, max_variance, w2c, intrinsics, width, height, wanted, flags):
+    """flags[i] = splat i may meet a wanted block (``wanted``: ``wanted_blocks``), from its centre
+    and a bound of its footprint: Sigma'_xx = |g R S|^2 + 0.3 <= max_variance |g|^2 + 0.3 with g
+    = row 0 of J W (R a rotation), likewise Sigma'_yy; widened by 1e-6 for rounding. Means [N, 3]
+    may be float32.
+
+    Two loops per chunk of splats: the first, without branches, bounds each splat (a box far
+    off the image when it is culled: behind the near plane, transparent or not finite); the
+    second tests the boxes. (One loop with the test ran three times slower: each mispredicted
+    test had waited on a division and a square root.)"""
     fx, fy, cx, cy = intrinsics[0], intrinsics[1], intrinsics[2], intrinsics[3]
     lim_x = 1.3 * 0.5 * width / fx
     lim_y = 1.3 * 0.5 * height / fy
-    for i in numba.prange(means.shape[0]):
-        keep[i] = False
-        px = w2c[0, 0] * means[i, 0] + w2c[0, 1] * means[i, 1] + w2c[0, 2] * means[i, 2] + w2c[0, 3]
-        py = w2c[1, 0] * means[i, 0] + w2c[1, 1] * means[i, 1] + w2c[1, 2] * means[i, 2] + w2c[1, 3]
-        pz = w2c[2, 0] * means[i, 0] + w2c[2, 1] * means[i, 1] + w2c[2, 2] * means[i, 2] + w2c[2, 3]
-        if pz <= 0.2 or opacities[i] < 1.0 / 255.0 or not np.isfinite(px + py + pz):
-            continue
-        qw, qx, qy, qz = quaternions[i, 0], quaternions[i, 1], quaternions[i, 2], quaternions[i, 3]
+    for chunk in numba.prange((means.shape[0] + CHUNK - 1) // CHUNK):
+        first, last = chunk * CHUNK, min((chunk + 1) * CHUNK, means.shape[0])
+        boxes = np.empty((last - first, 4))
+        for i in range(first, last):
+            mx, my, mz = np.float64(means[i, 0]), np.float64(means[i, 1]), np.float64(means[i, 2])
+            pz = w2c[2, 0] * mx + w2c[2, 1] * my + w2c[2, 2] * mz + w2c[2, 3]
+            px = w2c[0, 0] * mx + w2c[0, 1] * my + w2c[0, 2] * mz + w2c[0, 3]
+            py = w2c[1, 0] * mx + w2c[1, 1] * my + w2c[1, 2] * mz + w2c[1, 3]
+            live = (pz > 0.2) & (opacity[i] >= 1.0 / 255.0) & np.isfinite(px + py + pz)
+            inverse = 1.0 / pz if live else 1.0
+            x, y = px * inverse if live else 0.0, py * inverse if live else 0.0
+            j00, j02 = fx * inverse, -fx * min(lim_x, max(-lim_x, x)) * inverse
+            j11, j12 = fy * inverse, -fy * min(lim_y, max(-lim_y, y)) * inverse
+            g0, g1, g2 = (
+                j00 * w2c[0, 0] + j02 * w2c[2, 0],
+                j00 * w2c[0, 1] + j02 * w2c[2, 1],
+                j00 * w2c[0, 2] + j02 * w2c[2, 2],
+            )
+            h0, h1, h2 = (
+                j11 * w2c[1, 0] + j12 * w2c[2, 0],
+                j11 * w2c[1, 1] + j12 * w2c[2, 1],
+                j11 * w2c[1, 2] + j12 * w2c[2, 2],
+            )
+            spread = reach[i] if live else 0.0
+            k = i - first
+            boxes[k, 0] = fx * x + cx if live else -1e30
+            boxes[k, 1] = fy * y + cy
+            boxes[k, 2] = (
+                np.sqrt(spread * (max_variance[i] * (g0 * g0 + g1 * g1 + g2 * g2) + 0.3)) * (1 + 1e-6) + 1e-6
+            )
+            boxes[k, 3] = (
+                np.sqrt(spread * (max_variance[i] * (h0 * h0 + h1 * h1 + h2 * h2) + 0.3)) * (1 + 1e-6) + 1e-6
+            )
+        for i in range(first, last):
+            k = i - first
+            flags[i] = _reaches(boxes[k, 0], boxes[k, 1], boxes[k, 2], boxes[k, 3], width, height, wanted)
+
+
+@numba.njit(parallel=True, cache=True)
+def _preprocess(
+    candidates, means, quaternions, scales, opacity, reach, w2c, intrinsics, width, height, wanted, out, keep
+):
+    """Per candidate k (splat i = candidates[k]): out[k] = (u, v, conic a, b, c, z, extent x,
+    extent y); keep[k] = its footprint meets a wanted block. Means [N, 3] and quaternions
+    [N, 4] may be float32 (read as float64)."""
+    fx, fy, cx, cy = intrinsics[0], intrinsics[1], intrinsics[2], intrinsics[3]
+    lim_x = 1.3 * 0.5 * width / fx
+    lim_y = 1.3 * 0.5 * height / fy
+    for k in numba.prange(candidates.shape[0]):
+        i = candidates[k]
+        keep[k] = False
+        mx, my, mz = np.float64(means[i, 0]), np.float64(means[i, 1]), np.float64(means[i, 2])
+        px = w2c[0, 0] * mx + w2c[0, 1] * my + w2c[0, 2] * mz + w2c[0, 3]
+        py = w2c[1, 0] * mx + w2c[1, 1] * my + w2c[1, 2] * mz + w2c[1, 3]
+        pz = w2c[2, 0] * mx + w2c[2, 1] * my + w2c[2, 2] * mz + w2c[2, 3]
+        tx = min(lim_x, max(-lim_x, px / pz)) * pz
+        ty = min(lim_y, max(-lim_y, py / pz)) * pz
+        j00, j02 = fx / pz, -fx * tx / (pz * pz)
+        j11, j12 = fy / pz, -fy * ty / (pz * pz)
+        u = fx * px / pz + cx
+        v = fy * py / pz + cy
+        qw, qx = np.float64(quaternions[i, 0]), np.float64(quaternions[i, 1])
+        qy, qz = np.float64(quaternions[i, 2]), np.float64(quaternions[i, 3])
         norm = np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
         qw, qx, qy, qz = qw / norm, qx / norm, qy / norm, qz / norm
         r00, r01, r02 = 1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qw * qz), 2 * (qx * qz + qw * qy)
@@ -82,10 +196,6 @@ def _preprocess(means, quaternions, scales, opacities, w2c, intrinsics, width, h
         m20 = (w2c[2, 0] * r00 + w2c[2, 1] * r10 + w2c[2, 2] * r20) * sx
         m21 = (w2c[2, 0] * r01 + w2c[2, 1] * r11 + w2c[2, 2] * r21) * sy
         m22 = (w2c[2, 0] * r02 + w2c[2, 1] * r12 + w2c[2, 2] * r22) * sz
-        tx = min(lim_x, max(-lim_x, px / pz)) * pz
-        ty = min(lim_y, max(-lim_y, py / pz)) * pz
-        j00, j02 = fx / pz, -fx * tx / (pz * pz)
-        j11, j12 = fy / pz, -fy * ty / (pz * pz)
         a0, a1, a2 = j00 * m00 + j02 * m20, j00 * m01 + j02 * m21, j00 * m02 + j02 * m22
         b0, b1, b2 = j11 * m10 + j12 * m20, j11 * m11 + j12 * m21, j11 * m12 + j12 * m22
         cov_a = a0 * a0 + a1 * a1 + a2 * a2 + 0.3
@@ -95,73 +205,87 @@ def _preprocess(means, quaternions, scales, opacities, w2c, intrinsics, width, h
         if det <= 0.0:
             continue
         # alpha >= 1/255  <=>  d^T Sigma'^-1 d <= 2 ln(255 opacity): that ellipse's bounding box.
-        reach = 2.0 * np.log(255.0 * opacities[i])
-        ext_x = np.sqrt(reach * cov_a) * (1 + 1e-9) + 1e-9
-        ext_y = np.sqrt(reach * cov_c) * (1 + 1e-9) + 1e-9
-        u = fx * px / pz + cx
-        v = fy * py / pz + cy
-        if u + ext_x < 0 or u - ext_x >= width or v + ext_y < 0 or v - ext_y >= height:
+        ext_x = np.sqrt(reach[i] * cov_a) * (1 + 1e-9) + 1e-9
+        ext_y = np.sqrt(reach[i] * cov_c) * (1 + 1e-9) + 1e-9
+        if not _reaches(u, v, ext_x, ext_y, width, height, wanted):
             continue
-        tiles_x = (width + TILE - 1) // TILE
-        x0, x1 = (
-            max(0, int(np.floor((u - ext_x) / TILE))),
-            min(tiles_x - 1, int(np.floor((u + ext_x) / TILE))),
-        )
-        y0 = max(0, int(np.floor((v - ext_y) / TILE)))
-        y1 = min((height + TILE - 1) // TILE - 1, int(np.floor((v + ext_y) / TILE)))
-        touches = False
-        for ty in range(y0, y1 + 1):
-            for tx in range(x0, x1 + 1):
-                touches = touches or wanted[ty * tiles_x + tx]
-        if not touches:
-            continue
-        out[i, 0], out[i, 1] = u, v
-        out[i, 2], out[i, 3], out[i, 4] = cov_c / det, -cov_b / det, cov_a / det
-        out[i, 5], out[i, 6], out[i, 7] = pz, ext_x, ext_y
-        keep[i] = True
+        out[k, 0], out[k, 1] = u, v
+        out[k, 2], out[k, 3], out[k, 4] = cov_c / det, -cov_b / det, cov_a / det
+        out[k, 5], out[k, 6], out[k, 7] = pz, ext_x, ext_y
+        keep[k] = True
+
+
+@numba.njit(cache=True)
+def _settle_ties(keys, order):
+    """Sort each run of equal ``keys[order]`` by position, making ``order`` [M] (an argsort of
+    ``keys`` [M]) the stable one."""
+    start = 0
+    for k in range(1, order.shape[0] + 1):
+        if k == order.shape[0] or keys[order[k]] != keys[order[start]]:
+            if k - start > 1:
+                order[start:k] = np.sort(order[start:k])
+            start = k
 
 
 def project_splats(
     means: np.ndarray,
     quaternions: np.ndarray,
-    scales: np.ndarray,
-    opacities: np.ndarray,
+    constants: GaussianConstants,
     w2c: np.ndarray,
     fx_fy_cx_cy: np.ndarray,
     width: int,
     height: int,
     points_uv: np.ndarray | None = None,
 ) -> Splats2D:
-    """Project N Gaussians into a camera: those that can touch the image, sorted front to back.
+    """Project N Gaussians into a camera: those that can touch the image, sorted front to back
+    (ties in index order).
 
-    With ``points_uv`` [P, 2], keep only the splats that can touch a tile holding one of those
-    points: enough to render depth there, and much less to sort and bin.
+    With ``points_uv`` [P, 2], keep only the splats that can touch a block holding one of those
+    points: enough to render depth there, and much less to project, sort and bin.
 
     Args:
-      means: [N, 3] world centres. quaternions: [N, 4] (w, x, y, z), unnormalised.
-      scales: [N, 3] standard deviations along the local axes. opacities: [N] in [0, 1].
+      means: [N, 3] world centres. quaternions: [N, 4] (w, x, y, z), unnormalised; float32 or
+        float64. constants: ``gaussian_constants`` of the N Gaussians.
       w2c: [4, 4] world-to-camera (OpenCV axes). fx_fy_cx_cy: [4].
     """
-    as_f64 = [np.ascontiguousarray(a, dtype=np.float64) for a in (means, quaternions, scales, opacities)]
-    out = np.empty((len(means), 8))
-    keep = np.empty(len(means), dtype=np.bool_)
+    means = np.ascontiguousarray(means)
+    w2c = np.ascontiguousarray(w2c, dtype=np.float64)
+    intrinsics = np.asarray(fx_fy_cx_cy, dtype=np.float64)
+    wanted = wanted_blocks(points_uv, width, height)
+    c = constants
+    flags = np.empty(len(means), np.bool_)
+    _candidates(
+        means, c.opacity, c.reach, c.max_variance, w2c, intrinsics, int(width), int(height), wanted, flags
+    )
+    candidates = np.flatnonzero(flags)
+    out = np.empty((len(candidates), 8))
+    keep = np.empty(len(candidates), np.bool_)
     _preprocess(
-        *as_f64,
-        np.ascontiguousarray(w2c, dtype=np.float64),
-        np.asarray(fx_fy_cx_cy, dtype=np.float64),
+        candidates,
+        means,
+        np.ascontiguousarray(quaternions),
+        c.scales,
+        c.opacity,
+        c.reach,
+        w2c,
+        intrinsics,
         int(width),
         int(height),
-        wanted_tiles(points_uv, width, height),
+        wanted,
         out,
         keep,
     )
-    index = np.nonzero(keep)[0]
-    index = index[np.argsort(out[index, 5], kind="stable")]
-    kept = out[index]
+    rows = np.flatnonzero(keep)
+    depth = out[rows, 5]
+    order = np.argsort(depth)
+    _settle_ties(depth, order)
+    rows = rows[order]
+    kept = np.take(out, rows, axis=0)
+    index = candidates[rows]
     return Splats2D(
         xy=kept[:, 0:2],
         conic=kept[:, 2:5],
-        opacity=np.asarray(opacities, dtype=np.float64)[index],
+        opacity=constants.opacity[index],
         depth=kept[:, 5],
         extent=kept[:, 6:8],
         index=index,
@@ -170,24 +294,28 @@ def project_splats(
     )
 
 
-def point_tiles(points_uv: np.ndarray, width: int) -> np.ndarray:
-    """Row-major tile index [P] of image points [P, 2] inside the image."""
-    tiles_x = -(-width // TILE)
-    return (points_uv[:, 1] // TILE).astype(np.int64) * tiles_x + (points_uv[:, 0] // TILE).astype(np.int64)
-
-
 def inside_image(points_uv: np.ndarray, width: int, height: int) -> np.ndarray:
     """[P] True where points [P, 2] lie in [0, width) x [0, height)."""
     u, v = points_uv[:, 0], points_uv[:, 1]
     return (u >= 0) & (u < width) & (v >= 0) & (v < height)
 
 
-def wanted_tiles(points_uv: np.ndarray | None, width: int, height: int) -> np.ndarray:
-    """[tiles_y * tiles_x] bool: the tiles holding a point of ``points_uv`` [P, 2] (all if None)."""
-    count = -(-width // TILE) * -(-height // TILE)
+def point_tiles(points_uv: np.ndarray, width: int) -> np.ndarray:
+    """Row-major tile index [P] of image points [P, 2] inside the image."""
+    tiles_x = -(-width // TILE)
+    return (points_uv[:, 1] // TILE).astype(np.int64) * tiles_x + (points_uv[:, 0] // TILE).astype(np.int64)
+
+
+def wanted_blocks(points_uv: np.ndarray | None, width: int, height: int) -> np.ndarray:
+    """Summed-area table [blocks_y + 1, blocks_x + 1] of the blocks holding a point of
+    ``points_uv`` [P, 2] (all blocks if None): entry (y, x) counts the wanted blocks above row y
+    and left of column x, so any box's count takes four reads."""
+    blocks_x, blocks_y = -(-width // BLOCK), -(-height // BLOCK)
+    wanted = np.zeros((blocks_y + 1, blocks_x + 1), np.int64)
     if points_uv is None:
-        return np.ones(count, np.bool_)
-    points = np.asarray(points_uv, dtype=np.float64).reshape(-1, 2)
-    wanted = np.zeros(count, np.bool_)
-    wanted[point_tiles(points[inside_image(points, width, height)], width)] = True
-    return wanted
+        wanted[1:, 1:] = 1
+    else:
+        points = np.asarray(points_uv, dtype=np.float64).reshape(-1, 2)
+        inner = points[inside_image(points, width, height)]
+        wanted[(inner[:, 1] // BLOCK).astype(np.int64) + 1, (inner[:, 0] // BLOCK).astype(np.int64) + 1] = 1
+    return wanted.cumsum(axis=0).cumsum(axis=1)

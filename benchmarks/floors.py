@@ -1,0 +1,157 @@
+"""The read+decode floor of one unit: the bare cost of reading and decoding the unit's inputs,
+nothing else (no checks, no annotation, no output), measured in a benchmark worker process
+(``python -m benchmarks.worker`` with ``spec["mode"] == "floor"``: fresh, single-threaded, bound
+to one CPU like the unit's own processes). The report divides the unit's time by it (CPU times
+of these single-threaded pinned processes: their wall times on an idle machine).
+
+drivetrack: the unit's columns of every component file of the segment, streamed with pyarrow 8
+  rows at a time as the reader does; the unit camera's JPEGs decoded to BGR (``cv2.imdecode``,
+  as the undistortion does); the TOP lidar's range images of ``lidar``, ``lidar_pose`` and
+  ``lidar_camera_projection`` turned into arrays [H, W, C].
+pstudio: ``train_meta.json``; the five members of ``params.npz`` the reader reads (``np.load``);
+  the unit camera's JPEGs and every camera's mask PNG at every frame (the multi-view mask
+  statistic reads them all), each decoded once, grey-level, as the reader decodes them.
+adt: opening the sequence with projectaria-tools (``AriaDigitalTwinDataProvider``, once, cold)
+  and its frame timestamps, then the chunk's RGB, depth and segmentation frames read from the
+  VRS files ``repeat`` times, as the unit's runs read them; the report extrapolates it to a
+  300-frame unit like the unit itself (opening + 300 x per-frame read).
+
+Each returns floor_s / floor_cpu_s (the whole floor at the measured size) and floor_frames;
+adt also floor_open_s / floor_open_cpu_s (the opening, inside floor_s).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+
+import numpy as np
+
+
+def _timed(function, *args) -> tuple[float, float]:
+    wall, cpu = time.perf_counter(), time.process_time()
+    function(*args)
+    return time.perf_counter() - wall, time.process_time() - cpu
+
+
+def drivetrack(spec: dict) -> dict:
+    import cv2
+    import pyarrow.compute as pc
+    import pyarrow.parquet as pq
+
+    from pipeline.drivetrack import columns as C
+
+    segment, camera = spec["unit"]
+    frames = 0
+
+    def path(component: str) -> str:
+        return os.path.join(spec["input_root"], component, f"{segment}.parquet")
+
+    def batches(component: str, columns: list[str]):
+        yield from pq.ParquetFile(path(component)).iter_batches(batch_size=8, columns=columns)
+
+    def read() -> None:
+        nonlocal frames
+        small = {
+            C.CAMERA_CALIBRATION: [C.CAMERA_NAME, *C.CAM_INTRINSICS, *C.CAM_DISTORTION, C.CAM_EXTRINSIC],
+            C.LIDAR_CALIBRATION: [C.LASER_NAME, C.LIDAR_EXTRINSIC, C.BEAM_INCLINATION_VALUES],
+            C.VEHICLE_POSE: [C.TIMESTAMP, C.WORLD_FROM_VEHICLE],
+            C.LIDAR_BOX: [C.TIMESTAMP, C.OBJECT_ID, C.BOX_TYPE, *C.BOX_FIELDS],
+            C.LIDAR_CAMERA_SYNCED_BOX: [C.TIMESTAMP, C.OBJECT_ID, C.MOST_VISIBLE_CAMERA],
+        }
+        for component, names in small.items():
+            pq.read_table(path(component), columns=names)
+        for batch in batches(C.CAMERA_IMAGE, [C.TIMESTAMP, C.CAMERA_NAME, C.IMAGE_JPEG, C.IMAGE_POSE]):
+            rows = batch.filter(pc.equal(batch.column(C.CAMERA_NAME), camera))
+            for jpeg in rows.column(C.IMAGE_JPEG).to_pylist():
+                cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
+                frames += 1
+        for component, values, shape in (
+            (C.LIDAR, C.LIDAR_RANGE_VALUES, C.LIDAR_RANGE_SHAPE),
+            (C.LIDAR_POSE, C.LIDAR_POSE_VALUES, C.LIDAR_POSE_SHAPE),
+            (C.LIDAR_CAMERA_PROJECTION, C.PROJECTION_VALUES, C.PROJECTION_SHAPE),
+        ):
+            for batch in batches(component, [C.TIMESTAMP, C.LASER_NAME, values, shape]):
+                rows = batch.filter(pc.equal(batch.column(C.LASER_NAME), C.TOP_LASER))
+                for row in range(rows.num_rows):
+                    dims = rows.column(shape)[row].values.to_numpy()
+                    rows.column(values)[row].values.to_numpy(zero_copy_only=False).reshape(dims)
+
+    wall, cpu = _timed(read)
+    return {"floor_s": wall, "floor_cpu_s": cpu, "floor_frames": frames}
+
+
+def pstudio(spec: dict) -> dict:
+    import cv2
+
+    sequence, camera = spec["unit"]
+    root = spec["input_root"]
+    data = os.path.join(root, "data", sequence)
+    outputs = os.path.join(root, "output")
+    params = [os.path.join(outputs, e, sequence, "params.npz") for e in sorted(os.listdir(outputs))][0]
+    members = ("means3D", "unnorm_rotations", "log_scales", "logit_opacities", "seg_colors")
+    frames = 0
+
+    def read_file(name: str) -> bytes:
+        with open(name, "rb") as f:
+            return f.read()
+
+    def decode(name: str) -> None:
+        cv2.imdecode(np.frombuffer(read_file(name), np.uint8), cv2.IMREAD_GRAYSCALE)
+
+    def read() -> None:
+        nonlocal frames
+        meta = json.loads(read_file(os.path.join(data, "train_meta.json")))
+        view = meta["cam_id"][0].index(camera)
+        with np.load(params) as archive:
+            for name in members:
+                archive[name]
+        for t, names in enumerate(meta["fn"]):
+            decode(os.path.join(data, "ims", names[view]))
+            for name in names:
+                decode(os.path.join(data, "seg", name.rsplit(".", 1)[0] + ".png"))
+            frames = t + 1
+
+    wall, cpu = _timed(read)
+    return {"floor_s": wall, "floor_cpu_s": cpu, "floor_frames": frames}
+
+
+def adt(spec: dict) -> dict:
+    from pipeline.adt.source import open_reader
+    from pipeline.core.config import RunConfig, with_overrides
+
+    config = with_overrides(RunConfig(), spec["overrides"])
+    sequence, chunk = spec["unit"]
+    opened = {}
+
+    def open_sequence() -> None:
+        reader = open_reader(sequence, config)
+        opened["reader"], opened["stamps"] = reader, reader.frame_timestamps()
+
+    open_wall, open_cpu = _timed(open_sequence)
+    reader = opened["reader"]
+    size = config.adt.chunk_frames
+    stamps = opened["stamps"][chunk * size : (chunk + 1) * size]
+    repeat = spec.get("repeat", 1)
+
+    def read() -> None:
+        for _ in range(repeat):
+            for timestamp in stamps:
+                reader.rgb(timestamp)
+                reader.depth_mm(timestamp)
+                reader.ids(timestamp)
+
+    wall, cpu = _timed(read)
+    return {
+        "floor_s": open_wall + wall,
+        "floor_cpu_s": open_cpu + cpu,
+        "floor_frames": len(stamps) * repeat,
+        "floor_open_s": open_wall,
+        "floor_open_cpu_s": open_cpu,
+    }
+
+
+def measure(spec: dict) -> dict:
+    """The floor of ``spec``'s unit (``benchmarks.units`` builds the spec)."""
+    return {"drivetrack": drivetrack, "pstudio": pstudio, "adt": adt}[spec["source"]](spec)

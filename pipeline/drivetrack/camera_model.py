@@ -1,0 +1,223 @@
+"""Waymo's camera model: where a world point appears in a stored frame, lens distortion and rolling
+shutter included (docs/formats.md, section 3). Read from Waymo's C++ model
+(``src/waymo_open_dataset/wdl_limited/camera/camera_model.cc``) and written anew.
+
+- Lens: OpenCV's k1, k2, p1, p2, k3 on the normalised coordinates (X / Z, Y / Z in OpenCV axes,
+  which are Waymo's -y / x, -z / x). Where the radial factor leaves [0.8, 1.2] the polynomial folds
+  back: such a point is placed far outside the image in its own direction and is never in view
+  (Waymo's guard).
+- Rolling shutter (``camera_image`` ``rolling_shutter_params``, ``velocity``, ``pose_timestamp``,
+  and the calibration's ``rolling_shutter_direction``): the sensor reads its rows (or columns) one
+  after another, a pixel at ``trigger + shutter / 2 + readout / H x v`` (v its row coordinate,
+  counted from the last row when reading bottom to top; u and W for columns), readout =
+  ``readout_done - trigger - shutter``. Meanwhile the camera moves with the vehicle's linear velocity
+  (world frame, plus the angular velocity's lever arm to the camera) and turns with its angular
+  velocity (vehicle frame, as Waymo's code reads it), from its pose at ``pose_timestamp``. A point
+  is seen at the instant its own pixel is read, solved per point (secant method). Waymo's code
+  makes that instant linear in the undistorted coordinate instead of the sensor's row: the two
+  differ by the distortion's share of the readout (8 px of 1280 rows over 30 ms: 0.2 ms).
+- Without those columns, or with a global or unknown shutter direction, a frame is seen at once,
+  from its pose.
+
+A point's camera coordinates are those at the instant it is seen (``Projection.points``); the
+frame's extrinsics are the camera's pose at the pose timestamp. Pixels follow TAP-Vid's convention,
+as Waymo's do (``InImage`` is 0 <= u < W): pixel [r, c] covers [c, c + 1) x [r, r + 1).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from pipeline.core.errors import InputError
+from pipeline.core.geometry import CV_FROM_FLU, in_image, transform_points
+from pipeline.drivetrack.reader import CameraCalibration, CameraFrames
+
+GLOBAL_SHUTTER = 5
+# Readout direction -> (pixel axis read along: 0 columns, 1 rows; counted from the far edge).
+READOUT_AXES = {1: (1, False), 2: (0, False), 3: (1, True), 4: (0, True)}
+MIN_RADIAL, MAX_RADIAL = 0.8, 1.2
+SECANT_STEPS = 12
+TOLERANCE_S = 1e-9
+
+
+@dataclasses.dataclass(frozen=True)
+class Readout:
+    """When one frame's pixels are read, in seconds after its pose: ``start + rate x coordinate``,
+    coordinate the pixel's position along ``axis`` (0: u, 1: v) clipped to [0, extent], counted
+    from the far edge when ``reverse``; and how the camera moves: ``velocity`` [3] (its own axes
+    at the pose, OpenCV, m/s) and ``omega`` [3] (its own axes, rad/s)."""
+
+    start: float
+    rate: float
+    axis: int
+    reverse: bool
+    extent: int
+    velocity: np.ndarray
+    omega: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
+class Projection:
+    """Points [N] seen in one frame: ``points`` [N, 3] camera coordinates (OpenCV axes, metres) at
+    the instant each is seen, ``pixels`` [N, 2] in the stored frame ((-1, -1) behind the camera),
+    ``in_view`` [N] bool: in front, on the sensor, and inside the stored frame."""
+
+    points: np.ndarray
+    pixels: np.ndarray
+    in_view: np.ndarray
+
+
+def distort(normalized: np.ndarray, distortion: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV's lens model on normalised coordinates [N, 2]: distorted normalised coordinates
+    [N, 2] and the radial factor [N]."""
+    k1, k2, p1, p2, k3 = distortion
+    x, y = normalized[:, 0], normalized[:, 1]
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+    return np.stack([xd, yd], 1), radial
+
+
+def _rotate(vectors: np.ndarray, omega: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """Vectors [N, 3] rotated by exp(-t [omega]x), t the per-vector times [N] (Rodrigues)."""
+    rate = np.linalg.norm(omega)
+    if rate == 0.0:
+        return vectors
+    axis = omega / rate
+    angle = -rate * times[:, None]
+    along = vectors @ axis
+    return (
+        vectors * np.cos(angle)
+        + np.cross(axis, vectors) * np.sin(angle)
+        + axis * along[:, None] * (1.0 - np.cos(angle))
+    )
+
+
+class UnitCamera:
+    """One unit's camera over its frames: ``project(t, world points)``.
+
+    calibration, frames: the reader's records; cam_from_world: [T, 4, 4] OpenCV camera from world
+    at each frame's pose (``poses.camera_from_world``); undistorted: frames are stored undistorted
+    (pinhole pixels of the same intrinsics) instead of as the sensor took them; what: names the
+    camera in errors.
+    """
+
+    def __init__(
+        self,
+        calibration: CameraCalibration,
+        frames: CameraFrames,
+        cam_from_world: np.ndarray,
+        undistorted: bool,
+        what: str,
+    ):
+        self.calibration = calibration
+        self.cam_from_world = cam_from_world
+        self.undistorted = undistorted
+        self.readouts = [
+            self._readout(frames, t, f"{what} frame {frames.timestamps[t]}")
+            for t in range(len(cam_from_world))
+        ]
+
+    def _readout(self, frames: CameraFrames, t: int, what: str) -> Readout | None:
+        motion, calibration = frames.motion, self.calibration
+        if motion is None or calibration.rolling_shutter_direction not in READOUT_AXES:
+            return None
+        values = [motion.pose_timestamp[t], motion.shutter[t], motion.trigger[t], motion.readout_done[t]]
+        velocity, omega = motion.linear_velocity[t], motion.angular_velocity[t]
+        if np.isnan(values).any() or np.isnan(velocity).any() or np.isnan(omega).any():
+            return None  # this frame has no rolling-shutter record
+        pose_time, shutter, trigger, done = values
+        readout = done - trigger - shutter
+        if readout < 0 or shutter < 0:
+            raise InputError(
+                f"{what}: rolling shutter readout of {readout:.6g} s (shutter {shutter:.6g} s), "
+                "expected both >= 0"
+            )
+        axis, reverse = READOUT_AXES[calibration.rolling_shutter_direction]
+        extent = calibration.height if axis == 1 else calibration.width
+        world_from_vehicle = frames.world_from_vehicle_at_exposure[t]
+        vehicle_from_camera = calibration.camera_to_vehicle
+        arm = world_from_vehicle[:3, :3] @ vehicle_from_camera[:3, 3]
+        camera_velocity = velocity + np.cross(world_from_vehicle[:3, :3] @ omega, arm)
+        return Readout(
+            start=trigger + 0.5 * shutter - pose_time,
+            rate=readout / extent,
+            axis=axis,
+            reverse=reverse,
+            extent=extent,
+            velocity=self.cam_from_world[t, :3, :3] @ camera_velocity,
+            omega=CV_FROM_FLU[:3, :3] @ vehicle_from_camera[:3, :3].T @ omega,
+        )
+
+    def sensor_pixels(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Where camera points [N, 3] (OpenCV axes) fall on the sensor: pixels [N, 2] and whether
+        the lens model holds there and the point is in front [N]."""
+        fx, fy, cx, cy = self.calibration.fx_fy_cx_cy
+        front = points[:, 2] > 0
+        normalized = points[:, :2] / np.where(front, points[:, 2], 1.0)[:, None]
+        distorted, radial = distort(normalized, self.calibration.distortion)
+        valid = front & (radial >= MIN_RADIAL) & (radial <= MAX_RADIAL)
+        # Beyond the lens model: far outside the image, in the point's own direction (Waymo's guard).
+        reach = np.hypot(self.calibration.width, self.calibration.height)
+        length = np.maximum(np.linalg.norm(normalized, axis=1, keepdims=True), 1e-12)
+        distorted = np.where(valid[:, None], distorted, normalized / length * reach / np.array([fx, fy]))
+        pixels = distorted * np.array([fx, fy]) + np.array([cx, cy])
+        return np.where(front[:, None], pixels, -1.0), valid
+
+    def _read_time(self, readout: Readout, points: np.ndarray) -> np.ndarray:
+        """Seconds after the pose [N] at which the sensor reads the pixels of camera points [N, 3]."""
+        pixels, _ = self.sensor_pixels(points)
+        front = points[:, 2] > 0
+        centre = self.calibration.fx_fy_cx_cy[2 + readout.axis]
+        coordinate = np.clip(np.where(front, pixels[:, readout.axis], centre), 0.0, readout.extent)
+        if readout.reverse:
+            coordinate = readout.extent - coordinate
+        return readout.start + readout.rate * coordinate
+
+    def project(self, t: int, world: np.ndarray) -> Projection:
+        """Where world points [N, 3] appear in frame t of the unit."""
+        local = transform_points(self.cam_from_world[t], world)
+        readout = self.readouts[t]
+        if readout is not None:
+            local = self._seen(readout, local)
+        sensor, valid = self.sensor_pixels(local)
+        size = (self.calibration.width, self.calibration.height)
+        in_view = valid & in_image(sensor, *size)
+        if not self.undistorted:
+            return Projection(local, sensor, in_view)
+        fx, fy, cx, cy = self.calibration.fx_fy_cx_cy
+        front = local[:, 2] > 0
+        z = np.where(front, local[:, 2], 1.0)
+        pinhole = np.stack([fx * local[:, 0] / z + cx, fy * local[:, 1] / z + cy], 1)
+        pinhole = np.where(front[:, None], pinhole, -1.0)
+        return Projection(local, pinhole, in_view & in_image(pinhole, *size))
+
+    def _seen(self, readout: Readout, local: np.ndarray) -> np.ndarray:
+        """Camera points [N, 3] at the instant each is seen, from their coordinates at the pose [N, 3]:
+        the root of r(t) = t - read_time(point at t), by one fixed-point step from the pose, then
+        the secant method on the points not yet within ``TOLERANCE_S``."""
+
+        def moved(points: np.ndarray, times: np.ndarray) -> np.ndarray:
+            return _rotate(points - readout.velocity * times[:, None], readout.omega, times)
+
+        def residual(points: np.ndarray, times: np.ndarray) -> np.ndarray:
+            return times - self._read_time(readout, moved(points, times))
+
+        before = np.zeros(len(local))
+        residual_before = residual(local, before)
+        times = before - residual_before
+        active = np.arange(len(local))
+        for _ in range(SECANT_STEPS):
+            now = residual(local[active], times[active])
+            rise, run = now - residual_before[active], times[active] - before[active]
+            slope = np.divide(rise, run, out=np.ones_like(rise), where=run != 0)
+            step = now / np.where(np.abs(slope) > 1e-3, slope, 1.0)
+            before[active], residual_before[active] = times[active], now
+            times[active] -= step
+            active = active[np.abs(step) >= TOLERANCE_S]
+            if not len(active):
+                break
+        return moved(local, times)

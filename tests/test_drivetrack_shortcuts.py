@@ -1,0 +1,49 @@
+"""DriveTrack's shortcuts give bit-identical numbers to the plain computation they replace."""
+
+import numpy as np
+
+from pipeline.core.geometry import invert_se3, rotation_from_roll_pitch_yaw, transform_points
+from pipeline.drivetrack.boxes import box_poses, inside_box
+from pipeline.drivetrack.depth import depth_tree, nearest_depth_max4
+from pipeline.drivetrack.evidence import box_points
+from pipeline.drivetrack.lidar import kept_poses
+
+
+def _plain_poses(pixel_pose, kept):
+    poses = pixel_pose[kept].astype(np.float64)
+    return rotation_from_roll_pitch_yaw(poses[:, 0], poses[:, 1], poses[:, 2]), poses[:, 3:6]
+
+
+def test_kept_poses_per_column_and_per_pixel_match_the_plain_computation():
+    rng = np.random.default_rng(0)
+    kept = rng.random((8, 50)) > 0.3
+    kept[:, 7] = False  # a column without returns
+    columns = rng.normal(size=(50, 6)).astype(np.float32)
+    per_pixel = rng.normal(size=(8, 50, 6)).astype(np.float32)
+    for pixel_pose in (np.broadcast_to(columns, (8, 50, 6)).copy(), per_pixel):
+        rotation, translation = kept_poses(pixel_pose, kept, "test")
+        expected_rotation, expected_translation = _plain_poses(pixel_pose, kept)
+        assert np.array_equal(rotation, expected_rotation)
+        assert np.array_equal(translation, expected_translation)
+
+
+def test_box_points_match_testing_every_point():
+    rng = np.random.default_rng(1)
+    points = rng.uniform(-30, 30, size=(20000, 3))
+    boxes = np.array([[5.0, -2.0, 0.5, 4.5, 1.9, 1.6, 0.7], [-20.0, 9.0, 1.0, 12.0, 2.5, 3.0, -2.0]])
+    for box in boxes:
+        local = transform_points(invert_se3(box_poses(box)), points)
+        expected = np.flatnonzero(inside_box(local, box[3:6], 0.1))
+        index, inside, _ = box_points(points, box, 0.1)
+        assert len(expected) > 0
+        assert np.array_equal(index, expected)
+        assert np.array_equal(inside, local[expected])
+
+
+def test_nearest_depth_with_a_prebuilt_tree():
+    rng = np.random.default_rng(2)
+    lidar_uv, lidar_z = rng.uniform(0, 100, size=(500, 2)), rng.uniform(1, 50, size=500)
+    queries = rng.uniform(0, 100, size=(200, 2))
+    plain = nearest_depth_max4(lidar_uv, lidar_z, queries, 100, 100)
+    tree = depth_tree(lidar_uv)
+    assert np.array_equal(nearest_depth_max4(lidar_uv, lidar_z, queries, 100, 100, tree), plain)

@@ -1,0 +1,97 @@
+"""The selected-pixel path culls splats before projecting them in full (a bound of each footprint,
+then its exact box against the requested pixels' blocks): on a scene where most splats lie off
+the requested blocks, it keeps exactly the splats that reach them and renders the full frame's
+depth bit for bit."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from pipeline.pstudio.render import render_depth_at, render_depth_image
+from pipeline.pstudio.splats import BLOCK, gaussian_constants, inside_image, project_splats
+
+WIDTH, HEIGHT = 200, 120
+INTRINSICS = np.array([180.0, 170.0, 100.3, 59.7])
+
+
+def crowded_scene(count: int = 20_000, seed: int = 0):
+    """Gaussians [count] filling the left of the view and beyond its edges: random rotations, scales from 1 mm
+    to 5 cm (some needles and discs), opacities around the 1/255 cut-off and up to 1, some behind
+    the camera or at the near plane; means as float32, as params.npz stores them."""
+    rng = np.random.default_rng(seed)
+    depth = np.where(rng.random(count) < 0.03, rng.uniform(-0.5, 0.3, count), rng.uniform(1.0, 6.0, count))
+    means = (
+        np.stack([rng.uniform(-0.7, 0.2, count), rng.uniform(-0.45, 0.45, count), np.ones(count)], 1)
+        * depth[:, None]
+    )
+    scales = np.exp(rng.uniform(np.log(1e-3), np.log(0.05), (count, 3)))
+    scales[: count // 10, 0] *= 0.01  # needles and discs
+    opacities = rng.uniform(0.5 / 255, 1.0, count)
+    quaternions = Rotation.random(count, random_state=seed).as_quat(scalar_first=True)
+    quaternions *= rng.uniform(0.5, 2.0, (count, 1))  # unnormalised, as stored
+    w2c = np.eye(4)
+    w2c[:3, :3] = Rotation.from_euler("xyz", [3, -4, 2], degrees=True).as_matrix()
+    w2c[:3, 3] = [0.05, -0.02, 0.1]
+    return (
+        means.astype(np.float32),
+        quaternions.astype(np.float32),
+        gaussian_constants(scales, opacities),
+        w2c,
+    )
+
+
+def clustered_points(rng: np.random.Generator) -> np.ndarray:
+    """Points [P, 2] in three small clusters, at pixel centres, block edges and anywhere in a
+    pixel, plus two outside the image."""
+    centres = np.array([[20.5, 30.5], [137.5, 90.5], [199.5, 0.5]])
+    cluster = np.concatenate([c + rng.integers(-3, 4, (12, 2)) for c in centres])
+    edges = np.array([[4.0 * 9, 31.0], [4.0 * 9 - 1e-9, 31.0], [140.0, 4.0 * 22], [140.0, 4.0 * 22 - 1e-9]])
+    anywhere = centres[:2] + rng.uniform(-2, 2, (6, 2)).reshape(3, 2, 2)
+    outside = np.array([[-0.5, 10.0], [WIDTH + 0.5, 10.0]])
+    return np.concatenate([cluster, edges, anywhere.reshape(-1, 2), outside])
+
+
+def test_selected_points_render_the_full_frame_bit_for_bit_with_most_splats_culled():
+    means, quaternions, constants, w2c = crowded_scene()
+    full = project_splats(means, quaternions, constants, w2c, INTRINSICS, WIDTH, HEIGHT)
+    points = clustered_points(np.random.default_rng(1))
+    selected = project_splats(means, quaternions, constants, w2c, INTRINSICS, WIDTH, HEIGHT, points)
+    depth, surface = render_depth_at(selected, points)
+    # The full frame's splat lists, evaluated at the same points (pixel centres and the rest).
+    full_depth, full_surface = render_depth_at(full, points)
+    np.testing.assert_array_equal(depth, full_depth)
+    np.testing.assert_array_equal(surface, full_surface)
+    image_depth, image_surface = render_depth_image(full)
+    inside = inside_image(points, WIDTH, HEIGHT)
+    centres = inside & np.all(points % 1 == 0.5, axis=1)
+    rows, cols = points[centres, 1].astype(int), points[centres, 0].astype(int)
+    np.testing.assert_array_equal(depth[centres], image_depth[rows, cols])
+    np.testing.assert_array_equal(surface[centres], image_surface[rows, cols])
+    assert np.isnan(depth[~inside]).all() and surface.sum() > 20 and (~surface[inside]).sum() > 3
+    # The culling is exact: kept are precisely the full frame's splats whose footprint box meets
+    # a requested block, in the same (depth) order, and that is a small part of the scene.
+    blocks = {(int(x // BLOCK), int(y // BLOCK)) for x, y in points[inside]}
+    low, high = full.xy - full.extent, full.xy + full.extent
+    reaching = np.zeros(len(full), bool)
+    for bx, by in blocks:
+        reaching |= (
+            (low[:, 0] < (bx + 1) * BLOCK)
+            & (high[:, 0] >= bx * BLOCK)
+            & (low[:, 1] < (by + 1) * BLOCK)
+            & (high[:, 1] >= by * BLOCK)
+        )
+    np.testing.assert_array_equal(selected.index, full.index[reaching])
+    assert len(selected) < 0.15 * len(full) and len(full) > 10_000
+
+
+def test_splats_at_equal_depth_keep_their_index_order():
+    """Front to back, and Gaussians at exactly the same depth in index order (a stable sort)."""
+    rng = np.random.default_rng(2)
+    count = 3_000
+    depth = rng.choice([1.0, 1.5, 2.25, 3.0], count)
+    means = np.stack([rng.uniform(-0.3, 0.3, count) * depth, rng.uniform(-0.2, 0.2, count) * depth, depth], 1)
+    constants = gaussian_constants(np.full((count, 3), 0.01), np.full(count, 0.8))
+    quaternions = np.tile([1.0, 0.0, 0.0, 0.0], (count, 1))
+    splats = project_splats(means, quaternions, constants, np.eye(4), INTRINSICS, WIDTH, HEIGHT)
+    np.testing.assert_array_equal(splats.index, np.argsort(depth, kind="stable"))

@@ -1,0 +1,85 @@
+"""Masks decoded once per process (pipeline/pstudio/masks.py): within a unit each (camera, frame)
+mask is decoded at most once, the next unit of the sequence decodes none, and the cache returns
+exactly what decoding returns, within its memory bound."""
+
+from __future__ import annotations
+
+import collections
+
+import cv2
+import numpy as np
+import pytest
+
+from pipeline.core.config import RunConfig
+from pipeline.core.errors import InputError
+from pipeline.pstudio import masks, reader
+from pipeline.pstudio.annotate import annotate_unit
+from pipeline.pstudio.source import list_units, load_unit
+
+
+@pytest.fixture
+def decoded(monkeypatch):
+    """A fresh cache for the readers, and a Counter of the files (``what``) it decodes."""
+    counts = collections.Counter()
+    decode = masks.decode_image
+
+    def counting(data, width, height, what, **kwargs):
+        counts[what] += 1
+        return decode(data, width, height, what, **kwargs)
+
+    monkeypatch.setattr(masks, "decode_image", counting)
+    monkeypatch.setattr(reader, "MASKS", masks.MaskCache())
+    return counts
+
+
+def png(mask: np.ndarray) -> bytes:
+    return cv2.imencode(".png", mask.astype(np.uint8) * 255)[1].tobytes()
+
+
+def test_each_mask_is_decoded_once_per_sequence(pstudio_sample, decoded):
+    root, _ = pstudio_sample
+    config = RunConfig()
+    first, second = list_units(root, config)[:2]
+    unit = load_unit(root, *first, config)
+    (clip,) = annotate_unit(unit, config)
+    assert clip.num_tracks > 0
+    cameras, frames = len(unit.views.camera_ids), unit.gaussians.num_frames
+    assert set(decoded.values()) == {1} and 0 < len(decoded) <= cameras * frames
+    decoded.clear()
+    annotate_unit(load_unit(root, *second, config), config)
+    assert not decoded
+
+
+def test_a_hit_is_the_decoded_mask_and_a_fresh_array(decoded):
+    rng = np.random.default_rng(0)
+    mask = rng.random((36, 52)) < 0.3
+    cache = masks.MaskCache()
+    for _ in range(3):
+        got = cache.mask(png(mask), 52, 36, "m.png")
+        np.testing.assert_array_equal(got, mask)
+        got[:] = False  # the caller's to change
+    assert decoded["m.png"] == 1
+
+
+def test_the_cache_stays_within_its_bound(decoded):
+    rng = np.random.default_rng(1)
+    files = [png(rng.random((40, 64)) < 0.5) for _ in range(6)]
+    one = len(files[0]) + 40 * 64 // 8
+    cache = masks.MaskCache(max_bytes=3 * one)
+    for data in files:
+        cache.mask(data, 64, 40, "m.png")
+    assert cache.bytes <= 3 * one
+    cache.mask(files[-1], 64, 40, "m.png")  # recent: kept
+    assert decoded["m.png"] == 6
+    cache.mask(files[0], 64, 40, "m.png")  # the oldest: evicted
+    assert decoded["m.png"] == 7
+
+
+def test_bad_files_are_refused_every_time(decoded):
+    cache = masks.MaskCache()
+    good = png(np.ones((20, 30), bool))
+    for _ in range(2):
+        with pytest.raises(InputError, match="bad.png: corrupt mask"):
+            cache.mask(good[:60], 30, 20, "bad.png")
+        with pytest.raises(InputError, match="small.png: mask is 30x20, expected 60x40"):
+            cache.mask(good, 60, 40, "small.png")

@@ -1,0 +1,81 @@
+"""Panoptic Studio annotation on hand-made one-camera scenes: pixel (i, j) is read at its centre
+(i + 0.5, j + 0.5) and at floor(u), floor(v), and the renderer's 15 m background is no surface."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.core.config import RunConfig
+from pipeline.pstudio.annotate import (
+    Gaussians,
+    UnitInput,
+    Views,
+    attach_queries,
+    multiview_mask_fraction,
+    track_visibility,
+)
+
+SIZE = 32
+FOCAL = 500.0
+PRINCIPAL = 16.0
+
+
+def unit_with(pixels, depths, opacities, mask: np.ndarray | None = None) -> UnitInput:
+    """One frame, one camera (identity pose, f = 500, principal point (16, 16), 32 x 32) and
+    tiny foreground Gaussians (sigma 1 um: splats of 2D variance 0.3 px^2) whose centres project
+    to ``pixels`` [N, 2] at ``depths`` [N]; ``mask`` [32, 32] is the camera's foreground mask."""
+    pixels, depths = np.asarray(pixels, float), np.asarray(depths, float)
+    means = np.column_stack([(pixels - PRINCIPAL) / FOCAL * depths[:, None], depths])
+    count = len(depths)
+    mask = np.zeros((SIZE, SIZE), bool) if mask is None else mask
+    return UnitInput(
+        sequence="hand",
+        camera_id=0,
+        views=Views(
+            camera_ids=np.array([0]),
+            fx_fy_cx_cy=np.array([[FOCAL, FOCAL, PRINCIPAL, PRINCIPAL]]),
+            w2c=np.eye(4)[None],
+            width=SIZE,
+            height=SIZE,
+        ),
+        gaussians=Gaussians(
+            means=means[None],
+            quaternions=np.tile([1.0, 0.0, 0.0, 0.0], (1, count, 1)),
+            scales=np.full((count, 3), 1e-6),
+            opacities=np.asarray(opacities, float),
+            foreground=np.ones(count, bool),
+        ),
+        frames_jpeg=[],
+        mask=lambda view, t: mask,
+    )
+
+
+def test_a_query_pixel_is_rendered_at_its_centre():
+    """The mask holds pixel (8, 8) alone; a Gaussian projects to (8.5, 8.5). At the centre its
+    alpha is 0.9 (a surface at its own depth, unprojected onto it); at the corner (8, 8) it would
+    be 0.9 exp(-0.5 / 0.6) = 0.39 (no surface, no query)."""
+    mask = np.zeros((SIZE, SIZE), bool)
+    mask[8, 8] = True
+    frames, gaussians, distance = attach_queries(unit_with([[8.5, 8.5]], [2.0], [0.9], mask), 4, RunConfig())
+    np.testing.assert_array_equal(frames, [0])
+    np.testing.assert_array_equal(gaussians, [0])
+    assert distance[0] < 1e-9
+
+
+def test_a_mask_is_read_at_the_pixel_holding_the_projection():
+    """Only mask pixel (column 10, row 20) is set: (10.9, 20.9) lies in it, (9.6, 19.6) does not
+    (rounding to the nearest integer would swap them)."""
+    mask = np.zeros((SIZE, SIZE), bool)
+    mask[20, 10] = True
+    unit = unit_with([[10.9, 20.9], [9.6, 19.6]], [2.0, 2.0], [0.9, 0.9], mask)
+    np.testing.assert_array_equal(multiview_mask_fraction(unit, np.array([0, 1])), [1.0, 0.0])
+
+
+def test_the_15_m_background_makes_nothing_visible():
+    """Two Gaussians 15 m away, on their own pixels: opacity 0.3 leaves T = 0.7 there, so the
+    depth is the 15 m background (no surface), equal to the point's depth yet not a sighting;
+    opacity 0.9 is a surface at 15 m and is seen."""
+    unit = unit_with([[8.5, 8.5], [24.5, 24.5]], [15.0, 15.0], [0.3, 0.9])
+    tracks, visible, _ = track_visibility(unit, np.array([0, 1]), RunConfig())
+    np.testing.assert_allclose(tracks[0, :, 2], [15.0, 15.0])
+    np.testing.assert_array_equal(visible, [[False, True]])
