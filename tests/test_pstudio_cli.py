@@ -1,5 +1,5 @@
-"""``python -m pipeline.run --source pstudio`` end to end: valid clips (determinism across worker
-processes: tests/test_dask_runner.py; bad input: tests/test_bad_input_pstudio.py)."""
+"""``python -m pipeline.run --source pstudio`` end to end: valid clips, determinism
+(bad input: tests/test_bad_input_pstudio.py)."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from pipeline.validate import main as validate_main
+from tests.cli import run_pipeline
 
 
 def clip_files(out):
@@ -34,3 +35,25 @@ def test_run_writes_valid_clips(direct_run):
         assert "extrinsics_w2c" not in clip.files
         assert clip["tracks_XYZ"].shape == (40, 50, 3)
     assert "pstudio: 4 unit(s), 0 finished earlier, 0 failed" in result.stdout
+
+
+def test_multiprocessing_runner_writes_identical_bytes(direct_run, pstudio_sample, tmp_path):
+    out, _ = direct_run
+    other = str(tmp_path / "mp")
+    result = run_pipeline(
+        "pstudio",
+        "--input",
+        pstudio_sample[0],
+        "--output",
+        other,
+        "--direct_running_mode=multi_processing",
+        "--direct_num_workers=2",
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert clip_files(other) == clip_files(out)
+    for name in clip_files(out):
+        with (
+            open(os.path.join(out, "pstudio", name), "rb") as a,
+            open(os.path.join(other, "pstudio", name), "rb") as b,
+        ):
+            assert a.read() == b.read(), name
