@@ -114,8 +114,10 @@ class NpzArchive:
                 f"more than the {_size(max_bytes)} allowed{limit}; refused",
             )
 
-    def read(self, key: str, max_bytes: int, why: str = "") -> np.ndarray:
-        """The member as an array, refused before reading when its data exceed ``max_bytes``."""
+    def read(self, key: str, max_bytes: int, why: str = "", writable: bool = True) -> np.ndarray:
+        """The member as an array, refused before reading when its data exceed ``max_bytes``;
+        ``writable=False`` returns a read-only view of the bytes read (no copy: for large members
+        that are only read, such as a sequence's Gaussians)."""
         self.check_size(key, max_bytes, why)
         header = self.header(key)
         where = f"member {key!r}"
@@ -131,7 +133,8 @@ class NpzArchive:
                 self.name, f"{where}: {len(data)} bytes of data, its header claims {header.nbytes}"
             )
         array = np.frombuffer(data, dtype=header.dtype)
-        return array.reshape(header.shape, order="F" if header.fortran_order else "C").copy()
+        array = array.reshape(header.shape, order="F" if header.fortran_order else "C")
+        return array.copy() if writable else array
 
 
 def _size(nbytes: int) -> str:

@@ -1,0 +1,29 @@
+"""``NpzArchive.read``: the member's values in either memory order, as a private writable copy by
+default or as a read-only view of the bytes read (``writable=False``)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipeline.export.npz_reader import NpzArchive
+
+
+@pytest.mark.parametrize("order", ["C", "F"])
+def test_read_returns_the_values_writable_or_read_only(tmp_path, order):
+    values = np.asarray(np.arange(24, dtype=np.float32).reshape(2, 3, 4), order=order)
+    path = tmp_path / "params.npz"
+    np.savez(path, means3D=values)
+    with open(path, "rb") as handle:
+        archive = NpzArchive(handle, str(path))
+        size = archive.header("means3D").nbytes
+        copy = archive.read("means3D", size)
+        view = archive.read("means3D", size, writable=False)
+    for array in (copy, view):
+        assert array.dtype == np.float32 and array.shape == (2, 3, 4)
+        np.testing.assert_array_equal(array, values)
+    assert copy.flags.writeable and not view.flags.writeable
+    with pytest.raises(ValueError):
+        view[0, 0, 0] = 1.0
+    copy[0, 0, 0] = 99.0  # the copy is the caller's own
+    np.testing.assert_array_equal(view, values)
