@@ -61,8 +61,11 @@ def decode_image(
     return image
 
 
-def check_jpeg(data: bytes, width: int, height: int, what: str) -> None:
-    """Raise InputError unless ``data`` is a complete JPEG of ``width`` x ``height`` pixels."""
+def check_jpeg(
+    data: bytes, width: int, height: int, what: str, flags: int = cv2.IMREAD_GRAYSCALE
+) -> np.ndarray:
+    """The decoded image ([H, W] or [H, W, 3] uint8, as ``flags`` ask) of ``data``; InputError unless
+    it is a complete JPEG of ``width`` x ``height`` pixels."""
     if not isinstance(data, bytes) or len(data) < 4:
         raise InputError(f"{what}: missing or empty JPEG")
     if data[:2] != b"\xff\xd8" or data.rstrip(b"\x00")[-2:] != b"\xff\xd9":
@@ -72,4 +75,4 @@ def check_jpeg(data: bytes, width: int, height: int, what: str) -> None:
         raise InputError(f"{what}: corrupt JPEG (no frame header)")
     if size != (height, width):
         raise InputError(f"{what}: JPEG is {size[1]}x{size[0]}, calibration says {width}x{height}")
-    decode_image(data, width, height, what, noun="JPEG")
+    return decode_image(data, width, height, what, noun="JPEG", flags=flags)

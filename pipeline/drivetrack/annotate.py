@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 
+import cv2
 import numpy as np
 
 from pipeline.core.clip import ClipRecord
@@ -26,7 +27,7 @@ from pipeline.drivetrack.poses import camera_from_world, frame_poses
 from pipeline.drivetrack.queries import clip_queries
 from pipeline.drivetrack.silhouette import object_masks
 from pipeline.drivetrack.tracks import choose_points, point_pool
-from pipeline.drivetrack.undistort import undistort_jpeg, undistortion_maps
+from pipeline.drivetrack.undistort import undistort_image, undistortion_maps
 from pipeline.drivetrack.unit_input import UnitInput
 from pipeline.drivetrack.visibility import track_visibility
 from pipeline.export.depth_export import sparse_record
@@ -125,8 +126,12 @@ def stored_frames(unit: UnitInput, frames: list[int], undistorted: bool) -> dict
     for t in frames:
         what = f"camera_image/{unit.segment} camera {unit.camera} frame {unit.frames.timestamps[t]}"
         jpeg = unit.frames.jpegs[t]
-        check_jpeg(jpeg, calibration.width, calibration.height, what)
-        stored[t] = undistort_jpeg(jpeg, maps, calibration, what) if undistorted else jpeg
+        if undistorted:  # one colour decode both checks the frame and feeds the undistortion
+            image = check_jpeg(jpeg, calibration.width, calibration.height, what, cv2.IMREAD_COLOR)
+            stored[t] = undistort_image(image, maps)
+        else:
+            check_jpeg(jpeg, calibration.width, calibration.height, what)
+            stored[t] = jpeg
     return stored
 
 

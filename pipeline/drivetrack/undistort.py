@@ -7,7 +7,6 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from pipeline.core.images import decode_image
 from pipeline.drivetrack.reader import CameraCalibration
 
 JPEG_QUALITY = 95
@@ -23,10 +22,8 @@ def undistortion_maps(calibration: CameraCalibration) -> tuple[np.ndarray, np.nd
     return cv2.initUndistortRectifyMap(matrix, calibration.distortion, None, matrix, size, cv2.CV_32FC1)
 
 
-def undistort_jpeg(
-    jpeg: bytes, maps: tuple[np.ndarray, np.ndarray], calibration: CameraCalibration, what: str
-) -> bytes:
-    """A frame's JPEG undistorted through ``maps`` (black where the sensor saw nothing), re-encoded."""
-    image = decode_image(jpeg, calibration.width, calibration.height, what, flags=cv2.IMREAD_COLOR)
+def undistort_image(image: np.ndarray, maps: tuple[np.ndarray, np.ndarray]) -> bytes:
+    """A frame [H, W, 3] uint8 undistorted through ``maps`` (black where the sensor saw nothing),
+    JPEG-encoded."""
     stored = cv2.remap(image, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
     return cv2.imencode(".jpg", stored, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])[1].tobytes()
