@@ -66,11 +66,18 @@ def test_remap_is_the_librarys_rendering(source, source_shape, target, target_sh
     missing = np.isnan(points[..., 0])
     assert 0 < missing.sum() < missing.size / 2  # some target pixels see nothing
     remap = Remap(points, source_shape)
+    past_last_row = points[..., 1] == source_shape[0] - 1
     rng = np.random.default_rng(0)
     for _ in range(3):
         rgb, depth, ids = images(source_shape, rng)
         np.testing.assert_array_equal(remap.rgb(rgb), calibration.distort_by_calibration(rgb, dst, src))
         expected = calibration.distort_depth_by_calibration(depth.astype(np.float32), dst, src)
+        # On the source's last row the library also reads the row past the image (weight 0):
+        # memory it does not own, so a NaN or inf there makes its pixel NaN, by chance. Ours
+        # leaves that tap out; elsewhere, and wherever the library's pixel is finite, the same.
+        garbage = past_last_row & ~np.isfinite(expected)
+        assert (np.isfinite(expected) | past_last_row).all()
+        expected = np.where(garbage, remap.depth(depth), expected)
         np.testing.assert_array_equal(remap.depth(depth), expected)  # uint16 in, float32 mm out
         np.testing.assert_array_equal(remap.depth(depth.astype(np.float32)), expected)
         np.testing.assert_array_equal(
