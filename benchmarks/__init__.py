@@ -4,7 +4,7 @@ package: they import ``pipeline`` and ``pipeline.samples``, never the other way 
 One file per job:
   cli.py               the command: ``python -m benchmarks {all,adt,drivetrack,pstudio} [--quick|--full]``
   units.py             the per-unit benchmark of one source: prepare, run the scaling set and the floor
-  worker.py            one unit in a fresh single-threaded pinned process, through ``pipeline.unit.run_unit``
+  worker.py            one unit in a fresh single-threaded pinned process, through ``pipeline.unit.run_group``
   floors.py            the read+decode floor of a unit: reading and decoding its inputs, nothing else
   processes.py         spawning the worker processes, reaping them (wait4), their peak memory (VmHWM)
   report.py            per-source figures, the one table against the targets, its JSON, CPU-hours

@@ -4,10 +4,10 @@ nothing else (no checks, no annotation, no output), measured in a benchmark work
 to one CPU like the unit's own processes). The report divides the unit's time by it (CPU times
 of these single-threaded pinned processes: their wall times on an idle machine).
 
-drivetrack: the unit's columns of every component file of the segment, streamed with pyarrow 8
-  rows at a time as the reader does; the unit camera's JPEGs decoded to BGR (``cv2.imdecode``,
-  as the undistortion does); the TOP lidar's range images of ``lidar``, ``lidar_pose`` and
-  ``lidar_camera_projection`` turned into arrays [H, W, C].
+drivetrack (a group: the segment's cameras): the columns the units read of every component file
+  of the segment, streamed with pyarrow 8 rows at a time as the reader does; the group cameras'
+  JPEGs decoded to BGR (``cv2.imdecode``, as the undistortion does); the TOP lidar's range images
+  of ``lidar``, ``lidar_pose`` and ``lidar_camera_projection`` turned into arrays [H, W, C], once.
 pstudio: ``train_meta.json``; the five members of ``params.npz`` the reader reads (``np.load``);
   the unit camera's JPEGs and every camera's mask PNG at every frame (the multi-view mask
   statistic reads them all), each decoded once, grey-level, as the reader decodes them.
@@ -37,12 +37,13 @@ def _timed(function, *args) -> tuple[float, float]:
 
 def drivetrack(spec: dict) -> dict:
     import cv2
+    import pyarrow as pa
     import pyarrow.compute as pc
     import pyarrow.parquet as pq
 
     from pipeline.drivetrack import columns as C
 
-    segment, camera = spec["unit"]
+    (segment,), cameras = {s for s, _ in spec["unit"]}, [c for _, c in spec["unit"]]
     frames = 0
 
     def path(component: str) -> str:
@@ -63,7 +64,8 @@ def drivetrack(spec: dict) -> dict:
         for component, names in small.items():
             pq.read_table(path(component), columns=names)
         for batch in batches(C.CAMERA_IMAGE, [C.TIMESTAMP, C.CAMERA_NAME, C.IMAGE_JPEG, C.IMAGE_POSE]):
-            rows = batch.filter(pc.equal(batch.column(C.CAMERA_NAME), camera))
+            names = batch.column(C.CAMERA_NAME)
+            rows = batch.filter(pc.is_in(names, pa.array(cameras, names.type)))
             for jpeg in rows.column(C.IMAGE_JPEG).to_pylist():
                 cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
                 frames += 1

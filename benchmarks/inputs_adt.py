@@ -40,7 +40,7 @@ def prepare(workdir: str, quick: bool) -> UnitSetup | None:
         description=[
             f"the real ADT excerpt: its one chunk of {chunk} frames ({', '.join(EXCERPT_SETTINGS)}), "
             "1408x1408 fisheye RGB, depth and ids re-rendered to 512x512",
-            f"unit = that chunk through pipeline.unit.run_unit {repeat} times ({chunk * repeat} frames), "
+            f"unit = that chunk through pipeline.unit.run_group {repeat} times ({chunk * repeat} frames), "
             "so that process start does not dominate; the opening of the sequence is measured apart "
             "and taken out of the per-frame cost; the scaling set repeats the unit (same input, "
             "separate outputs)",

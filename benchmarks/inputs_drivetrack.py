@@ -18,8 +18,9 @@ extrapolates the unit to 199 frames linearly. Over 30 frames every vehicle in vi
 so the unit has more clip frames per input frame than the full segment's (each costs a few ms).
 
 The street: the ego drives 158 m on a nearly straight road past traffic in both directions
-and parked cars, so the FRONT camera's unit yields several clips (the release's FRONT units
-average 6.3 clips; every unit 3.3).
+and parked cars, with a service road on each side where two cars keep pace, so the FRONT
+camera's unit yields several clips and each side camera's a few (the release's FRONT units
+average 6.3 clips, every unit 3.3: its side units 1.8).
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ DEFAULT = dict(FULL, frames=30)
 QUICK = {"frames": 30, "width": 480, "height": 320, "columns": 900, "short_range": (20, 60), "scale": 2}
 FOCAL_AT_1920 = 2055.0
 IMAGE_NOISE = 6.0
-VERSION = "2"  # 2: the sample writer's lens distortion and rolling shutter
+VERSION = "3"  # 2: the sample writer's lens distortion and rolling shutter; 3: side-camera vehicles
 # TAPVid-3D's 2457 DriveTrack clips come from 250 Waymo segments (542 of their 750
 # (segment, camera) pairs hold a released clip); the pipeline runs every (segment, camera) pair.
 SEGMENTS = 250
@@ -79,6 +80,12 @@ def bench_world():
         ("parked_right_3_JJJJJJJ", (125.0, -7.0), 0.0, 0.0),
         ("parked_left_1_KKKKKKKK", (70.0, 10.5), 0.01, 0.0),
         ("parked_left_2_LLLLLLLL", (140.0, 10.8), 0.0, 0.0),
+        # On a service road on each side, keeping pace with the ego: the FRONT_LEFT and FRONT_RIGHT
+        # cameras' vehicles (the release's side-camera units average 1.8 clips).
+        ("service_left_near_NNNN", (12.0, 13.5), 0.0, 8.0),
+        ("service_left_far_OOOOO", (20.0, 13.5), 0.0, 8.1),
+        ("service_right_near_PPP", (12.0, -13.5), 0.0, 8.0),
+        ("service_right_far_QQQQ", (20.0, -13.5), 0.0, 7.9),
     ]
     actors = [
         actor(name, 1, start, heading, speed, tuple(np.roll(grey, i) * (0.6 + 0.04 * i)))
@@ -130,29 +137,31 @@ def prepare(workdir: str, quick: bool, full: bool = False) -> UnitSetup:
     return UnitSetup(
         source="drivetrack",
         input_root=folder,
-        units=[[SEGMENT, 1]],
+        units=[[[SEGMENT, camera] for camera in range(1, CAMERAS + 1)]],
         overrides=[],
-        frames=sizes["frames"],
+        frames=CAMERAS * sizes["frames"],
         description=[
             f"one Waymo v2 segment, {sizes['frames']} frames; cameras FRONT, FRONT_LEFT, FRONT_RIGHT at "
             f"{sizes['width']}x{sizes['height']} (camera_image file {jpeg_mib:.0f} MiB, {jpeg_kib:.0f} KiB "
             f"per JPEG); TOP lidar "
             f"64x{sizes['columns']} + 4 short-range lidars {short} (no returns); {files_mib:.0f} MiB of "
             f"Parquet" + (f"; written in {written:.0f} s" if written > 1 else ""),
-            "unit = (segment, FRONT camera); the scaling set repeats it (same input, separate outputs)",
+            f"unit = the segment's {CAMERAS} (segment, camera) units as the graph groups them (one read "
+            "of the lidar); a frame = one camera's frame; the scaling set repeats the group (same input, "
+            "separate outputs)",
         ],
-        full_units=SEGMENTS * CAMERAS,
+        full_units=SEGMENTS,
         full_units_note=(
-            f"{SEGMENTS} segments x {CAMERAS} cameras: the release's 2457 clips come from 250 segments; "
-            "each unit priced like this FRONT unit, whose clip count is above the all-unit mean of 3.3"
+            f"{SEGMENTS} segments of {CAMERAS} cameras: the release's 2457 clips come from 250 segments "
+            "(3.3 clips per camera); each priced like this one"
         ),
         size=tag,
-        extrapolate_frames=FULL["frames"] if tag == "default" else None,
+        extrapolate_frames=CAMERAS * FULL["frames"] if tag == "default" else None,
         notes=[
             f"measured on a {sizes['frames']}-frame segment with the full segment's sensors and image "
-            f"sizes; the {FULL['frames']}-frame unit is {FULL['frames']} x its per-frame cost "
-            "(extrapolated); its vehicles stay in view all along, so it has more clip frames per input "
-            "frame than a 20 s segment: the extrapolation leans high"
+            f"sizes; the {FULL['frames']}-frame segment is {CAMERAS} x {FULL['frames']} camera frames x "
+            "the per-frame cost (extrapolated); its vehicles stay in view all along, so it has more clip "
+            "frames per input frame than a 20 s segment: the extrapolation leans high"
         ]
         if tag == "default"
         else [],

@@ -291,8 +291,8 @@ def format_table(table: dict) -> list[str]:
         if table["rows"][-1]["cpu_hours_pass"] is None:
             lines.append("n/a: the total is judged against the benchmark's target when every source ran")
         lines += [
-            "ms/frame, CPU-hours, unit/floor: of a release unit (DriveTrack 199 frames, Panoptic Studio "
-            "150, ADT 300),",
+            "ms/frame, CPU-hours, unit/floor: of a release unit (DriveTrack a segment's 3 cameras x 199 "
+            "frames, a frame being one camera's; Panoptic Studio 150, ADT 300),",
             "  in time on one core (the CPU time of a single-threaded process bound to one CPU: its wall "
             "time on an idle machine);",
             "  * = extrapolated from a shorter measured input (fixed cost + frames x per-frame cost);",

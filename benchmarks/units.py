@@ -2,9 +2,10 @@
 1 to N workers, its read+decode floor, and the CPU-hours of the whole benchmark
 (``python -m benchmarks``).
 
-A unit is what the Beam graph hands one worker: DriveTrack (segment, camera), Panoptic Studio
+A unit is what the Beam graph hands one worker: DriveTrack a segment's three cameras (the group
+of its (segment, camera) units, which share one read of the lidar), Panoptic Studio
 (sequence, camera), ADT (sequence, 300-frame chunk). Its work is the graph's own,
-``pipeline.unit.run_unit`` (``benchmarks.worker``), in a fresh single-threaded pinned process
+``pipeline.unit.run_group`` (``benchmarks.worker``), in a fresh single-threaded pinned process
 (``benchmarks.processes``); its floor (``benchmarks.floors``) is measured in one more such
 process; the figures are printed by ``benchmarks.report``.
 

@@ -2,9 +2,10 @@
 started by ``benchmarks.processes``.
 
 The work is the Beam graph's, through the same function its stages call:
-``pipeline.unit.run_unit(UnitJob(source, input_root, config, output, resume=False), unit)`` (read
-the inputs and annotate, filter, encode and write the clips, record the unit), ``spec["repeat"]``
-times (default 1). The source's ``annotate`` is wrapped only to time it. A source whose
+``pipeline.unit.run_group(UnitJob(source, input_root, config, output, resume=False), units)`` (read
+the inputs and annotate, filter, encode and write the clips, record each unit), ``spec["repeat"]``
+times (default 1); ``spec["unit"]`` is one unit or a group of them (``unit_group``). The source's
+``annotate`` and ``annotate_group`` are wrapped only to time them. A source whose
 ``benchmarks/inputs_<source>.py`` defines ``measure_fixed_cost(spec, config)`` (ADT: opening the
 sequence) has that cost measured apart, before the runs, for the extrapolation in ``report``.
 
@@ -34,6 +35,12 @@ def unit_counts(reports: list[dict]) -> dict:
     }
 
 
+def unit_group(unit: list) -> list[tuple]:
+    """The spec's unit as the units ``run_group`` runs: a unit ([segment, camera]) alone, or a
+    group of them ([[segment, 1], [segment, 2], ...]: DriveTrack's cameras of one segment)."""
+    return [tuple(item) for item in unit] if isinstance(unit[0], list) else [tuple(unit)]
+
+
 def run(spec: dict) -> dict:
     """The unit's work, timed: work_s / work_cpu_s (all runs), annotate_s (the source's annotate),
     the output counts of the last run, the fixed cost when measured apart, and peak_rss."""
@@ -49,27 +56,32 @@ def run(spec: dict) -> dict:
         return {**measure(spec), "peak_rss": peak_rss()}
     from pipeline import sources
     from pipeline.core.config import RunConfig, with_overrides
-    from pipeline.unit import UnitJob, run_unit
+    from pipeline.unit import UnitJob, run_group
 
     config = with_overrides(RunConfig(), spec["overrides"])
     source = sources.get(spec["source"])
-    unit = tuple(spec["unit"])
+    group = unit_group(spec["unit"])
     inputs = importlib.import_module(f"benchmarks.inputs_{spec['source']}")
     measure_fixed_cost = getattr(inputs, "measure_fixed_cost", None)
     fixed = measure_fixed_cost(spec, config) if measure_fixed_cost else {}
 
     annotate_s = 0.0
 
-    def timed_annotate(input_root, unit, config):
-        nonlocal annotate_s
-        started = time.perf_counter()
-        try:
-            return source.annotate(input_root, unit, config)
-        finally:
-            annotate_s += time.perf_counter() - started
+    def timed(function):
+        def call(*args):
+            nonlocal annotate_s
+            started = time.perf_counter()
+            try:
+                return function(*args)
+            finally:
+                annotate_s += time.perf_counter() - started
+
+        return call if function else None
 
     job = UnitJob(
-        dataclasses.replace(source, annotate=timed_annotate),
+        dataclasses.replace(
+            source, annotate=timed(source.annotate), annotate_group=timed(source.annotate_group)
+        ),
         spec["input_root"],
         config,
         spec["output"],
@@ -77,14 +89,15 @@ def run(spec: dict) -> dict:
     )
     wall, cpu = time.perf_counter(), time.process_time()
     for _ in range(spec.get("repeat", 1)):
-        outcome = run_unit(job, unit)
-        if outcome.failures:
-            raise RuntimeError(f"unit {outcome.name} failed: {outcome.failures}")
+        outcomes = run_group(job, group)
+        for outcome in outcomes:
+            if outcome.failures:
+                raise RuntimeError(f"unit {outcome.name} failed: {outcome.failures}")
     return {
         "work_s": time.perf_counter() - wall,
         "work_cpu_s": time.process_time() - cpu,
         "annotate_s": annotate_s,
-        **unit_counts(outcome.reports),
+        **unit_counts([report for outcome in outcomes for report in outcome.reports]),
         **fixed,
         "peak_rss": peak_rss(),
     }

@@ -1,11 +1,14 @@
 """The Beam shell: one composite transform per run, its steps named like the data flow.
 
-    Units -> Reshuffle -> Annotate -> Filter -> Write -> Gather -> Finalize
+    Units -> ByGroup -> Group -> Annotate -> Filter -> Write -> Gather -> Finalize
 
 Each step calls the plain stage of ``pipeline.unit`` (the benchmarks call the same stages through
-``unit.run_unit``). An element is one unit's ``(name, (kind, value))`` in one PCollection, the
-only shape every runner executes alike (Beam's Dask runner has no multi-output ParDo): Annotate
-skips a unit an earlier run finished or emits all its clips, Filter decides their tracks, Write
+``unit.run_group``). Group hands each worker the units of one group (``Source.group_of``: a
+DriveTrack segment's cameras, which share one read of its lidar; else each unit alone), and
+spreads the groups over the workers. After Annotate an element is one unit's
+``(name, (kind, value))`` in one PCollection, the only shape every runner executes alike (Beam's
+Dask runner has no multi-output ParDo): Annotate skips a unit an earlier run finished or emits
+all its clips, Filter decides their tracks, Write
 writes them and then the unit's record (its commit point: a unit is never split across workers,
 and a killed run loses only the units in flight), and Finalize writes the failures, the
 manifests (over every source in the output folder) and the run record. Failures of any unit or
@@ -61,26 +64,30 @@ class _JobStep(beam.DoFn):
 
 
 class Annotate(_JobStep):
-    """unit -> (name, (RESUMED, reports)) when an earlier run finished it, (name, (CLIPS, [clip]))
-    with the unit's candidate clips, or (name, (FAILURE, record)) on bad input."""
+    """(group key, units) -> per unit: (name, (RESUMED, reports)) when an earlier run finished it,
+    (name, (CLIPS, [clip])) with its candidate clips, or (name, (FAILURE, record)) on bad input."""
 
-    def process(self, item):
-        name = self.job.source.unit_name(item)
-        counter("units_read").inc()
-        reports = unit.finished_earlier(self.job, name)
-        if reports is not None:
-            counter("units_resumed").inc()
-            yield name, (RESUMED, reports)
-            return
-        try:
-            clips = unit.annotate(self.job, item)
-        except Exception as error:  # noqa: BLE001 - every failure becomes data
-            progress(f"unit {name} FAILED: {error}")
-            counter("units_failed").inc()
-            yield name, (FAILURE, unit.failure(name, "annotate", error))
-            return
-        counter("clips_annotated").inc(len(clips))
-        yield name, (CLIPS, clips)
+    def process(self, group):
+        _, units = group
+        source, todo = self.job.source, []
+        for item in sorted(units, key=source.unit_name):
+            name = source.unit_name(item)
+            counter("units_read").inc()
+            reports = unit.finished_earlier(self.job, name)
+            if reports is not None:
+                counter("units_resumed").inc()
+                yield name, (RESUMED, reports)
+            else:
+                todo.append(item)
+        for item, result in zip(todo, unit.annotate_group(self.job, todo), strict=True):
+            name = source.unit_name(item)
+            if isinstance(result, Exception):
+                progress(f"unit {name} FAILED: {result}")
+                counter("units_failed").inc()
+                yield name, (FAILURE, unit.failure(name, "annotate", result))
+            else:
+                counter("clips_annotated").inc(len(result))
+                yield name, (CLIPS, result)
 
 
 class Filter(_JobStep):
@@ -189,6 +196,10 @@ class Finalize(beam.DoFn):
         yield summary
 
 
+def keyed_by_group(item, source: sources.Source) -> tuple[str, object]:
+    return source.group_key(item), item
+
+
 def under_one_key(outcome: tuple[str, object]) -> tuple[None, tuple[str, object]]:
     return None, outcome
 
@@ -215,7 +226,8 @@ class RegenerateClips(beam.PTransform):
         outcomes = (
             pipeline
             | "Units" >> beam.Create(self.units)
-            | "Reshuffle" >> beam.Reshuffle()
+            | "ByGroup" >> beam.Map(keyed_by_group, self.job.source)
+            | "Group" >> beam.GroupByKey()
             | "Annotate" >> beam.ParDo(Annotate(*step))
             | "Filter" >> beam.ParDo(Filter(*step))
             | "Write" >> beam.ParDo(Write(*step))

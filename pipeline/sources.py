@@ -33,6 +33,12 @@ class Source:
       raises NoSample when the source has none.
     mask_min_agreement: config -> the mask filter's threshold for this source's clips.
     sweepable: config keys of this source's filter thresholds (``pipeline.audit sweep``).
+    group_of: unit -> the key of the units annotated together, in one worker, when inputs they
+      share are cheaper read once (DriveTrack: a segment's cameras share its lidar); None: each
+      unit alone.
+    annotate_group: (input root, units of one group, config) -> per unit, in order, its candidate
+      clips or the exception that failed it (one unit's bad input fails that unit only, unless
+      the input is shared). Required with ``group_of``.
     """
 
     name: str
@@ -42,6 +48,12 @@ class Source:
     sample_input: Callable[[str], str]
     mask_min_agreement: Callable[[RunConfig], float]
     sweepable: tuple[str, ...] = ()
+    group_of: Callable[[object], object] | None = None
+    annotate_group: Callable[[str, list, RunConfig], list[list[ClipRecord] | Exception]] | None = None
+
+    def group_key(self, unit) -> str:
+        """The key ``pipeline.graph`` groups ``unit`` under: its group's, else its own name."""
+        return str(self.group_of(unit)) if self.group_of else self.unit_name(unit)
 
 
 # name -> module defining ``SOURCE``: adding a source is one folder and one line here.

@@ -1,7 +1,8 @@
 """One unit of work, in plain Python: resume check -> annotate -> filter -> write -> record.
 
 The Beam graph (``pipeline.graph``) runs these stages as its named steps, the benchmarks call
-``run_unit`` for the same work without Beam, and resume is the first stage. A unit's record is
+``run_group`` for the same work without Beam, and resume is the first stage. Units of one group
+(``Source.group_of``) are annotated together, each keeping its own outcome. A unit's record is
 written only when every one of its clips was written, so a unit with a failed clip is redone by
 a rerun. Failures never escape a stage: they become ``failure`` records (the run goes on).
 """
@@ -87,6 +88,27 @@ def annotate(job: UnitJob, unit) -> list[ClipRecord]:
     clips = job.source.annotate(job.input_root, unit, job.config)
     progress(f"unit {job.source.unit_name(unit)}: {len(clips)} clip(s) in {time.monotonic() - started:.1f} s")
     return clips
+
+
+def annotate_group(job: UnitJob, units: list) -> list[list[ClipRecord] | Exception]:
+    """The candidate clips of units annotated together (``Source.annotate_group``), or per unit the
+    exception that failed it; a source without groups annotates each through ``annotate``."""
+    if job.source.annotate_group is None:
+        results = []
+        for item in units:
+            try:
+                results.append(annotate(job, item))
+            except Exception as error:  # noqa: BLE001 - every failure becomes data
+                results.append(error)
+        return results
+    started = time.monotonic()
+    results = job.source.annotate_group(job.input_root, units, job.config)
+    seconds = time.monotonic() - started
+    for item, result in zip(units, results, strict=True):
+        if not isinstance(result, Exception):
+            name = job.source.unit_name(item)
+            progress(f"unit {name}: {len(result)} clip(s) (its group of {len(units)} in {seconds:.1f} s)")
+    return results
 
 
 def filter_clip(job: UnitJob, clip: ClipRecord) -> tuple[ClipRecord, FilterOutcome]:
@@ -182,15 +204,28 @@ def write_unit(job: UnitJob, name: str, filtered: list, on_written=None) -> Unit
     return outcome
 
 
+def run_group(job: UnitJob, units: list) -> list[UnitOutcome]:
+    """Every stage of units of one group in this process, as the graph's steps run them: the
+    units an earlier run finished are skipped, the others annotated together."""
+    outcomes: dict[str, UnitOutcome] = {}
+    todo = []
+    for item in units:
+        name = job.source.unit_name(item)
+        reports = finished_earlier(job, name)
+        if reports is not None:
+            outcomes[name] = UnitOutcome(name, reports, resumed=True)
+        else:
+            todo.append(item)
+    for item, result in zip(todo, annotate_group(job, todo), strict=True):
+        name = job.source.unit_name(item)
+        if isinstance(result, Exception):
+            progress(f"unit {name} FAILED: {result}")
+            outcomes[name] = UnitOutcome(name, failures=[failure(name, "annotate", result)])
+        else:
+            outcomes[name] = write_unit(job, name, filter_unit(job, name, result))
+    return [outcomes[job.source.unit_name(item)] for item in units]
+
+
 def run_unit(job: UnitJob, unit) -> UnitOutcome:
-    """Every stage of one unit in this process, as the graph's steps run them."""
-    name = job.source.unit_name(unit)
-    reports = finished_earlier(job, name)
-    if reports is not None:
-        return UnitOutcome(name, reports, resumed=True)
-    try:
-        clips = annotate(job, unit)
-    except Exception as error:  # noqa: BLE001 - every failure becomes data
-        progress(f"unit {name} FAILED: {error}")
-        return UnitOutcome(name, failures=[failure(name, "annotate", error)])
-    return write_unit(job, name, filter_unit(job, name, clips))
+    """Every stage of one unit in this process (``run_group`` of that unit alone)."""
+    return run_group(job, [unit])[0]

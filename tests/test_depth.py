@@ -52,3 +52,51 @@ def test_points_behind_a_nearer_surface_are_removed():
     assert not hidden[patch & (np.arange(len(uv)) != hidden_index)].any()
     far = (uv[:, 0] > 12) | (uv[:, 1] > 12) | (uv[:, 0] < 3) | (uv[:, 1] < 3)
     assert not hidden[far].any()
+
+
+def kd_tree_occluded(lidar_uv, lidar_depth, margin, neighbours=8):
+    """The occlusion test as first written: a KD-tree query of each point's neighbours."""
+    from scipy.spatial import cKDTree
+
+    distances, index = cKDTree(lidar_uv).query(lidar_uv, k=neighbours + 1)
+    reach = 2.0 * np.median(distances[:, 1])
+    nearer = lidar_depth[index[:, 1:]] < (1.0 - 2 * margin) * lidar_depth[:, None]
+    return np.any(nearer & (distances[:, 1:] <= reach), axis=1)
+
+
+def test_the_cell_grid_gives_the_kd_tree_query_answer():
+    """On scenes like a projected sweep (dense below, sparse above), clustered, on a line, with ties
+    on a lattice, and far apart: the same points hidden as the KD-tree query (no position shared)."""
+    rng = np.random.default_rng(3)
+    rows = np.repeat(np.geomspace(300, 1279, 40), 400)  # scan lines closer and closer together
+    sweep = np.stack([rng.uniform(0, 1920, rows.size), rows + rng.normal(0, 0.3, rows.size)], 1)
+    lattice = np.stack(np.meshgrid(np.arange(30.0), np.arange(20.0)), -1).reshape(-1, 2)
+    scenes = [
+        sweep,
+        np.concatenate([rng.normal(0, 3, (300, 2)), rng.normal(500, 30, (300, 2))]),
+        np.stack([np.linspace(0, 1000, 300), np.zeros(300)], 1),
+        lattice,
+        np.concatenate([rng.random((20, 2)), rng.random((20, 2)) + 1e5]),
+    ]
+    for uv in scenes:
+        depth = rng.uniform(2, 60, len(uv))
+        depth[rng.random(len(uv)) < 0.5] = 30.0  # surfaces of equal depth as well as clutter
+        expected = kd_tree_occluded(uv, depth, 0.05)
+        assert 0 < expected.sum() < len(uv)
+        np.testing.assert_array_equal(camera_occluded_lidar(uv, depth, 0.05), expected)
+
+
+def test_the_cell_grid_finds_the_kd_trees_nearest_point_near_and_far():
+    """Queries among the points, in the gaps of a sparse patch and far outside the points' extent
+    (the image around a lidar cluster): the nearest point is the KD-tree's."""
+    from scipy.spatial import cKDTree
+
+    from pipeline.drivetrack.depth import depth_tree
+
+    rng = np.random.default_rng(4)
+    lidar_uv = np.concatenate([rng.normal([900, 900], [200, 40], (3000, 2)), rng.uniform(0, 1920, (30, 2))])
+    queries = np.concatenate([rng.uniform(0, 1920, (500, 2)), rng.uniform(-5000, 5000, (100, 2))])
+    queries[:50] = np.floor(queries[:50])  # integer pixels, as nearest_depth_max4 asks
+    expected = cKDTree(lidar_uv).query(queries)[1]
+    np.testing.assert_array_equal(depth_tree(lidar_uv).nearest(queries), expected)
+    assert depth_tree(np.zeros((0, 2))) is None

@@ -100,3 +100,29 @@ def test_mask_filter_drops_planted_off_object_tracks(sample_split, world):
     assert visible.sum() >= 6, "planted points should be visible (ground beside the car)"
     assert not verdicts["mask"][is_planted & clip.visibility.any(axis=0)].any()
     assert verdicts["mask"][~is_planted].mean() > 0.95
+
+
+def test_a_segments_cameras_share_one_lidar_read_and_make_the_same_clips(clips, sample_split, monkeypatch):
+    """The graph's group (``annotate_segment``): the TOP lidar is streamed once for the three cameras,
+    each frame once, and every clip is the one its camera makes alone."""
+    from pipeline.drivetrack.reader import SegmentReader
+    from pipeline.drivetrack.source import annotate_segment
+
+    streamed = []
+    original = SegmentReader.top_lidar_frames
+
+    def counted(self, timestamps):
+        streamed.append(list(timestamps))
+        return original(self, timestamps)
+
+    monkeypatch.setattr(SegmentReader, "top_lidar_frames", counted)
+    grouped = annotate_segment(sample_split[0], [(SEGMENT, camera) for camera in (1, 2, 3)], RunConfig())
+    assert len(streamed) == 1 and len(set(streamed[0])) == len(streamed[0])
+    needed = {int(t) for camera_clips in clips.values() for clip in camera_clips for t in clip.frame_ids}
+    assert set(streamed[0]) == needed  # the frames of cameras 1 and 3's clips, in one pass
+    for camera, alone in zip((1, 2, 3), grouped, strict=True):
+        assert [clip.name for clip in alone] == [clip.name for clip in clips[camera]]
+        for together, single in zip(alone, clips[camera], strict=True):
+            for field in ("tracks_xyz", "visibility", "queries_xyt", "extrinsics_w2c", "track_keys"):
+                np.testing.assert_array_equal(getattr(together, field), getattr(single, field))
+            assert together.images_jpeg == single.images_jpeg

@@ -2,6 +2,7 @@
 lens distortion and rolling shutters on a moving ego vehicle, against an independent projection
 (tests/waymo_truth.py); and both ways of storing the frames."""
 
+import dataclasses
 import os
 
 import numpy as np
@@ -94,6 +95,30 @@ def test_without_rolling_shutter_columns_frames_are_seen_from_their_pose(split_c
     assert ours.in_view.sum() > 1000
     np.testing.assert_allclose(ours.points, local, atol=1e-4)
     np.testing.assert_allclose(ours.pixels[ours.in_view], sensor_pixels(2, local[ours.in_view]), atol=1e-3)
+
+
+@pytest.mark.parametrize("undistorted", [False, True])
+def test_frames_projected_together_are_each_as_projected_alone(sample_split, undistorted):
+    """``project_frames`` gives each frame's points the bytes ``project`` gives them, whether the
+    frame has a rolling shutter record, none, or a camera that does not turn; a frame may hold
+    no point, or appear twice."""
+    folder, generated = sample_split
+    model = unit_camera(load_unit(folder, SEGMENT, 1), settings(undistorted))
+    model.readouts[5] = None
+    model.readouts[7] = dataclasses.replace(model.readouts[7], omega=np.zeros(3))
+    frames = [0, 5, 7, 20, 39, 20, 3]
+    world = [lidar_points(generated, t)[: 2000 + 100 * i] for i, t in enumerate(frames)]
+    world[-1] = np.zeros((0, 3))
+    together = model.project_frames(frames, world)
+    assert all(projection.in_view.sum() > 400 for projection in together[:-1])
+    for t, points, projection in zip(frames, world, together, strict=True):
+        alone = model.project(t, points)
+        for ours, theirs in zip(
+            (projection.points, projection.pixels, projection.in_view),
+            (alone.points, alone.pixels, alone.in_view),
+            strict=True,
+        ):
+            np.testing.assert_array_equal(ours, theirs, strict=True)
 
 
 def test_undistortion_maps_read_the_sensor_pixel_of_each_stored_pixel(sample_split):

@@ -21,7 +21,7 @@ from pipeline.core.geometry import transform_directions_batch, transform_points_
 from pipeline.core.images import check_jpeg
 from pipeline.drivetrack.camera_model import UnitCamera
 from pipeline.drivetrack.draws import point_keys, query_draws
-from pipeline.drivetrack.evidence import LidarEvidence, gather_lidar
+from pipeline.drivetrack.evidence import CameraPass, LidarEvidence, gather_lidar_cameras
 from pipeline.drivetrack.objects import ObjectRun, select_objects
 from pipeline.drivetrack.poses import camera_from_world, frame_poses
 from pipeline.drivetrack.queries import clip_queries
@@ -69,7 +69,7 @@ def track_object(
     count = rules.oversample * rules.tracks_per_clip
     chosen = choose_points(pool.points, keys, given, run, camera, name, count)
     world = transform_points_batch(run.world_from_box, pool.points[chosen])
-    seen = [camera.project(t, world[i]) for i, t in enumerate(frames)]
+    seen = camera.project_frames(frames, world)
     tracks = np.stack([s.points for s in seen])
     uv = np.stack([s.pixels for s in seen])
     # Normals turn with the frame's pose (the camera turns by under a milliradian during a readout).
@@ -148,16 +148,48 @@ def unit_camera(unit: UnitInput, config: RunConfig) -> UnitCamera:
     )
 
 
-def annotate_unit(unit: UnitInput, config: RunConfig) -> list[ClipRecord]:
-    """All candidate clips of one (segment, camera) unit, in object-id order."""
-    world_from_frame = frame_poses(unit)
+def annotate_cameras(units: list[UnitInput], config: RunConfig) -> list[list[ClipRecord] | Exception]:
+    """The candidate clips of cameras of one segment (in object-id order), or per camera the
+    exception that failed it. The TOP lidar is decoded and placed in the world once for all the
+    cameras with clips (``gather_lidar_cameras``): a bad lidar frame fails each of them; any other
+    bad input only its own camera."""
     rules = config.drivetrack
-    camera = unit_camera(unit, config)
-    runs = select_objects(unit, camera, world_from_frame, config)
-    if not runs:
-        return []
-    needed = sorted({t for run in runs for t in range(run.start, run.stop)})
-    stored = stored_frames(unit, needed, camera.undistorted)
-    evidence = gather_lidar(unit, runs, camera, world_from_frame, rules.box_shrink_m, rules.occlusion_margin)
-    clips = [track_object(unit, run, evidence, camera, stored, config) for run in runs]
-    return [clip for clip in clips if clip is not None]
+    results: list[list[ClipRecord] | Exception | None] = [None] * len(units)
+    passes, stored, index = [], [], []
+    for i, unit in enumerate(units):
+        try:
+            world_from_frame = frame_poses(unit)
+            camera = unit_camera(unit, config)
+            runs = select_objects(unit, camera, world_from_frame, config)
+            if not runs:
+                results[i] = []
+                continue
+            item = CameraPass(unit, runs, camera, world_from_frame)
+            stored.append(stored_frames(unit, item.needed, camera.undistorted))
+        except Exception as error:  # noqa: BLE001 - the camera's failure, the others go on
+            results[i] = error
+            continue
+        passes.append(item)
+        index.append(i)
+    try:
+        evidence = gather_lidar_cameras(passes, rules.box_shrink_m, rules.occlusion_margin)
+    except Exception as error:  # noqa: BLE001 - the lidar is shared: every camera reading it fails
+        evidence = [error] * len(passes)
+    for i, item, frames, found in zip(index, passes, stored, evidence, strict=True):
+        if isinstance(found, Exception):
+            results[i] = found
+            continue
+        try:
+            clips = [track_object(item.unit, run, found, item.camera, frames, config) for run in item.runs]
+            results[i] = [clip for clip in clips if clip is not None]
+        except Exception as error:  # noqa: BLE001
+            results[i] = error
+    return results
+
+
+def annotate_unit(unit: UnitInput, config: RunConfig) -> list[ClipRecord]:
+    """All candidate clips of one (segment, camera) unit, in object-id order (raises on bad input)."""
+    (result,) = annotate_cameras([unit], config)
+    if isinstance(result, Exception):
+        raise result
+    return result

@@ -27,6 +27,7 @@ as Waymo's do (``InImage`` is 0 <= u < W): pixel [r, c] covers [c, c + 1) x [r, 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -81,23 +82,73 @@ def distort(normalized: np.ndarray, distortion: np.ndarray) -> tuple[np.ndarray,
     return np.stack([xd, yd], 1), radial
 
 
-def _rotate(vectors: np.ndarray, omega: np.ndarray, times: np.ndarray) -> np.ndarray:
-    """Vectors [N, 3] rotated by exp(-t [omega]x), t the per-vector times [N] (Rodrigues)."""
-    rate = np.linalg.norm(omega)
-    if rate == 0.0:
-        return vectors
-    axis = omega / rate
-    angle = -rate * times[:, None]
-    along = vectors @ axis
-    return (
-        vectors * np.cos(angle)
-        + np.cross(axis, vectors) * np.sin(angle)
-        + axis * along[:, None] * (1.0 - np.cos(angle))
-    )
+@dataclasses.dataclass(frozen=True)
+class Motion:
+    """The readouts of several frames, per point [M] of their points concatenated frame by frame:
+    ``start``, ``rate`` [M] and ``velocity`` [M, 3] as in ``Readout``; the turn exp(-t [omega]x) as
+    ``spin`` [M] (|omega|, rad/s) about the unit ``axis`` [M, 3] (zero where spin is 0); ``frame``
+    [M], the point's frame (0 to F - 1); ``axes`` [F, 3], each frame's axis; and ``sweep``, the
+    readouts' (axis, reverse, extent), the calibration's and so the same in every frame."""
+
+    start: np.ndarray
+    rate: np.ndarray
+    velocity: np.ndarray
+    spin: np.ndarray
+    axis: np.ndarray
+    frame: np.ndarray
+    axes: np.ndarray
+    sweep: tuple[int, bool, int]
+
+    @classmethod
+    def of(cls, readouts: list[Readout], counts: np.ndarray) -> Motion:
+        """The motion of frames with these readouts [F] and point counts [F]."""
+        spins = [np.linalg.norm(readout.omega) for readout in readouts]
+        axes = np.array(
+            [
+                readout.omega / spin if spin != 0.0 else np.zeros(3)
+                for readout, spin in zip(readouts, spins, strict=True)
+            ]
+        )
+        first = readouts[0]
+        return cls(
+            start=np.repeat([readout.start for readout in readouts], counts),
+            rate=np.repeat([readout.rate for readout in readouts], counts),
+            velocity=np.repeat([readout.velocity for readout in readouts], counts, axis=0),
+            spin=np.repeat(spins, counts),
+            axis=np.repeat(axes, counts, axis=0),
+            frame=np.repeat(np.arange(len(readouts)), counts),
+            axes=axes,
+            sweep=(first.axis, first.reverse, first.extent),
+        )
+
+    def moved(self, rows: np.ndarray, points: np.ndarray, times: np.ndarray) -> np.ndarray:
+        """Camera points [N, 3] (the motion's points ``rows`` [N], ascending) seen from the camera
+        as it is at times [N] after the pose: moved back by the velocity, turned back by the spin."""
+        vectors = points - self.velocity[rows] * times[:, None]
+        spin, axis = self.spin[rows], self.axis[rows]
+        angle = -spin[:, None] * times[:, None]
+        along = self._along(rows, vectors)
+        turned = (
+            vectors * np.cos(angle)
+            + np.cross(axis, vectors) * np.sin(angle)
+            + axis * along[:, None] * (1.0 - np.cos(angle))
+        )
+        return np.where(spin[:, None] != 0.0, turned, vectors)
+
+    def _along(self, rows: np.ndarray, vectors: np.ndarray) -> np.ndarray:
+        """Components [N] of vectors [N, 3] (of the motion's points ``rows`` [N], ascending) along
+        their frame's axis: one ``vectors @ axis`` per frame, since BLAS rounds a row's dot product
+        by its place in the array (FMA), and a frame's rows go in as that frame alone would."""
+        bounds = np.searchsorted(self.frame[rows], np.arange(len(self.axes) + 1))
+        along = np.empty(len(vectors))
+        for axis, lo, hi in zip(self.axes, bounds[:-1], bounds[1:], strict=True):
+            along[lo:hi] = vectors[lo:hi] @ axis
+        return along
 
 
 class UnitCamera:
-    """One unit's camera over its frames: ``project(t, world points)``.
+    """One unit's camera over its frames: ``project(t, world points)``, or ``project_frames`` for
+    several frames at once.
 
     calibration, frames: the reader's records; cam_from_world: [T, 4, 4] OpenCV camera from world
     at each frame's pose (``poses.camera_from_world``); undistorted: frames are stored undistorted
@@ -167,22 +218,44 @@ class UnitCamera:
         pixels = distorted * np.array([fx, fy]) + np.array([cx, cy])
         return np.where(front[:, None], pixels, -1.0), valid
 
-    def _read_time(self, readout: Readout, points: np.ndarray) -> np.ndarray:
-        """Seconds after the pose [N] at which the sensor reads the pixels of camera points [N, 3]."""
+    def _read_time(self, motion: Motion, rows: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """Seconds after the pose [N] at which the sensor reads the pixels of camera points [N, 3]
+        (the motion's points ``rows`` [N])."""
         pixels, _ = self.sensor_pixels(points)
         front = points[:, 2] > 0
-        centre = self.calibration.fx_fy_cx_cy[2 + readout.axis]
-        coordinate = np.clip(np.where(front, pixels[:, readout.axis], centre), 0.0, readout.extent)
-        if readout.reverse:
-            coordinate = readout.extent - coordinate
-        return readout.start + readout.rate * coordinate
+        axis, reverse, extent = motion.sweep
+        centre = self.calibration.fx_fy_cx_cy[2 + axis]
+        coordinate = np.clip(np.where(front, pixels[:, axis], centre), 0.0, extent)
+        if reverse:
+            coordinate = extent - coordinate
+        return motion.start[rows] + motion.rate[rows] * coordinate
 
     def project(self, t: int, world: np.ndarray) -> Projection:
         """Where world points [N, 3] appear in frame t of the unit."""
-        local = transform_points(self.cam_from_world[t], world)
-        readout = self.readouts[t]
-        if readout is not None:
-            local = self._seen(readout, local)
+        return self.project_frames([t], [world])[0]
+
+    def project_frames(self, frames: Sequence[int], world: Sequence[np.ndarray]) -> list[Projection]:
+        """Where world points appear in several frames of the unit: world[i] [N_i, 3] (a list, or
+        [T, N, 3]) in frame frames[i]. One Projection per frame, the same as ``project`` gives it:
+        the frames' points are solved together, each with its own frame's arithmetic."""
+        if not len(frames):
+            return []
+        local = np.concatenate(
+            [transform_points(self.cam_from_world[t], w) for t, w in zip(frames, world, strict=True)]
+        )
+        counts = np.array([len(w) for w in world])
+        bounds = np.concatenate([[0], np.cumsum(counts)])
+        rolling = [i for i, t in enumerate(frames) if self.readouts[t] is not None]
+        if rolling:
+            rows = np.concatenate([np.arange(bounds[i], bounds[i + 1]) for i in rolling])
+            motion = Motion.of([self.readouts[frames[i]] for i in rolling], counts[rolling])
+            local[rows] = self._seen(motion, local[rows])
+        whole = self._stored(local)
+        parts = (np.split(array, bounds[1:-1]) for array in (whole.points, whole.pixels, whole.in_view))
+        return [Projection(*frame) for frame in zip(*parts, strict=True)]
+
+    def _stored(self, local: np.ndarray) -> Projection:
+        """Where camera points [N, 3], as seen, appear in the stored frames."""
         sensor, valid = self.sensor_pixels(local)
         size = (self.calibration.width, self.calibration.height)
         in_view = valid & in_image(sensor, *size)
@@ -195,23 +268,21 @@ class UnitCamera:
         pinhole = np.where(front[:, None], pinhole, -1.0)
         return Projection(local, pinhole, in_view & in_image(pinhole, *size))
 
-    def _seen(self, readout: Readout, local: np.ndarray) -> np.ndarray:
-        """Camera points [N, 3] at the instant each is seen, from their coordinates at the pose [N, 3]:
-        the root of r(t) = t - read_time(point at t), by one fixed-point step from the pose, then
-        the secant method on the points not yet within ``TOLERANCE_S``."""
+    def _seen(self, motion: Motion, local: np.ndarray) -> np.ndarray:
+        """Camera points [M, 3] at the instant each is seen, from their coordinates at the pose [M, 3]
+        (the motion's points): the root of r(t) = t - read_time(point at t), by one fixed-point step
+        from the pose, then the secant method on the points not yet within ``TOLERANCE_S``."""
 
-        def moved(points: np.ndarray, times: np.ndarray) -> np.ndarray:
-            return _rotate(points - readout.velocity * times[:, None], readout.omega, times)
+        def residual(rows: np.ndarray, times: np.ndarray) -> np.ndarray:
+            return times - self._read_time(motion, rows, motion.moved(rows, local[rows], times))
 
-        def residual(points: np.ndarray, times: np.ndarray) -> np.ndarray:
-            return times - self._read_time(readout, moved(points, times))
-
+        every = np.arange(len(local))
         before = np.zeros(len(local))
-        residual_before = residual(local, before)
+        residual_before = residual(every, before)
         times = before - residual_before
-        active = np.arange(len(local))
+        active = every
         for _ in range(SECANT_STEPS):
-            now = residual(local[active], times[active])
+            now = residual(active, times[active])
             rise, run = now - residual_before[active], times[active] - before[active]
             slope = np.divide(rise, run, out=np.ones_like(rise), where=run != 0)
             step = now / np.where(np.abs(slope) > 1e-3, slope, 1.0)
@@ -220,4 +291,4 @@ class UnitCamera:
             active = active[np.abs(step) >= TOLERANCE_S]
             if not len(active):
                 break
-        return moved(local, times)
+        return motion.moved(every, local, times)

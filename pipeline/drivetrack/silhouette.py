@@ -38,13 +38,12 @@ def silhouette_mask(points_uv: np.ndarray, width: int, height: int, closing_px: 
     """Object mask [H, W] bool from its projected points [M, 2]: the points' pixels, closed
     with an elliptical kernel of ``closing_px`` (0 = adaptive), then grown by half a kernel
     so surface points just beyond the outermost scan line still count as on the object."""
-    mask = np.zeros((height, width), np.uint8)
+    mask = np.zeros((height, width), bool)
     pixels = np.floor(points_uv).astype(np.int64)
     inside = in_image(pixels, width, height)
     if not inside.any():
-        return mask.astype(bool)
+        return mask
     xs, ys = pixels[inside, 0], pixels[inside, 1]
-    mask[ys, xs] = 1
     size = closing_px or adaptive_closing_px(points_uv[inside])
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
     grow = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size // 2 | 1, size // 2 | 1))
@@ -53,9 +52,10 @@ def silhouette_mask(points_uv: np.ndarray, width: int, height: int, closing_px: 
     pad = 2 * size
     x0, x1 = max(xs.min() - pad, 0), min(xs.max() + pad + 1, width)
     y0, y1 = max(ys.min() - pad, 0), min(ys.max() + pad + 1, height)
-    box = mask[y0:y1, x0:x1]
-    mask[y0:y1, x0:x1] = cv2.dilate(cv2.morphologyEx(box, cv2.MORPH_CLOSE, kernel), grow)
-    return mask.astype(bool)
+    box = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    box[ys - y0, xs - x0] = 1
+    mask[y0:y1, x0:x1] = cv2.dilate(cv2.morphologyEx(box, cv2.MORPH_CLOSE, kernel), grow) > 0
+    return mask
 
 
 def read_mask_png(path: str, width: int, height: int) -> np.ndarray | None:
@@ -78,18 +78,20 @@ def object_masks(
     the silhouette of the object's lidar points of that frame, where they appear in the stored
     frame (placed by the run's boxes)."""
     calibration = unit.calibration
-    masks = []
-    for i, t in enumerate(range(run.start, run.stop)):
-        if config.drivetrack.masks_dir:
-            path = f"{config.drivetrack.masks_dir.rstrip('/')}/{clip_name}/{unit.frames.timestamps[t]}.png"
-            masks.append(read_mask_png(path, calibration.width, calibration.height))
-            continue
-        body = evidence.body_points[run.object_id].get(t, np.zeros((0, 3)))
-        seen = camera.project(t, transform_points(run.world_from_box[i], body))
-        uv = seen.pixels[seen.in_view]
-        masks.append(
-            silhouette_mask(uv, calibration.width, calibration.height, config.drivetrack.mask_closing_px)
-            if len(uv)
-            else None
-        )
+    frames = range(run.start, run.stop)
+    if config.drivetrack.masks_dir:
+        folder = f"{config.drivetrack.masks_dir.rstrip('/')}/{clip_name}"
+        masks = [
+            read_mask_png(f"{folder}/{unit.frames.timestamps[t]}.png", calibration.width, calibration.height)
+            for t in frames
+        ]
+    else:
+        bodies = [evidence.body_points[run.object_id].get(t, np.zeros((0, 3))) for t in frames]
+        world = [transform_points(run.world_from_box[i], body) for i, body in enumerate(bodies)]
+        uvs = [seen.pixels[seen.in_view] for seen in camera.project_frames(frames, world)]
+        closing = config.drivetrack.mask_closing_px
+        masks = [
+            silhouette_mask(uv, calibration.width, calibration.height, closing) if len(uv) else None
+            for uv in uvs
+        ]
     return masks, np.array([mask is not None for mask in masks])

@@ -1,4 +1,5 @@
-"""DriveTrack (Waymo Open v2) as a Source: (segment, camera) units, one clip per vehicle."""
+"""DriveTrack (Waymo Open v2) as a Source: (segment, camera) units, one clip per vehicle; the
+cameras of a segment are annotated together (one read of its lidar)."""
 
 from __future__ import annotations
 
@@ -6,7 +7,7 @@ import operator
 
 from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
-from pipeline.drivetrack.annotate import annotate_unit
+from pipeline.drivetrack.annotate import annotate_cameras, annotate_unit
 from pipeline.drivetrack.reader import SegmentReader, list_segments
 from pipeline.drivetrack.unit_input import UnitInput
 from pipeline.sources import Source
@@ -19,18 +20,40 @@ def list_units(input_root: str, config: RunConfig) -> list[tuple[str, int]]:
 
 def load_unit(input_root: str, segment: str, camera: int) -> UnitInput:
     """Read what one unit needs; the TOP lidar is read once, when annotate asks for it."""
+    (loaded,) = load_units(input_root, segment, [camera])
+    if isinstance(loaded, Exception):
+        raise loaded
+    return loaded
+
+
+def load_units(input_root: str, segment: str, cameras: list[int]) -> list[UnitInput | Exception]:
+    """What each camera's unit of one segment reads, or the exception that failed it: the segment's
+    shared files (calibration of the TOP lidar, vehicle poses, boxes) are read once, and a bad one
+    fails every camera."""
     reader = SegmentReader(input_root, segment)
-    reader.check_components()
-    return UnitInput(
-        segment=segment,
-        camera=camera,
-        calibration=reader.camera_calibration(camera),
-        lidar_calibration=reader.lidar_calibration(),
-        frames=reader.camera_frames(camera),
-        world_from_vehicle=reader.vehicle_poses(),
-        boxes=reader.box_labels(),
-        lidar_frames=reader.top_lidar_frames,
-    )
+    try:
+        reader.check_components()
+        shared = {
+            "lidar_calibration": reader.lidar_calibration(),
+            "world_from_vehicle": reader.vehicle_poses(),
+            "boxes": reader.box_labels(),
+        }
+    except Exception as error:  # noqa: BLE001 - becomes each unit's failure
+        return [error] * len(cameras)
+    loaded: list[UnitInput | Exception] = []
+    for camera in cameras:
+        try:
+            calibration = reader.camera_calibration(camera)
+            frames = reader.camera_frames(camera)
+        except Exception as error:  # noqa: BLE001 - this camera's failure only
+            loaded.append(error)
+            continue
+        loaded.append(
+            UnitInput(
+                segment, camera, calibration, frames=frames, lidar_frames=reader.top_lidar_frames, **shared
+            )
+        )
+    return loaded
 
 
 def unit_name(unit: tuple[str, int]) -> str:
@@ -49,6 +72,20 @@ def annotate(input_root: str, unit: tuple[str, int], config: RunConfig) -> list[
     return annotate_unit(load_unit(input_root, *unit), config)
 
 
+def annotate_segment(
+    input_root: str, units: list[tuple[str, int]], config: RunConfig
+) -> list[list[ClipRecord] | Exception]:
+    """The units of one segment annotated together (its lidar decoded once): per unit, its clips
+    or the exception that failed it."""
+    segments = {segment for segment, _ in units}
+    if len(segments) != 1:
+        raise ValueError(f"annotate_segment takes the units of one segment, got {sorted(segments)}")
+    loaded = load_units(input_root, units[0][0], [camera for _, camera in units])
+    readable = [item for item in loaded if not isinstance(item, Exception)]
+    annotated = iter(annotate_cameras(readable, config))
+    return [item if isinstance(item, Exception) else next(annotated) for item in loaded]
+
+
 SOURCE = Source(
     name="drivetrack",
     list_units=list_units,
@@ -57,4 +94,6 @@ SOURCE = Source(
     sample_input=sample_input,
     mask_min_agreement=operator.attrgetter("drivetrack.mask_min_agreement"),
     sweepable=("drivetrack.mask_min_agreement",),
+    group_of=operator.itemgetter(0),
+    annotate_group=annotate_segment,
 )

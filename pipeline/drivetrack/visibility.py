@@ -8,10 +8,9 @@ pixels around the track point, ``depth.py``) is < (1 - margin) x the track's dep
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from pipeline.core.visibility import passes_relative_depth_test
-from pipeline.drivetrack.depth import nearest_depth_max4
+from pipeline.drivetrack.depth import CellGrid, nearest_depth_max4
 
 
 def facing_camera(tracks: np.ndarray, normals: np.ndarray) -> np.ndarray:
@@ -28,7 +27,7 @@ def track_visibility(
     normals: np.ndarray | None,
     depth_uv: list[np.ndarray],
     depth_z: list[np.ndarray],
-    depth_trees: list[cKDTree],
+    depth_trees: list[CellGrid | None],
     image_size: tuple[int, int],
     occlusion_margin: float,
 ) -> np.ndarray:
@@ -38,7 +37,7 @@ def track_visibility(
 
     normals: [T, N, 3] surface normals (camera frame), or None to skip the facing test.
     depth_uv, depth_z, depth_trees: per frame, the lidar depth samples' pixels [M, 2], depths [M]
-    and the pixels' KD-tree (``depth.depth_tree``).
+    and the pixels' lookup (``depth.depth_tree``).
     """
     visibility = in_view.copy()
     if normals is not None:

@@ -1,0 +1,91 @@
+"""Units annotated in groups (``Source.group_of`` / ``annotate_group``, DriveTrack's segments): the
+graph hands each group to one call, each unit keeps its own outcome and record, a unit's failure
+stays its own, and resume re-annotates only the unfinished units of a group. (That DriveTrack's
+segment group decodes its lidar once: ``tests/test_drivetrack_group.py``.)"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+
+import pytest
+
+from pipeline import sources
+from pipeline.core.config import RunConfig
+from pipeline.core.errors import InputError
+from pipeline.export.layout import clip_path, failures_path
+from pipeline.run import main as run_main
+from pipeline.unit import UnitJob, run_group
+from tests.toy_source import TOY, annotate, write_sample
+
+CALLS: list[list[str]] = []
+
+
+def annotate_group(input_root: str, units: list[str], config: RunConfig) -> list:
+    """The toy's clips per unit; a unit named ``*_bad`` fails with an InputError."""
+    CALLS.append(list(units))
+    return [
+        InputError(f"{unit}: bad on purpose") if unit.endswith("_bad") else annotate(input_root, unit, config)
+        for unit in units
+    ]
+
+
+GROUPED = dataclasses.replace(TOY, group_of=lambda unit: unit.split("_")[0], annotate_group=annotate_group)
+
+
+@pytest.fixture
+def grouped(tmp_path):
+    """The grouped toy registered as ``toy``, over units a_1, a_2, b_1, b_bad; CALLS emptied."""
+    root = tmp_path / "in"
+    write_sample(str(root))
+    walk = (root / "walk.json").read_text()
+    os.remove(root / "walk.json")
+    for unit in ("a_1", "a_2", "b_1", "b_bad"):
+        (root / f"{unit}.json").write_text(walk)
+    CALLS.clear()
+    sources.register(GROUPED)
+    yield str(root)
+    sources.unregister(GROUPED.name)
+
+
+def test_the_graph_annotates_each_group_in_one_call(grouped, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert run_main(["--source", "toy", "--input", grouped, "--output", str(out)]) == 1  # b_bad failed
+    assert sorted(CALLS) == [["a_1", "a_2"], ["b_1", "b_bad"]]
+    for unit in ("a_1", "a_2", "b_1"):
+        assert os.path.exists(clip_path(str(out), "toy", f"toy_{unit}"))
+    assert not os.path.exists(clip_path(str(out), "toy", "toy_b_bad"))
+    (line,) = open(failures_path(str(out), "toy")).read().splitlines()
+    assert json.loads(line) == {
+        "unit": "b_bad",
+        "stage": "annotate",
+        "error": "InputError: b_bad: bad on purpose",
+    }
+    record = json.loads((out / "run_toy.json").read_text())
+    assert record["metrics"]["units_read"] == 4 and record["metrics"]["units_failed"] == 1
+    capsys.readouterr()
+
+
+def test_resume_annotates_only_a_groups_unfinished_units(grouped, tmp_path):
+    job = UnitJob(GROUPED, grouped, RunConfig(), str(tmp_path / "out"))
+    first = run_group(job, ["a_1", "a_2"])
+    assert CALLS == [["a_1", "a_2"]] and [o.name for o in first] == ["a_1", "a_2"]
+    assert all(not o.resumed and not o.failures and o.reports for o in first)
+    os.remove(clip_path(job.output, "toy", "toy_a_2"))  # a_2 is no longer finished
+    second = run_group(job, ["a_1", "a_2"])
+    assert CALLS == [["a_1", "a_2"], ["a_2"]]
+    assert [o.resumed for o in second] == [True, False]
+    assert second[1].reports == first[1].reports
+    assert os.path.exists(clip_path(job.output, "toy", "toy_a_2"))
+
+
+def test_a_failed_unit_leaves_its_groups_other_units_finished(grouped, tmp_path):
+    job = UnitJob(GROUPED, grouped, RunConfig(), str(tmp_path / "out"))
+    good, bad = run_group(job, ["b_1", "b_bad"])
+    assert good.reports and not good.failures
+    assert bad.failures == [
+        {"unit": "b_bad", "stage": "annotate", "error": "InputError: b_bad: bad on purpose"}
+    ]
+    again = run_group(job, ["b_1", "b_bad"])  # the failed unit is redone, its finished neighbour not
+    assert CALLS[-1] == ["b_bad"] and again[0].resumed and again[1].failures == bad.failures
