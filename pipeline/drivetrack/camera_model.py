@@ -84,11 +84,12 @@ def distort(normalized: np.ndarray, distortion: np.ndarray) -> tuple[np.ndarray,
 
 @dataclasses.dataclass(frozen=True)
 class Motion:
-    """The readouts of several frames, per point [M] of their points concatenated frame by frame:
-    ``start``, ``rate`` [M] and ``velocity`` [M, 3] as in ``Readout``; the turn exp(-t [omega]x) as
-    ``spin`` [M] (|omega|, rad/s) about the unit ``axis`` [M, 3] (zero where spin is 0); ``frame``
-    [M], the point's frame (0 to F - 1); ``axes`` [F, 3], each frame's axis; and ``sweep``, the
-    readouts' (axis, reverse, extent), the calibration's and so the same in every frame."""
+    """The readouts of several frames, per point [M] of their points concatenated frame by frame
+    (of one frame: [1], for every point alike): ``start``, ``rate`` [M] and ``velocity`` [M, 3] as in
+    ``Readout``; the turn exp(-t [omega]x) as ``spin`` [M] (|omega|, rad/s) about the unit ``axis``
+    [M, 3] (zero where spin is 0); ``frame`` [M], the point's frame (0 to F - 1); ``axes`` [F, 3],
+    each frame's axis; and ``sweep``, the readouts' (axis, reverse, extent), the calibration's and
+    so the same in every frame."""
 
     start: np.ndarray
     rate: np.ndarray
@@ -102,6 +103,7 @@ class Motion:
     @classmethod
     def of(cls, readouts: list[Readout], counts: np.ndarray) -> Motion:
         """The motion of frames with these readouts [F] and point counts [F]."""
+        counts = counts if len(readouts) > 1 else np.ones(1, np.int64)  # one frame: broadcast
         spins = [np.linalg.norm(readout.omega) for readout in readouts]
         axes = np.array(
             [
@@ -124,8 +126,10 @@ class Motion:
     def moved(self, rows: np.ndarray, points: np.ndarray, times: np.ndarray) -> np.ndarray:
         """Camera points [N, 3] (the motion's points ``rows`` [N], ascending) seen from the camera
         as it is at times [N] after the pose: moved back by the velocity, turned back by the spin."""
-        vectors = points - self.velocity[rows] * times[:, None]
-        spin, axis = self.spin[rows], self.axis[rows]
+        vectors = points - self.at(self.velocity, rows) * times[:, None]
+        spin, axis = self.at(self.spin, rows), self.at(self.axis, rows)
+        if len(spin) == 1 and spin[0] == 0.0:
+            return vectors
         angle = -spin[:, None] * times[:, None]
         along = self._along(rows, vectors)
         turned = (
@@ -133,12 +137,18 @@ class Motion:
             + np.cross(axis, vectors) * np.sin(angle)
             + axis * along[:, None] * (1.0 - np.cos(angle))
         )
-        return np.where(spin[:, None] != 0.0, turned, vectors)
+        return turned if len(spin) == 1 else np.where(spin[:, None] != 0.0, turned, vectors)
+
+    def at(self, values: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """A per-point field [M, ...] at the motion's points ``rows`` [N] ([1, ...] for one frame)."""
+        return values if len(self.axes) == 1 else values[rows]
 
     def _along(self, rows: np.ndarray, vectors: np.ndarray) -> np.ndarray:
         """Components [N] of vectors [N, 3] (of the motion's points ``rows`` [N], ascending) along
         their frame's axis: one ``vectors @ axis`` per frame, since BLAS rounds a row's dot product
         by its place in the array (FMA), and a frame's rows go in as that frame alone would."""
+        if len(self.axes) == 1:
+            return vectors @ self.axes[0]
         bounds = np.searchsorted(self.frame[rows], np.arange(len(self.axes) + 1))
         along = np.empty(len(vectors))
         for axis, lo, hi in zip(self.axes, bounds[:-1], bounds[1:], strict=True):
@@ -228,7 +238,7 @@ class UnitCamera:
         coordinate = np.clip(np.where(front, pixels[:, axis], centre), 0.0, extent)
         if reverse:
             coordinate = extent - coordinate
-        return motion.start[rows] + motion.rate[rows] * coordinate
+        return motion.at(motion.start, rows) + motion.at(motion.rate, rows) * coordinate
 
     def project(self, t: int, world: np.ndarray) -> Projection:
         """Where world points [N, 3] appear in frame t of the unit."""
