@@ -8,9 +8,10 @@ drivetrack (a group: the segment's cameras): the columns the units read of every
   of the segment, streamed with pyarrow 8 rows at a time as the reader does; the group cameras'
   JPEGs decoded to BGR (``cv2.imdecode``, as the undistortion does); the TOP lidar's range images
   of ``lidar``, ``lidar_pose`` and ``lidar_camera_projection`` turned into arrays [H, W, C], once.
-pstudio: ``train_meta.json``; the five members of ``params.npz`` the reader reads (``np.load``);
-  the unit camera's JPEGs and every camera's mask PNG at every frame (the multi-view mask
-  statistic reads them all), each decoded once, grey-level, as the reader decodes them.
+pstudio (a group: cameras of one sequence): ``train_meta.json``; the five members of
+  ``params.npz`` the reader reads (``np.load``), once; the group cameras' JPEGs and every camera's
+  mask PNG at every frame (the multi-view mask statistic reads them all), each decoded once,
+  grey-level, as the reader decodes them.
 adt: opening the sequence with projectaria-tools (``AriaDigitalTwinDataProvider``, once, cold)
   and its frame timestamps, then the chunk's RGB, depth and segmentation frames read from the
   VRS files ``repeat`` times, as the unit's runs read them; the report extrapolates it to a
@@ -87,7 +88,7 @@ def drivetrack(spec: dict) -> dict:
 def pstudio(spec: dict) -> dict:
     import cv2
 
-    sequence, camera = spec["unit"]
+    (sequence,), cameras = {s for s, _ in spec["unit"]}, [c for _, c in spec["unit"]]
     root = spec["input_root"]
     data = os.path.join(root, "data", sequence)
     outputs = os.path.join(root, "output")
@@ -105,15 +106,16 @@ def pstudio(spec: dict) -> dict:
     def read() -> None:
         nonlocal frames
         meta = json.loads(read_file(os.path.join(data, "train_meta.json")))
-        view = meta["cam_id"][0].index(camera)
+        views = [meta["cam_id"][0].index(camera) for camera in cameras]
         with np.load(params) as archive:
             for name in members:
                 archive[name]
         for t, names in enumerate(meta["fn"]):
-            decode(os.path.join(data, "ims", names[view]))
+            for view in views:
+                decode(os.path.join(data, "ims", names[view]))
             for name in names:
                 decode(os.path.join(data, "seg", name.rsplit(".", 1)[0] + ".png"))
-            frames = t + 1
+            frames = len(views) * (t + 1)
 
     wall, cpu = _timed(read)
     return {"floor_s": wall, "floor_cpu_s": cpu, "floor_frames": frames}

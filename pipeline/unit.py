@@ -93,6 +93,8 @@ def annotate(job: UnitJob, unit) -> list[ClipRecord]:
 def annotate_group(job: UnitJob, units: list) -> list[list[ClipRecord] | Exception]:
     """The candidate clips of units annotated together (``Source.annotate_group``), or per unit the
     exception that failed it; a source without groups annotates each through ``annotate``."""
+    if not units:
+        return []  # every unit of the group finished earlier
     if job.source.annotate_group is None:
         results = []
         for item in units:

@@ -119,3 +119,37 @@ def test_static_cameras_and_no_extrinsics(clips):
             kept.tracks_xyz[kept.queries_xyt[:, 2].astype(int), np.arange(kept.num_tracks)], kept.fx_fy_cx_cy
         )
         np.testing.assert_allclose(pixels, kept.queries_xyt[:, :2], atol=1e-6)
+
+
+def test_a_sequences_cameras_share_one_read_and_make_the_same_clips(clips, pstudio_sample, monkeypatch):
+    """The graph's group (``annotate_sequence``): params.npz is read once for every camera, each
+    mask decoded at most once, and every clip is the one its camera makes alone."""
+    import pipeline.pstudio.reader as reader
+    import pipeline.pstudio.source as source
+    from pipeline.pstudio import masks
+
+    root, _ = pstudio_sample
+    reads, decodes = [], []
+    read_gaussians, decode = source.read_gaussians, masks.decode_image
+
+    def counted_read(*args):
+        reads.append(args)
+        return read_gaussians(*args)
+
+    def counted_decode(data, *args, **kwargs):
+        decodes.append(bytes(data))
+        return decode(data, *args, **kwargs)
+
+    monkeypatch.setattr(source, "read_gaussians", counted_read)
+    monkeypatch.setattr(masks, "decode_image", counted_decode)
+    monkeypatch.setattr(reader, "MASKS", masks.MaskCache())  # cold, as in a fresh worker
+    units = list_units(root, RunConfig())
+    grouped = source.annotate_sequence(root, units, RunConfig())
+    assert len(reads) == 1 and len(decodes) == len(set(decodes)) > 0
+    for (_, alone, _, _, _), (together,) in zip(clips, grouped, strict=True):
+        assert together.name == alone.name and together.images_jpeg == alone.images_jpeg
+        for field in ("tracks_xyz", "visibility", "queries_xyt", "extrinsics_w2c"):
+            np.testing.assert_array_equal(getattr(together, field), getattr(alone, field))
+        np.testing.assert_array_equal(
+            together.track_stats["mask_agreement"], alone.track_stats["mask_agreement"]
+        )

@@ -89,3 +89,10 @@ def test_a_failed_unit_leaves_its_groups_other_units_finished(grouped, tmp_path)
     ]
     again = run_group(job, ["b_1", "b_bad"])  # the failed unit is redone, its finished neighbour not
     assert CALLS[-1] == ["b_bad"] and again[0].resumed and again[1].failures == bad.failures
+
+
+def test_a_group_finished_earlier_is_not_annotated_again(grouped, tmp_path):
+    job = UnitJob(GROUPED, grouped, RunConfig(), str(tmp_path / "out"))
+    run_group(job, ["a_1", "a_2"])
+    again = run_group(job, ["a_1", "a_2"])
+    assert CALLS == [["a_1", "a_2"]] and all(outcome.resumed for outcome in again)

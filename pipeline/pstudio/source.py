@@ -1,13 +1,15 @@
-"""Panoptic Studio (Dynamic 3D Gaussians) as a Source: (sequence, camera) units, one clip each."""
+"""Panoptic Studio (Dynamic 3D Gaussians) as a Source: (sequence, camera) units, one clip each; the
+cameras of a sequence are annotated together (one read of its Gaussians and masks)."""
 
 from __future__ import annotations
 
+import dataclasses
 import operator
 
 from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
 from pipeline.core.errors import InputError
-from pipeline.pstudio.annotate import UnitInput, annotate_unit
+from pipeline.pstudio.annotate import Gaussians, UnitInput, Views, annotate_unit
 from pipeline.pstudio.reader import SequenceFiles, list_sequences, params_path, read_gaussians, read_views
 from pipeline.sources import Source
 
@@ -35,19 +37,42 @@ def unit_name(unit: tuple[str, int]) -> str:
     return f"{unit[0]}/all_cameras" if unit[1] == ALL_CAMERAS else f"{unit[0]}/camera_{unit[1]}"
 
 
-def load_unit(input_root: str, sequence: str, camera: int, config: RunConfig) -> UnitInput:
-    """Read the unit's cameras, frames and Gaussians; masks are read when annotate asks."""
+@dataclasses.dataclass(frozen=True)
+class OpenedSequence:
+    """What every camera's unit of a sequence shares: its views, its files (images, and masks
+    through the process's mask cache) and its Gaussians."""
+
+    name: str
+    views: Views
+    files: SequenceFiles
+    frames: int
+    gaussians: Gaussians
+
+
+def open_sequence(input_root: str, sequence: str, config: RunConfig) -> OpenedSequence:
+    """Read a sequence's train_meta.json and Gaussians (params.npz); masks are read when asked."""
     views, meta = read_views(input_root, sequence)
+    files = SequenceFiles(input_root, sequence, meta, views)
+    gaussians = read_gaussians(params_path(input_root, sequence, config.pstudio), len(meta["fn"]))
+    return OpenedSequence(sequence, views, files, len(meta["fn"]), gaussians)
+
+
+def camera_input(opened: OpenedSequence, camera: int) -> UnitInput:
+    """One camera's unit of an opened sequence (its frames read now)."""
+    views = opened.views
     if camera not in views.camera_ids:
         raise InputError(
-            f"{sequence}: camera {camera} is not in train_meta.json (cameras {views.camera_ids.tolist()}); "
-            "held-out test cameras have no training masks"
+            f"{opened.name}: camera {camera} is not in train_meta.json (cameras "
+            f"{views.camera_ids.tolist()}); held-out test cameras have no training masks"
         )
-    files = SequenceFiles(input_root, sequence, meta, views)
     view = views.index(camera)
-    frames = [files.image(view, t) for t in range(len(meta["fn"]))]
-    gaussians = read_gaussians(params_path(input_root, sequence, config.pstudio), len(meta["fn"]))
-    return UnitInput(sequence, camera, views, gaussians, frames, files.mask)
+    frames = [opened.files.image(view, t) for t in range(opened.frames)]
+    return UnitInput(opened.name, camera, views, opened.gaussians, frames, opened.files.mask)
+
+
+def load_unit(input_root: str, sequence: str, camera: int, config: RunConfig) -> UnitInput:
+    """Read the unit's cameras, frames and Gaussians; masks are read when annotate asks."""
+    return camera_input(open_sequence(input_root, sequence, config), camera)
 
 
 def sample_input(folder: str) -> str:
@@ -62,6 +87,28 @@ def annotate(input_root: str, unit: tuple[str, int], config: RunConfig) -> list[
     return annotate_unit(load_unit(input_root, *unit, config), config)
 
 
+def annotate_sequence(
+    input_root: str, units: list[tuple[str, int]], config: RunConfig
+) -> list[list[ClipRecord] | Exception]:
+    """The cameras of one sequence annotated together: its Gaussians read once, each mask decoded
+    once (the multi-view mask statistic reads every camera's); per unit, its clip or the exception
+    that failed it (a bad train_meta.json or params.npz fails them all)."""
+    sequences = {sequence for sequence, _ in units}
+    if len(sequences) != 1:
+        raise ValueError(f"annotate_sequence takes the units of one sequence, got {sorted(sequences)}")
+    try:
+        opened = open_sequence(input_root, units[0][0], config)
+    except Exception as error:  # noqa: BLE001 - becomes each unit's failure
+        return [error] * len(units)
+    results: list[list[ClipRecord] | Exception] = []
+    for _, camera in units:
+        try:
+            results.append(annotate_unit(camera_input(opened, camera), config))
+        except Exception as error:  # noqa: BLE001 - this camera's failure only
+            results.append(error)
+    return results
+
+
 SOURCE = Source(
     name="pstudio",
     list_units=list_units,
@@ -70,4 +117,6 @@ SOURCE = Source(
     sample_input=sample_input,
     mask_min_agreement=operator.attrgetter("pstudio.mask_min_agreement"),
     sweepable=("pstudio.mask_min_agreement",),
+    group_of=operator.itemgetter(0),
+    annotate_group=annotate_sequence,
 )
