@@ -288,14 +288,21 @@ class SegmentReader:
         """The rows of one component file that pass ``filters`` (a pyarrow expression), as a table,
         one row per key (``columns`` must hold the component's key columns; see the module's doc),
         with the columns of ``optional`` that the file has."""
+        return _unique_rows(
+            self._rows(component, columns, filters, optional),
+            C.KEYS[component],
+            f"{component}/{self.segment}.parquet",
+        )
+
+    def _rows(self, component: str, columns: list[str], filters, optional: tuple[str, ...]) -> pa.Table:
+        """``read``'s table before repeated keys are checked."""
         batches = self.batches(component, columns, optional=optional)
         parts = [pa.Table.from_batches([batch]) for batch in batches]
         if filters is not None:
             parts = [part.filter(filters) for part in parts]
         if not parts:
             return pa.table({name: pa.array([]) for name in columns})
-        table = pa.concat_tables(parts).combine_chunks()
-        return _unique_rows(table, C.KEYS[component], f"{component}/{self.segment}.parquet")
+        return pa.concat_tables(parts).combine_chunks()
 
     def camera_calibration(self, camera: int) -> CameraCalibration:
         names = [C.CAMERA_NAME, *C.CAM_INTRINSICS, *C.CAM_DISTORTION, C.CAM_EXTRINSIC]
@@ -346,9 +353,29 @@ class SegmentReader:
         return dict(zip(stamps.tolist(), poses, strict=True))
 
     def camera_frames(self, camera: int) -> CameraFrames:
+        (frames,) = self.cameras_frames([camera])
+        if isinstance(frames, InputError):
+            raise frames
+        return frames
+
+    def cameras_frames(self, cameras: list[int]) -> list[CameraFrames | InputError]:
+        """Each camera's frames, the ``camera_image`` file read once for all of them; per camera
+        the InputError of its own bad rows (a bad file fails them all: raised)."""
         names = [C.TIMESTAMP, C.CAMERA_NAME, C.IMAGE_JPEG, C.IMAGE_POSE]
-        filters = pc.field(C.CAMERA_NAME) == camera
-        table = self.read(C.CAMERA_IMAGE, names, filters, optional=C.ROLLING_SHUTTER)
+        filters = pc.field(C.CAMERA_NAME).isin(cameras)
+        table = self._rows(C.CAMERA_IMAGE, names, filters, optional=C.ROLLING_SHUTTER)
+        label = f"{C.CAMERA_IMAGE}/{self.segment}.parquet"
+        found: list[CameraFrames | InputError] = []
+        for camera in cameras:
+            try:
+                mine = table.filter(pc.field(C.CAMERA_NAME) == camera)
+                found.append(self._camera_frames(_unique_rows(mine, C.KEYS[C.CAMERA_IMAGE], label), camera))
+            except InputError as error:
+                found.append(error)
+        return found
+
+    def _camera_frames(self, table: pa.Table, camera: int) -> CameraFrames:
+        """One camera's ``camera_image`` rows (keys unique) as its frames, in time order."""
         what = f"camera_image/{self.segment} camera {camera}"
         if table.num_rows == 0:
             raise InputError(f"{what}: no frames")

@@ -29,7 +29,7 @@ def load_unit(input_root: str, segment: str, camera: int) -> UnitInput:
 def load_units(input_root: str, segment: str, cameras: list[int]) -> list[UnitInput | Exception]:
     """What each camera's unit of one segment reads, or the exception that failed it: the segment's
     shared files (calibration of the TOP lidar, vehicle poses, boxes) are read once, and a bad one
-    fails every camera."""
+    fails every camera; ``camera_image`` is read once, each camera failing on its own rows."""
     reader = SegmentReader(input_root, segment)
     try:
         reader.check_components()
@@ -40,13 +40,19 @@ def load_units(input_root: str, segment: str, cameras: list[int]) -> list[UnitIn
         }
     except Exception as error:  # noqa: BLE001 - becomes each unit's failure
         return [error] * len(cameras)
+    try:
+        every_frames = reader.cameras_frames(cameras)  # camera_image read once
+    except Exception as error:  # noqa: BLE001 - each camera's failure, after its calibration's
+        every_frames = [error] * len(cameras)
     loaded: list[UnitInput | Exception] = []
-    for camera in cameras:
+    for camera, frames in zip(cameras, every_frames, strict=True):
         try:
             calibration = reader.camera_calibration(camera)
-            frames = reader.camera_frames(camera)
         except Exception as error:  # noqa: BLE001 - this camera's failure only
             loaded.append(error)
+            continue
+        if isinstance(frames, Exception):
+            loaded.append(frames)
             continue
         loaded.append(
             UnitInput(
