@@ -82,6 +82,14 @@ def distort(normalized: np.ndarray, distortion: np.ndarray) -> tuple[np.ndarray,
     return np.stack([xd, yd], 1), radial
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a x b for [N, 3] or [1, 3] rows: ``np.cross``'s products and differences, written out (the
+    same numbers without its per-call axis handling, which dominated at a few thousand rows)."""
+    a0, a1, a2 = a[:, 0], a[:, 1], a[:, 2]
+    b0, b1, b2 = b[:, 0], b[:, 1], b[:, 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=1)
+
+
 @dataclasses.dataclass(frozen=True)
 class Motion:
     """The readouts of several frames, per point [M] of their points concatenated frame by frame
@@ -134,7 +142,7 @@ class Motion:
         along = self._along(rows, vectors)
         turned = (
             vectors * np.cos(angle)
-            + np.cross(axis, vectors) * np.sin(angle)
+            + _cross(axis, vectors) * np.sin(angle)
             + axis * along[:, None] * (1.0 - np.cos(angle))
         )
         return turned if len(spin) == 1 else np.where(spin[:, None] != 0.0, turned, vectors)
