@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 
 from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
@@ -38,7 +38,8 @@ class Source:
       unit alone.
     annotate_group: (input root, units of one group, config) -> per unit, in order, its candidate
       clips or the exception that failed it (one unit's bad input fails that unit only, unless
-      the input is shared). Required with ``group_of``.
+      the input is shared); a list, or a generator that hands each unit on as soon as it is made
+      (it is written before the next is annotated). Required with ``group_of``.
     """
 
     name: str
@@ -49,7 +50,7 @@ class Source:
     mask_min_agreement: Callable[[RunConfig], float]
     sweepable: tuple[str, ...] = ()
     group_of: Callable[[object], object] | None = None
-    annotate_group: Callable[[str, list, RunConfig], list[list[ClipRecord] | Exception]] | None = None
+    annotate_group: Callable[[str, list, RunConfig], Iterable[list[ClipRecord] | Exception]] | None = None
 
     def group_key(self, unit) -> str:
         """The key ``pipeline.graph`` groups ``unit`` under: its group's, else its own name."""

@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import time
 import traceback
+from collections.abc import Iterator
 
 from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
@@ -90,27 +91,31 @@ def annotate(job: UnitJob, unit) -> list[ClipRecord]:
     return clips
 
 
-def annotate_group(job: UnitJob, units: list) -> list[list[ClipRecord] | Exception]:
+def annotate_group(job: UnitJob, units: list) -> Iterator[list[ClipRecord] | Exception]:
     """The candidate clips of units annotated together (``Source.annotate_group``), or per unit the
-    exception that failed it; a source without groups annotates each through ``annotate``."""
+    exception that failed it, handed on unit by unit as the source makes them (so a unit is written
+    while its group's next is annotated); a source without groups annotates each through
+    ``annotate``."""
     if not units:
-        return []  # every unit of the group finished earlier
+        return  # every unit of the group finished earlier
     if job.source.annotate_group is None:
-        results = []
         for item in units:
             try:
-                results.append(annotate(job, item))
+                result = annotate(job, item)
             except Exception as error:  # noqa: BLE001 - every failure becomes data
-                results.append(error)
-        return results
+                result = error
+            yield result
+        return
     started = time.monotonic()
-    results = job.source.annotate_group(job.input_root, units, job.config)
-    seconds = time.monotonic() - started
-    for item, result in zip(units, results, strict=True):
+    made = job.source.annotate_group(job.input_root, units, job.config)
+    for item, result in zip(units, made, strict=True):
         if not isinstance(result, Exception):
-            name = job.source.unit_name(item)
-            progress(f"unit {name}: {len(result)} clip(s) (its group of {len(units)} in {seconds:.1f} s)")
-    return results
+            progress(
+                f"unit {job.source.unit_name(item)}: {len(result)} clip(s) in "
+                f"{time.monotonic() - started:.1f} s (annotated with its group of {len(units)})"
+            )
+        yield result
+        started = time.monotonic()
 
 
 def filter_clip(job: UnitJob, clip: ClipRecord) -> tuple[ClipRecord, FilterOutcome]:

@@ -144,7 +144,7 @@ def test_a_sequences_cameras_share_one_read_and_make_the_same_clips(clips, pstud
     monkeypatch.setattr(masks, "decode_image", counted_decode)
     monkeypatch.setattr(reader, "MASKS", masks.MaskCache())  # cold, as in a fresh worker
     units = list_units(root, RunConfig())
-    grouped = source.annotate_sequence(root, units, RunConfig())
+    grouped = list(source.annotate_sequence(root, units, RunConfig()))
     assert len(reads) == 1 and len(decodes) == len(set(decodes)) > 0
     for (_, alone, _, _, _), (together,) in zip(clips, grouped, strict=True):
         assert together.name == alone.name and together.images_jpeg == alone.images_jpeg

@@ -96,3 +96,20 @@ def test_a_group_finished_earlier_is_not_annotated_again(grouped, tmp_path):
     run_group(job, ["a_1", "a_2"])
     again = run_group(job, ["a_1", "a_2"])
     assert CALLS == [["a_1", "a_2"]] and all(outcome.resumed for outcome in again)
+
+
+def test_a_generator_groups_units_are_written_one_by_one(grouped, tmp_path):
+    """A source whose annotate_group is a generator has each unit written (clip and record) before
+    the next unit of its group is annotated: a killed run keeps the units already made."""
+    output = str(tmp_path / "out")
+    seen_on_disk = []
+
+    def one_by_one(input_root, units, config):
+        for unit in units:
+            seen_on_disk.append([os.path.exists(clip_path(output, "toy", f"toy_{u}")) for u in units])
+            yield annotate(input_root, unit, config)
+
+    job = UnitJob(dataclasses.replace(GROUPED, annotate_group=one_by_one), grouped, RunConfig(), output)
+    outcomes = run_group(job, ["a_1", "a_2", "b_1"])
+    assert all(o.reports and not o.failures for o in outcomes)
+    assert seen_on_disk == [[False, False, False], [True, False, False], [True, True, False]]

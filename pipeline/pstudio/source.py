@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import operator
+from collections.abc import Iterator
 
 from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
@@ -89,24 +90,24 @@ def annotate(input_root: str, unit: tuple[str, int], config: RunConfig) -> list[
 
 def annotate_sequence(
     input_root: str, units: list[tuple[str, int]], config: RunConfig
-) -> list[list[ClipRecord] | Exception]:
+) -> Iterator[list[ClipRecord] | Exception]:
     """The cameras of one sequence annotated together: its Gaussians read once, each mask decoded
-    once (the multi-view mask statistic reads every camera's); per unit, its clip or the exception
-    that failed it (a bad train_meta.json or params.npz fails them all)."""
+    once (the multi-view mask statistic reads every camera's); per unit, as soon as it is made, its
+    clip or the exception that failed it (a bad train_meta.json or params.npz fails them all)."""
     sequences = {sequence for sequence, _ in units}
     if len(sequences) != 1:
         raise ValueError(f"annotate_sequence takes the units of one sequence, got {sorted(sequences)}")
     try:
         opened = open_sequence(input_root, units[0][0], config)
     except Exception as error:  # noqa: BLE001 - becomes each unit's failure
-        return [error] * len(units)
-    results: list[list[ClipRecord] | Exception] = []
+        yield from [error] * len(units)
+        return
     for _, camera in units:
         try:
-            results.append(annotate_unit(camera_input(opened, camera), config))
+            result = annotate_unit(camera_input(opened, camera), config)
         except Exception as error:  # noqa: BLE001 - this camera's failure only
-            results.append(error)
-    return results
+            result = error
+        yield result
 
 
 SOURCE = Source(
