@@ -107,7 +107,7 @@ def pstudio(spec: dict) -> dict:
         nonlocal frames
         meta = json.loads(read_file(os.path.join(data, "train_meta.json")))
         views = [meta["cam_id"][0].index(camera) for camera in cameras]
-        with np.load(params) as archive:
+        with np.load(params, allow_pickle=False) as archive:
             for name in members:
                 archive[name]
         for t, names in enumerate(meta["fn"]):

@@ -27,7 +27,6 @@ from apache_beam.metrics import Metrics
 from apache_beam.options.pipeline_options import PipelineOptions
 
 from pipeline import sources, storage, unit
-from pipeline.core.progress import progress
 from pipeline.export.files import list_files, write_atomic
 from pipeline.export.layout import clip_folder, failures_path, manifest_path, run_record_path
 from pipeline.export.manifests import split_clips
@@ -43,9 +42,9 @@ COUNTERS = (
     "tracks_written",
     *(f"tracks_dropped_{name}" for name in FILTER_ORDER),
 )
-# Kinds of the (kind, value) pairs steps emit.
-CLIPS, FILTERED = "clips", "filtered"
-REPORT, FAILURE, RESUMED, START = "report", "failure", "resumed", "start"
+# Kinds of the (kind, value) pairs steps emit (Annotate's are ``pipeline.unit``'s).
+CLIPS, FAILURE, RESUMED = unit.CLIPS, unit.FAILURE, unit.RESUMED
+FILTERED, REPORT, START = "filtered", "report", "start"
 
 
 def counter(name: str):
@@ -69,25 +68,13 @@ class Annotate(_JobStep):
 
     def process(self, group):
         _, units = group
-        source, todo = self.job.source, []
-        for item in sorted(units, key=source.unit_name):
-            name = source.unit_name(item)
+        for name, kind, value in unit.annotate_units(self.job, sorted(units, key=self.job.source.unit_name)):
             counter("units_read").inc()
-            reports = unit.finished_earlier(self.job, name)
-            if reports is not None:
-                counter("units_resumed").inc()
-                yield name, (RESUMED, reports)
+            if kind == CLIPS:
+                counter("clips_annotated").inc(len(value))
             else:
-                todo.append(item)
-        for item, result in zip(todo, unit.annotate_group(self.job, todo), strict=True):
-            name = source.unit_name(item)
-            if isinstance(result, Exception):
-                progress(f"unit {name} FAILED: {result}")
-                counter("units_failed").inc()
-                yield name, (FAILURE, unit.failure(name, "annotate", result))
-            else:
-                counter("clips_annotated").inc(len(result))
-                yield name, (CLIPS, result)
+                counter("units_resumed" if kind == RESUMED else "units_failed").inc()
+            yield name, (kind, value)
 
 
 class Filter(_JobStep):

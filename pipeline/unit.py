@@ -34,6 +34,9 @@ from pipeline.resume import (
 )
 from pipeline.sources import Source
 
+# What ``annotate_units`` says of a unit.
+CLIPS, FAILURE, RESUMED = "clips", "failure", "resumed"
+
 
 @dataclasses.dataclass(frozen=True)
 class UnitJob:
@@ -211,25 +214,37 @@ def write_unit(job: UnitJob, name: str, filtered: list, on_written=None) -> Unit
     return outcome
 
 
-def run_group(job: UnitJob, units: list) -> list[UnitOutcome]:
-    """Every stage of units of one group in this process, as the graph's steps run them: the
-    units an earlier run finished are skipped, the others annotated together."""
-    outcomes: dict[str, UnitOutcome] = {}
+def annotate_units(job: UnitJob, units: list) -> Iterator[tuple[str, str, object]]:
+    """The resume check and the annotate stage of units of one group: per unit, (name, RESUMED,
+    its reports) when an earlier run finished it, then, as the others are annotated together,
+    (name, CLIPS, its candidate clips) or (name, FAILURE, its failure record)."""
     todo = []
     for item in units:
         name = job.source.unit_name(item)
         reports = finished_earlier(job, name)
         if reports is not None:
-            outcomes[name] = UnitOutcome(name, reports, resumed=True)
+            yield name, RESUMED, reports
         else:
             todo.append(item)
     for item, result in zip(todo, annotate_group(job, todo), strict=True):
         name = job.source.unit_name(item)
         if isinstance(result, Exception):
             progress(f"unit {name} FAILED: {result}")
-            outcomes[name] = UnitOutcome(name, failures=[failure(name, "annotate", result)])
+            yield name, FAILURE, failure(name, "annotate", result)
         else:
-            outcomes[name] = write_unit(job, name, filter_unit(job, name, result))
+            yield name, CLIPS, result
+
+
+def run_group(job: UnitJob, units: list) -> list[UnitOutcome]:
+    """Every stage of units of one group in this process, as the graph's steps run them."""
+    outcomes: dict[str, UnitOutcome] = {}
+    for name, kind, value in annotate_units(job, units):
+        if kind == RESUMED:
+            outcomes[name] = UnitOutcome(name, value, resumed=True)
+        elif kind == FAILURE:
+            outcomes[name] = UnitOutcome(name, failures=[value])
+        else:
+            outcomes[name] = write_unit(job, name, filter_unit(job, name, value))
     return [outcomes[job.source.unit_name(item)] for item in units]
 
 

@@ -92,42 +92,34 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 @dataclasses.dataclass(frozen=True)
 class Motion:
-    """The readouts of several frames, per point [M] of their points concatenated frame by frame
-    (of one frame: [1], for every point alike): ``start``, ``rate`` [M] and ``velocity`` [M, 3] as in
-    ``Readout``; the turn exp(-t [omega]x) as ``spin`` [M] (|omega|, rad/s) about the unit ``axis``
-    [M, 3] (zero where spin is 0); ``frame`` [M], the point's frame (0 to F - 1); ``axes`` [F, 3],
-    each frame's axis; and ``sweep``, the readouts' (axis, reverse, extent), the calibration's and
-    so the same in every frame."""
+    """The readouts of several frames [F] whose points [M] are concatenated frame by frame: per
+    frame, ``start``, ``rate`` [F] and ``velocity`` [F, 3] as in ``Readout``, and the turn
+    exp(-t [omega]x) as ``spin`` [F] (|omega|, rad/s) about the unit ``axes`` [F, 3] (zero where
+    spin is 0); ``frame`` [M], each point's frame; and ``sweep``, the readouts' (axis, reverse,
+    extent), the calibration's and so the same in every frame."""
 
     start: np.ndarray
     rate: np.ndarray
     velocity: np.ndarray
     spin: np.ndarray
-    axis: np.ndarray
-    frame: np.ndarray
     axes: np.ndarray
+    frame: np.ndarray
     sweep: tuple[int, bool, int]
 
     @classmethod
     def of(cls, readouts: list[Readout], counts: np.ndarray) -> Motion:
         """The motion of frames with these readouts [F] and point counts [F]."""
-        counts = counts if len(readouts) > 1 else np.ones(1, np.int64)  # one frame: broadcast
-        spins = [np.linalg.norm(readout.omega) for readout in readouts]
-        axes = np.array(
-            [
-                readout.omega / spin if spin != 0.0 else np.zeros(3)
-                for readout, spin in zip(readouts, spins, strict=True)
-            ]
-        )
+        spin = np.array([np.linalg.norm(readout.omega) for readout in readouts])
+        turns = zip(readouts, spin, strict=True)
+        axes = np.array([readout.omega / rate if rate != 0.0 else np.zeros(3) for readout, rate in turns])
         first = readouts[0]
         return cls(
-            start=np.repeat([readout.start for readout in readouts], counts),
-            rate=np.repeat([readout.rate for readout in readouts], counts),
-            velocity=np.repeat([readout.velocity for readout in readouts], counts, axis=0),
-            spin=np.repeat(spins, counts),
-            axis=np.repeat(axes, counts, axis=0),
-            frame=np.repeat(np.arange(len(readouts)), counts),
+            start=np.array([readout.start for readout in readouts]),
+            rate=np.array([readout.rate for readout in readouts]),
+            velocity=np.array([readout.velocity for readout in readouts]),
+            spin=spin,
             axes=axes,
+            frame=np.repeat(np.arange(len(readouts)), counts),
             sweep=(first.axis, first.reverse, first.extent),
         )
 
@@ -135,7 +127,7 @@ class Motion:
         """Camera points [N, 3] (the motion's points ``rows`` [N], ascending) seen from the camera
         as it is at times [N] after the pose: moved back by the velocity, turned back by the spin."""
         vectors = points - self.at(self.velocity, rows) * times[:, None]
-        spin, axis = self.at(self.spin, rows), self.at(self.axis, rows)
+        spin, axis = self.at(self.spin, rows), self.at(self.axes, rows)
         if len(spin) == 1 and spin[0] == 0.0:
             return vectors
         angle = -spin[:, None] * times[:, None]
@@ -148,8 +140,9 @@ class Motion:
         return turned if len(spin) == 1 else np.where(spin[:, None] != 0.0, turned, vectors)
 
     def at(self, values: np.ndarray, rows: np.ndarray) -> np.ndarray:
-        """A per-point field [M, ...] at the motion's points ``rows`` [N] ([1, ...] for one frame)."""
-        return values if len(self.axes) == 1 else values[rows]
+        """A per-frame field [F, ...] at the motion's points ``rows`` [N] ([1, ...] for one frame:
+        broadcast)."""
+        return values if len(self.axes) == 1 else values[self.frame[rows]]
 
     def _along(self, rows: np.ndarray, vectors: np.ndarray) -> np.ndarray:
         """Components [N] of vectors [N, 3] (of the motion's points ``rows`` [N], ascending) along

@@ -33,8 +33,13 @@ def depth_tree(lidar_uv: np.ndarray) -> CellGrid | None:
     if len(lidar_uv) == 0:
         return None
     uv = np.ascontiguousarray(lidar_uv, np.float64)
+    return CellGrid(uv, _mean_spacing(uv))
+
+
+def _mean_spacing(uv: np.ndarray) -> float:
+    """The spacing of points [M, 2] were they spread evenly over their bounding box."""
     spread = np.ptp(uv, axis=0)
-    return CellGrid(uv, np.sqrt(max(spread[0] * spread[1], 1e-12) / len(uv)))
+    return float(np.sqrt(max(spread[0] * spread[1], 1e-12) / len(uv)))
 
 
 def nearest_depth_max4(
@@ -94,10 +99,9 @@ def camera_occluded_lidar(
     if len(lidar_depth) <= neighbours:
         return np.zeros(len(lidar_depth), bool)
     uv = np.ascontiguousarray(lidar_uv, np.float64)
-    spread = np.ptp(uv, axis=0)
-    side = np.sqrt(max(spread[0] * spread[1], 1e-12) / len(uv))  # the mean spacing, were it even
+    side, extent = _mean_spacing(uv), np.hypot(*np.ptp(uv, axis=0))
     reach = None
-    while reach is None and side < np.hypot(*spread):
+    while reach is None and side < extent:
         grid = CellGrid(uv, side)
         reach = _twice_the_median(grid.nearest_distances(), grid.side)
         side = 2.0 * grid.side

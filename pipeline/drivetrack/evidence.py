@@ -112,22 +112,12 @@ def gather_lidar_cameras(
         in_vehicle: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}  # the cameras' poses agree
         for i, t in users[stamp]:
             pose = passes[i].world_from_frame[t]
-            if pose.tobytes() not in in_vehicle:
+            key = pose.tobytes()
+            if key not in in_vehicle:
                 vehicle_from_world = invert_se3(pose)
-                in_vehicle[pose.tobytes()] = (
-                    vehicle_from_world,
-                    transform_points(vehicle_from_world, sweep.points),
-                )
-            _camera_frame(
-                passes[i],
-                evidence[i],
-                t,
-                lidar.camera_projection,
-                sweep,
-                in_vehicle[pose.tobytes()],
-                shrink,
-                occlusion_margin,
-            )
+                in_vehicle[key] = vehicle_from_world, transform_points(vehicle_from_world, sweep.points)
+            frame = (t, lidar.camera_projection, sweep, in_vehicle[key])
+            _camera_frame(passes[i], evidence[i], *frame, shrink, occlusion_margin)
     return evidence
 
 
