@@ -10,7 +10,7 @@ from pipeline.core.config import RunConfig, with_overrides
 from pipeline.export.clip_reader import read_clip_bytes
 from pipeline.export.files import write_atomic
 from pipeline.export.manifests import load_official_splits, split_clips
-from pipeline.export.npz_writer import encode_npz
+from pipeline.export.npz_writer import encode_npz, fixed_width_bytes
 from pipeline.export.validator import check_arrays, check_clip_bytes
 
 INTRINSICS = np.array([100.0, 100.0, 50.0, 50.0])
@@ -48,6 +48,17 @@ def test_npz_round_trip_and_bytes_are_reproducible():
     assert list(loaded["images_jpeg_bytes"]) == list(arrays["images_jpeg_bytes"])
     assert loaded["images_jpeg_bytes"].dtype.kind == "S" and loaded["fx_fy_cx_cy"].dtype == np.float64
     assert check_clip_bytes(data) == []
+
+
+@pytest.mark.parametrize(
+    "items",
+    [[], [b""], [b"ab", b"c", b"\xff\xd9"], [b"\x00x\x00", b"y\x00"], [bytes(range(256)) * 3, b"z"]],
+)
+def test_frames_array_is_what_numpy_makes_of_the_list(items):
+    """The release's frames array: what ``np.savez`` makes of a list of bytes, byte for byte."""
+    ours, numpys = fixed_width_bytes(items), np.array(items, dtype=np.bytes_)
+    assert ours.dtype == numpys.dtype and ours.shape == numpys.shape
+    assert ours.tobytes() == numpys.tobytes()
 
 
 def _break(name):

@@ -164,13 +164,3 @@ def test_undistorted_frames_make_the_pinhole_exact(lead_clips):
         arrays = clip_arrays(clip.select_tracks(queried))
         assert quality_findings(arrays)["query_residual_max_px"] < 0.01
         assert check_arrays(arrays) == []
-
-
-def test_the_written_out_cross_product_is_numpys():
-    from pipeline.drivetrack.camera_model import _cross
-
-    rng = np.random.default_rng(5)
-    a = rng.normal(size=(2000, 3)) * rng.uniform(1e-6, 1e3, (2000, 1))
-    b = rng.normal(size=(2000, 3)) * 50
-    np.testing.assert_array_equal(_cross(a, b), np.cross(a, b))
-    np.testing.assert_array_equal(_cross(a[:1], b), np.cross(a[:1], b))  # one frame's axis, broadcast

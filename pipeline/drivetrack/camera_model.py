@@ -29,6 +29,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 
+import numba
 import numpy as np
 
 from pipeline.core.errors import InputError
@@ -82,79 +83,74 @@ def distort(normalized: np.ndarray, distortion: np.ndarray) -> tuple[np.ndarray,
     return np.stack([xd, yd], 1), radial
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a x b for [N, 3] or [1, 3] rows: ``np.cross``'s products and differences, written out (the
-    same numbers without its per-call axis handling, which dominated at a few thousand rows)."""
-    a0, a1, a2 = a[:, 0], a[:, 1], a[:, 2]
-    b0, b1, b2 = b[:, 0], b[:, 1], b[:, 2]
-    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=1)
+@numba.njit(cache=True, nogil=True)
+def _moved(x, y, z, t, vx, vy, vz, spin, a0, a1, a2):
+    """Camera point (x, y, z) seen from the camera as it is t seconds after its pose: moved back by
+    the velocity (vx, vy, vz), turned back by exp(-t spin [a]x) about the unit axis (a0, a1, a2)."""
+    x, y, z = x - vx * t, y - vy * t, z - vz * t
+    if spin == 0.0:
+        return x, y, z
+    angle = -spin * t
+    cos, sin = np.cos(angle), np.sin(angle)
+    along = x * a0 + y * a1 + z * a2
+    return (
+        x * cos + (a1 * z - a2 * y) * sin + a0 * along * (1.0 - cos),
+        y * cos + (a2 * x - a0 * z) * sin + a1 * along * (1.0 - cos),
+        z * cos + (a0 * y - a1 * x) * sin + a2 * along * (1.0 - cos),
+    )
 
 
-@dataclasses.dataclass(frozen=True)
-class Motion:
-    """The readouts of several frames [F] whose points [M] are concatenated frame by frame: per
-    frame, ``start``, ``rate`` [F] and ``velocity`` [F, 3] as in ``Readout``, and the turn
-    exp(-t [omega]x) as ``spin`` [F] (|omega|, rad/s) about the unit ``axes`` [F, 3] (zero where
-    spin is 0); ``frame`` [M], each point's frame; and ``sweep``, the readouts' (axis, reverse,
-    extent), the calibration's and so the same in every frame."""
+@numba.njit(cache=True, nogil=True)
+def _sensor_coordinate(x, y, z, lens, axis):
+    """Camera point (x, y, z)'s sensor pixel coordinate along ``axis`` (0: u, 1: v), as
+    ``sensor_pixels`` computes it; the principal point's where the point is behind the camera.
+    lens: [10] fx, fy, cx, cy, k1, k2, p1, p2, k3 and the guard's reach (px)."""
+    if not z > 0:
+        return lens[2 + axis]
+    nx, ny = x / z, y / z
+    k1, k2, p1, p2, k3 = lens[4], lens[5], lens[6], lens[7], lens[8]
+    r2 = nx * nx + ny * ny
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    if radial >= MIN_RADIAL and radial <= MAX_RADIAL:
+        if axis == 0:
+            return (nx * radial + 2.0 * p1 * nx * ny + p2 * (r2 + 2.0 * nx * nx)) * lens[0] + lens[2]
+        return (ny * radial + p1 * (r2 + 2.0 * ny * ny) + 2.0 * p2 * nx * ny) * lens[1] + lens[3]
+    length = max(np.sqrt(nx * nx + ny * ny), 1e-12)
+    return (nx if axis == 0 else ny) / length * lens[9] / lens[axis] * lens[axis] + lens[2 + axis]
 
-    start: np.ndarray
-    rate: np.ndarray
-    velocity: np.ndarray
-    spin: np.ndarray
-    axes: np.ndarray
-    frame: np.ndarray
-    sweep: tuple[int, bool, int]
 
-    @classmethod
-    def of(cls, readouts: list[Readout], counts: np.ndarray) -> Motion:
-        """The motion of frames with these readouts [F] and point counts [F]."""
-        spin = np.array([np.linalg.norm(readout.omega) for readout in readouts])
-        turns = zip(readouts, spin, strict=True)
-        axes = np.array([readout.omega / rate if rate != 0.0 else np.zeros(3) for readout, rate in turns])
-        first = readouts[0]
-        return cls(
-            start=np.array([readout.start for readout in readouts]),
-            rate=np.array([readout.rate for readout in readouts]),
-            velocity=np.array([readout.velocity for readout in readouts]),
-            spin=spin,
-            axes=axes,
-            frame=np.repeat(np.arange(len(readouts)), counts),
-            sweep=(first.axis, first.reverse, first.extent),
-        )
-
-    def moved(self, rows: np.ndarray, points: np.ndarray, times: np.ndarray) -> np.ndarray:
-        """Camera points [N, 3] (the motion's points ``rows`` [N], ascending) seen from the camera
-        as it is at times [N] after the pose: moved back by the velocity, turned back by the spin."""
-        vectors = points - self.at(self.velocity, rows) * times[:, None]
-        spin, axis = self.at(self.spin, rows), self.at(self.axes, rows)
-        if len(spin) == 1 and spin[0] == 0.0:
-            return vectors
-        angle = -spin[:, None] * times[:, None]
-        along = self._along(rows, vectors)
-        turned = (
-            vectors * np.cos(angle)
-            + _cross(axis, vectors) * np.sin(angle)
-            + axis * along[:, None] * (1.0 - np.cos(angle))
-        )
-        return turned if len(spin) == 1 else np.where(spin[:, None] != 0.0, turned, vectors)
-
-    def at(self, values: np.ndarray, rows: np.ndarray) -> np.ndarray:
-        """A per-frame field [F, ...] at the motion's points ``rows`` [N] ([1, ...] for one frame:
-        broadcast)."""
-        return values if len(self.axes) == 1 else values[self.frame[rows]]
-
-    def _along(self, rows: np.ndarray, vectors: np.ndarray) -> np.ndarray:
-        """Components [N] of vectors [N, 3] (of the motion's points ``rows`` [N], ascending) along
-        their frame's axis: one ``vectors @ axis`` per frame, since BLAS rounds a row's dot product
-        by its place in the array (FMA), and a frame's rows go in as that frame alone would."""
-        if len(self.axes) == 1:
-            return vectors @ self.axes[0]
-        bounds = np.searchsorted(self.frame[rows], np.arange(len(self.axes) + 1))
-        along = np.empty(len(vectors))
-        for axis, lo, hi in zip(self.axes, bounds[:-1], bounds[1:], strict=True):
-            along[lo:hi] = vectors[lo:hi] @ axis
-        return along
+@numba.njit(cache=True, nogil=True)
+def _seen_points(local, frame, start, rate, velocity, spin, axes, lens, axis, reverse, extent, out):
+    """out [M, 3]: camera points [M, 3] (at the pose of their frame ``frame`` [M]) at the instant
+    each is seen: the root of r(t) = t - read_time(point as seen at t), by one fixed-point step from
+    the pose, then the secant method until a step is below ``TOLERANCE_S`` (``SECANT_STEPS`` at
+    most). Per frame [F], as in ``Readout``: ``start``, ``rate``, ``velocity`` [F, 3], and the turn
+    as ``spin`` [F] (|omega|) about the unit ``axes`` [F, 3]; the sweep's ``axis``, ``reverse`` and
+    ``extent`` (the calibration's). Array elements are read into scalars first: slicing a row
+    per call cost 20 times the arithmetic."""
+    for m in range(local.shape[0]):
+        f = frame[m]
+        x, y, z = local[m, 0], local[m, 1], local[m, 2]
+        motion = (velocity[f, 0], velocity[f, 1], velocity[f, 2], spin[f], axes[f, 0], axes[f, 1], axes[f, 2])
+        first, per_pixel = start[f], rate[f]
+        before, time, residual_before = 0.0, 0.0, 0.0
+        for step_index in range(SECANT_STEPS + 1):
+            mx, my, mz = _moved(x, y, z, time, *motion)
+            coordinate = min(max(_sensor_coordinate(mx, my, mz, lens, axis), 0.0), extent)
+            if reverse:
+                coordinate = extent - coordinate
+            now = time - (first + per_pixel * coordinate)
+            if step_index == 0:  # the fixed-point step from the pose
+                residual_before, time = now, 0.0 - now
+                continue
+            rise, run = now - residual_before, time - before
+            slope = rise / run if run != 0 else 1.0
+            step = now / (slope if abs(slope) > 1e-3 else 1.0)
+            before, residual_before = time, now
+            time -= step
+            if not abs(step) >= TOLERANCE_S:
+                break
+        out[m, 0], out[m, 1], out[m, 2] = _moved(x, y, z, time, *motion)
 
 
 class UnitCamera:
@@ -229,18 +225,6 @@ class UnitCamera:
         pixels = distorted * np.array([fx, fy]) + np.array([cx, cy])
         return np.where(front[:, None], pixels, -1.0), valid
 
-    def _read_time(self, motion: Motion, rows: np.ndarray, points: np.ndarray) -> np.ndarray:
-        """Seconds after the pose [N] at which the sensor reads the pixels of camera points [N, 3]
-        (the motion's points ``rows`` [N])."""
-        pixels, _ = self.sensor_pixels(points)
-        front = points[:, 2] > 0
-        axis, reverse, extent = motion.sweep
-        centre = self.calibration.fx_fy_cx_cy[2 + axis]
-        coordinate = np.clip(np.where(front, pixels[:, axis], centre), 0.0, extent)
-        if reverse:
-            coordinate = extent - coordinate
-        return motion.at(motion.start, rows) + motion.at(motion.rate, rows) * coordinate
-
     def project(self, t: int, world: np.ndarray) -> Projection:
         """Where world points [N, 3] appear in frame t of the unit."""
         return self.project_frames([t], [world])[0]
@@ -259,8 +243,8 @@ class UnitCamera:
         rolling = [i for i, t in enumerate(frames) if self.readouts[t] is not None]
         if rolling:
             rows = np.concatenate([np.arange(bounds[i], bounds[i + 1]) for i in rolling])
-            motion = Motion.of([self.readouts[frames[i]] for i in rolling], counts[rolling])
-            local[rows] = self._seen(motion, local[rows])
+            frame = np.repeat(np.arange(len(rolling)), counts[rolling])
+            local[rows] = self._seen([self.readouts[frames[i]] for i in rolling], frame, local[rows])
         whole = self._stored(local)
         parts = (np.split(array, bounds[1:-1]) for array in (whole.points, whole.pixels, whole.in_view))
         return [Projection(*frame) for frame in zip(*parts, strict=True)]
@@ -279,27 +263,28 @@ class UnitCamera:
         pinhole = np.where(front[:, None], pinhole, -1.0)
         return Projection(local, pinhole, in_view & in_image(pinhole, *size))
 
-    def _seen(self, motion: Motion, local: np.ndarray) -> np.ndarray:
-        """Camera points [M, 3] at the instant each is seen, from their coordinates at the pose [M, 3]
-        (the motion's points): the root of r(t) = t - read_time(point at t), by one fixed-point step
-        from the pose, then the secant method on the points not yet within ``TOLERANCE_S``."""
-
-        def residual(rows: np.ndarray, times: np.ndarray) -> np.ndarray:
-            return times - self._read_time(motion, rows, motion.moved(rows, local[rows], times))
-
-        every = np.arange(len(local))
-        before = np.zeros(len(local))
-        residual_before = residual(every, before)
-        times = before - residual_before
-        active = every
-        for _ in range(SECANT_STEPS):
-            now = residual(active, times[active])
-            rise, run = now - residual_before[active], times[active] - before[active]
-            slope = np.divide(rise, run, out=np.ones_like(rise), where=run != 0)
-            step = now / np.where(np.abs(slope) > 1e-3, slope, 1.0)
-            before[active], residual_before[active] = times[active], now
-            times[active] -= step
-            active = active[np.abs(step) >= TOLERANCE_S]
-            if not len(active):
-                break
-        return motion.moved(every, local, times)
+    def _seen(self, readouts: list[Readout], frame: np.ndarray, local: np.ndarray) -> np.ndarray:
+        """Camera points [M, 3] at the instant each is seen, from their coordinates [M, 3] at the pose
+        of their frame (``frame`` [M], an index into ``readouts`` [F])."""
+        spin = np.array([np.linalg.norm(readout.omega) for readout in readouts])
+        turns = zip(readouts, spin, strict=True)
+        axes = np.array([readout.omega / w if w != 0.0 else np.zeros(3) for readout, w in turns])
+        c = self.calibration
+        lens = np.array([*c.fx_fy_cx_cy, *c.distortion, np.hypot(c.width, c.height)], dtype=np.float64)
+        first = readouts[0]  # the readout axis and direction are the calibration's: every frame's
+        seen = np.empty_like(local)
+        _seen_points(
+            np.ascontiguousarray(local, dtype=np.float64),
+            frame,
+            np.array([readout.start for readout in readouts]),
+            np.array([readout.rate for readout in readouts]),
+            np.array([readout.velocity for readout in readouts]),
+            spin,
+            axes,
+            lens,
+            first.axis,
+            first.reverse,
+            float(first.extent),
+            seen,
+        )
+        return seen

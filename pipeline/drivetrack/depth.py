@@ -36,9 +36,17 @@ def depth_tree(lidar_uv: np.ndarray) -> CellGrid | None:
     return CellGrid(uv, _mean_spacing(uv))
 
 
+def _bounds(uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The lowest and highest (u, v) [2] of points [M, 2]: ``uv.min(axis=0)``, ``uv.max(axis=0)``,
+    reduced over a transposed copy (the reduction across rows of [M, 2] ran 30 times slower)."""
+    columns = np.ascontiguousarray(uv.T)
+    return columns.min(axis=1), columns.max(axis=1)
+
+
 def _mean_spacing(uv: np.ndarray) -> float:
     """The spacing of points [M, 2] were they spread evenly over their bounding box."""
-    spread = np.ptp(uv, axis=0)
+    low, high = _bounds(uv)
+    spread = high - low
     return float(np.sqrt(max(spread[0] * spread[1], 1e-12) / len(uv)))
 
 
@@ -99,7 +107,8 @@ def camera_occluded_lidar(
     if len(lidar_depth) <= neighbours:
         return np.zeros(len(lidar_depth), bool)
     uv = np.ascontiguousarray(lidar_uv, np.float64)
-    side, extent = _mean_spacing(uv), np.hypot(*np.ptp(uv, axis=0))
+    low, high = _bounds(uv)
+    side, extent = _mean_spacing(uv), np.hypot(*(high - low))
     reach = None
     while reach is None and side < extent:
         grid = CellGrid(uv, side)
@@ -132,14 +141,16 @@ class CellGrid:
 
     def __init__(self, uv: np.ndarray, side: float):
         self.uv = uv
-        self.side = max(side, np.ptp(uv, axis=0).max() / 1024, 1e-9)
-        self.origin = uv.min(axis=0)
+        low, high = _bounds(uv)
+        self.side = max(side, (high - low).max() / 1024, 1e-9)
+        self.origin = low
         cells = np.floor((uv - self.origin) / self.side).astype(np.int64)  # [M, 2] (x, y)
         columns = int(cells[:, 0].max()) + 3
         self.rows = int(cells[:, 1].max()) + 3
         keys = (cells[:, 1] + 1) * columns + cells[:, 0] + 1
         order = np.argsort(keys, kind="stable")
-        starts = np.searchsorted(keys[order], np.arange(self.rows * columns + 1))  # cell c: [c, c + 1)
+        starts = np.zeros(self.rows * columns + 1, np.int64)  # cell c: order[starts[c]:starts[c + 1]]
+        np.cumsum(np.bincount(keys, minlength=self.rows * columns), out=starts[1:])
         self.arrays = (keys, order, starts, columns)
 
     def nearest(self, queries: np.ndarray) -> np.ndarray:

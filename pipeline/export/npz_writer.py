@@ -16,6 +16,18 @@ from pipeline.core.clip import ClipRecord
 FIXED_ZIP_TIME = (1980, 1, 1, 0, 0, 0)
 
 
+def fixed_width_bytes(items: list[bytes]) -> np.ndarray:
+    """``np.array(items, dtype=np.bytes_)``: [T] ``|S<longest>``, each item NUL-padded, built with
+    one copy of each item (NumPy's own conversion ran four times slower on JPEG-sized items)."""
+    width = max((len(item) for item in items), default=0)
+    if width == 0:
+        return np.array(list(items), dtype=np.bytes_)
+    buffer = bytearray(width * len(items))
+    for i, item in enumerate(items):
+        buffer[i * width : i * width + len(item)] = item
+    return np.frombuffer(buffer, dtype=f"S{width}")
+
+
 def clip_arrays(clip: ClipRecord) -> dict[str, np.ndarray]:
     """The released schema's arrays for a clip: frames as a fixed-width bytes array ``|S<longest>``
     [T] (what ``np.savez`` makes of the release's list of JPEG bytes; NumPy strips the NUL
@@ -24,7 +36,7 @@ def clip_arrays(clip: ClipRecord) -> dict[str, np.ndarray]:
     world's origin is rounded by ~1 mm in float32). No object array: the file opens with a
     plain ``np.load``."""
     arrays = {
-        "images_jpeg_bytes": np.array([bytes(frame) for frame in clip.images_jpeg], dtype=np.bytes_),
+        "images_jpeg_bytes": fixed_width_bytes(clip.images_jpeg),
         "queries_xyt": clip.queries_xyt.astype(np.float32),
         "tracks_XYZ": clip.tracks_xyz.astype(np.float32),
         "visibility": clip.visibility.astype(bool),
