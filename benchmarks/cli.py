@@ -20,9 +20,10 @@ Sizes. Default (``make bench``, a few minutes): inputs as large per frame as the
 shorter, the release unit extrapolated from the measured per-frame cost (marked ``*``):
   drivetrack: one synthetic Waymo v2 segment in the real Parquet schema, 30 frames, cameras
     FRONT, FRONT_LEFT, FRONT_RIGHT at 1920x1280, TOP lidar 64x2650 + 4 short-range lidars;
-    unit = (segment, FRONT camera); extrapolated to 199 frames.
+    unit = the segment's 3 cameras, the group the graph annotates together; extrapolated to
+    3 x 199 camera frames.
   pstudio: 300,000 Gaussians x 30 frames x 27 cameras at 640x360 in Dynamic 3D Gaussians' file
-    layout; unit = (sequence, camera); extrapolated to 150 frames.
+    layout; unit = 3 cameras of the sequence annotated together; extrapolated to 3 x 150 frames.
   adt: the real excerpt (``pipeline.adt.source.excerpt_path()``: $ADT_EXCERPT, else
     ../shared/data/adt_sample): its one 2-frame chunk run 15 times; the 300-frame unit is
     extrapolated (the opening of the sequence, measured apart, + 300 x per-frame cost), at

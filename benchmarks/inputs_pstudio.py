@@ -26,6 +26,7 @@ from benchmarks import micro_pstudio as scene
 from benchmarks.units import UnitSetup
 from pipeline.pstudio.annotate import UnitInput, splats_in_view
 from pipeline.pstudio.render import render_depth_at
+from pipeline.pstudio.source import CAMERAS_PER_GROUP
 
 SEQUENCE = "dome"
 EXPERIMENT = "bench"
@@ -35,7 +36,7 @@ QUICK = {"frames": 12, "per_person": 1_000, "floor": 3_000, "wall": 2_000}
 CAMERAS_FULL, CAMERAS_QUICK = 27, 4  # Panoptic Studio sequences: 27 training cameras
 VERSION = "3"  # 2: masks projected with einsum (a few pixels may differ); 3: every mask distinct
 RELEASE_UNITS = 156  # 6 sequences x about 26 cameras: one clip per (sequence, camera) unit
-GROUP = 3  # cameras per benchmark unit (a real run annotates a sequence's ~26 cameras together)
+GROUP = CAMERAS_PER_GROUP  # cameras per benchmark unit: the graph's group
 
 
 def write_sequence(root: str, sizes: dict, cameras: int) -> None:
@@ -108,16 +109,17 @@ def prepare(workdir: str, quick: bool, full: bool = False) -> UnitSetup:
             f"{count:,} Gaussians x {sizes['frames']} frames, {cameras} cameras at "
             f"{scene.WIDTH}x{scene.HEIGHT}; params.npz {os.path.getsize(params) / 2**30:.2f} GiB"
             + (f"; written in {written:.0f} s" if written > 1 else ""),
-            f"unit = {GROUP} (sequence, camera) units annotated together as the graph groups a "
-            "sequence's cameras (one read of params.npz, each mask decoded once); a frame = one "
+            f"unit = {GROUP} (sequence, camera) units annotated together, one group of the graph (one "
+            "read of params.npz, each mask decoded once); a frame = one "
             f"camera's frame; the scaling set takes cameras 0-{GROUP - 1}, {GROUP}-{2 * GROUP - 1}, ... "
             "(distinct units)",
         ],
         full_units=RELEASE_UNITS // GROUP,
         full_units_note=(
-            f"156 clips = 156 (sequence, camera) units of {FULL['frames']} frames, priced in groups of "
-            f"{GROUP} (the graph groups a sequence's ~26 cameras: each mask is decoded once per "
-            f"sequence, not once per {GROUP} cameras; this leans high); scenes of 300,000 Gaussians assumed"
+            f"156 clips = 156 (sequence, camera) units of {FULL['frames']} frames, in groups of "
+            f"{GROUP} as the graph groups them (each group reads params.npz and decodes the masks; a "
+            "worker's mask cache spares the later groups of a sequence the decoding: this leans high); "
+            "scenes of 300,000 Gaussians assumed"
         ),
         size=tag,
         extrapolate_frames=GROUP * FULL["frames"] if tag == "default" else None,

@@ -155,8 +155,9 @@ def report(
     speedup = speedup_cpu = None
     if many is not None:
         # Without the waits for a CPU (other processes on the machine): the 1-worker set's CPU
-        # time over the largest CPU time of a process of the N-worker set.
-        speedup_cpu = sum(r.cpu_s for r in one) / max(r.cpu_s for r in many)
+        # time over the N-worker set's CPU time per worker (at least its largest process's).
+        per_worker = max(max(r.cpu_s for r in many), sum(r.cpu_s for r in many) / workers)
+        speedup_cpu = sum(r.cpu_s for r in one) / per_worker
         speedup = speedup_line(
             f"scaling: the same {len(one)} unit(s)",
             one_wall,
@@ -172,8 +173,8 @@ def report(
                 + ", ".join(f"{r.result['work_cpu_s'] / r.result['work_s']:.2f}" for r in runs_of)
             )
         print(
-            f"  CPU speed-up (the waits for a CPU taken out: the 1-worker set's CPU time / the largest "
-            f"process CPU time with {workers} workers): {speedup_cpu:.2f}x"
+            f"  CPU speed-up (the waits for a CPU taken out: the 1-worker set's CPU time / the "
+            f"{workers}-worker set's CPU time per worker, at least its largest process's): {speedup_cpu:.2f}x"
         )
         print(
             f"  peak memory per process with {workers} workers: {max(r.max_rss for r in many) / GIB:.2f} GiB"
@@ -309,8 +310,8 @@ def format_table(table: dict) -> list[str]:
             "~0.95 the machine",
             "  was busy: wall times, hence the speed-up, were stretched by other processes); (CPU): the "
             "speed-up with the waits",
-            "  for a CPU taken out (the 1-worker set's CPU time / the largest process CPU time with N "
-            "workers; not judged)",
+            "  for a CPU taken out (the 1-worker set's CPU time / the N-worker set's CPU time per worker, "
+            "at least its largest process's; not judged)",
         ]
     return lines
 

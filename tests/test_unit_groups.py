@@ -113,3 +113,15 @@ def test_a_generator_groups_units_are_written_one_by_one(grouped, tmp_path):
     outcomes = run_group(job, ["a_1", "a_2", "b_1"])
     assert all(o.reports and not o.failures for o in outcomes)
     assert seen_on_disk == [[False, False, False], [True, False, False], [True, True, False]]
+
+
+def test_panoptic_groups_are_three_cameras_of_one_sequence():
+    """A Panoptic Studio sequence's cameras go to workers three by three (ids 0-2, 3-5, ...): one
+    read of the Gaussians per group, yet the ~27 cameras of a sequence still spread over workers."""
+    source = sources.get("pstudio")
+    keys = {camera: source.group_key(("dome", camera)) for camera in range(31)}
+    assert len(set(keys.values())) == 11
+    for camera in range(31):
+        together = {other for other in range(31) if keys[other] == keys[camera]}
+        assert together == set(range(camera - camera % 3, min(camera - camera % 3 + 3, 31)))
+    assert source.group_key(("dome", 4)) != source.group_key(("hall", 4))

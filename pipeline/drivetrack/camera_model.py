@@ -33,7 +33,7 @@ import numba
 import numpy as np
 
 from pipeline.core.errors import InputError
-from pipeline.core.geometry import CV_FROM_FLU, in_image, transform_points
+from pipeline.core.geometry import CV_FROM_FLU, transform_points
 from pipeline.drivetrack.reader import CameraCalibration, CameraFrames
 
 GLOBAL_SHUTTER = 5
@@ -71,18 +71,6 @@ class Projection:
     in_view: np.ndarray
 
 
-def distort(normalized: np.ndarray, distortion: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """OpenCV's lens model on normalised coordinates [N, 2]: distorted normalised coordinates
-    [N, 2] and the radial factor [N]."""
-    k1, k2, p1, p2, k3 = distortion
-    x, y = normalized[:, 0], normalized[:, 1]
-    r2 = x * x + y * y
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-    return np.stack([xd, yd], 1), radial
-
-
 @numba.njit(cache=True, nogil=True)
 def _moved(x, y, z, t, vx, vy, vz, spin, a0, a1, a2):
     """Camera point (x, y, z) seen from the camera as it is t seconds after its pose: moved back by
@@ -101,22 +89,46 @@ def _moved(x, y, z, t, vx, vy, vz, spin, a0, a1, a2):
 
 
 @numba.njit(cache=True, nogil=True)
-def _sensor_coordinate(x, y, z, lens, axis):
-    """Camera point (x, y, z)'s sensor pixel coordinate along ``axis`` (0: u, 1: v), as
-    ``sensor_pixels`` computes it; the principal point's where the point is behind the camera.
-    lens: [10] fx, fy, cx, cy, k1, k2, p1, p2, k3 and the guard's reach (px)."""
+def _sensor_pixel(x, y, z, lens):
+    """Where camera point (x, y, z) (OpenCV axes) falls on the sensor: (u, v, valid), valid when it
+    is in front and the lens model holds there; (-1, -1, False) behind the camera. lens: [10] fx,
+    fy, cx, cy, k1, k2, p1, p2, k3 and the guard's reach (px, the image diagonal)."""
     if not z > 0:
-        return lens[2 + axis]
+        return -1.0, -1.0, False
     nx, ny = x / z, y / z
     k1, k2, p1, p2, k3 = lens[4], lens[5], lens[6], lens[7], lens[8]
     r2 = nx * nx + ny * ny
     radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    if radial >= MIN_RADIAL and radial <= MAX_RADIAL:
-        if axis == 0:
-            return (nx * radial + 2.0 * p1 * nx * ny + p2 * (r2 + 2.0 * nx * nx)) * lens[0] + lens[2]
-        return (ny * radial + p1 * (r2 + 2.0 * ny * ny) + 2.0 * p2 * nx * ny) * lens[1] + lens[3]
-    length = max(np.sqrt(nx * nx + ny * ny), 1e-12)
-    return (nx if axis == 0 else ny) / length * lens[9] / lens[axis] * lens[axis] + lens[2 + axis]
+    valid = radial >= MIN_RADIAL and radial <= MAX_RADIAL
+    if valid:
+        xd = nx * radial + 2.0 * p1 * nx * ny + p2 * (r2 + 2.0 * nx * nx)
+        yd = ny * radial + p1 * (r2 + 2.0 * ny * ny) + 2.0 * p2 * nx * ny
+    else:  # beyond the lens model: far outside the image, in the point's own direction (Waymo's guard)
+        length = max(np.sqrt(nx * nx + ny * ny), 1e-12)
+        xd, yd = nx / length * lens[9] / lens[0], ny / length * lens[9] / lens[1]
+    return xd * lens[0] + lens[2], yd * lens[1] + lens[3], valid
+
+
+@numba.njit(cache=True, nogil=True)
+def _inside(u, v, width, height):
+    """(u, v) in [0, width) x [0, height) (``core.geometry.in_image``)."""
+    return u >= 0 and u < width and v >= 0 and v < height
+
+
+@numba.njit(cache=True, nogil=True)
+def _stored_pixels(local, lens, width, height, undistorted, pixels, in_view):
+    """pixels [N, 2] and in_view [N] of camera points [N, 3] as seen (``Projection``): the sensor
+    pixel, or with ``undistorted`` the pinhole pixel of the same intrinsics; in view when in front,
+    the lens model holds and the sensor pixel (and the pinhole pixel) lies in the image."""
+    fx, fy, cx, cy = lens[0], lens[1], lens[2], lens[3]
+    for m in range(local.shape[0]):
+        x, y, z = local[m, 0], local[m, 1], local[m, 2]
+        u, v, valid = _sensor_pixel(x, y, z, lens)
+        seen = valid and _inside(u, v, width, height)
+        if undistorted and z > 0:
+            u, v = fx * x / z + cx, fy * y / z + cy
+            seen = seen and _inside(u, v, width, height)
+        pixels[m, 0], pixels[m, 1], in_view[m] = u, v, seen
 
 
 @numba.njit(cache=True, nogil=True)
@@ -136,7 +148,9 @@ def _seen_points(local, frame, start, rate, velocity, spin, axes, lens, axis, re
         before, time, residual_before = 0.0, 0.0, 0.0
         for step_index in range(SECANT_STEPS + 1):
             mx, my, mz = _moved(x, y, z, time, *motion)
-            coordinate = min(max(_sensor_coordinate(mx, my, mz, lens, axis), 0.0), extent)
+            u, v, _ = _sensor_pixel(mx, my, mz, lens)
+            coordinate = (u if axis == 0 else v) if mz > 0 else lens[2 + axis]  # the centre, behind
+            coordinate = min(max(coordinate, 0.0), extent)
             if reverse:
                 coordinate = extent - coordinate
             now = time - (first + per_pixel * coordinate)
@@ -210,21 +224,6 @@ class UnitCamera:
             omega=CV_FROM_FLU[:3, :3] @ vehicle_from_camera[:3, :3].T @ omega,
         )
 
-    def sensor_pixels(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Where camera points [N, 3] (OpenCV axes) fall on the sensor: pixels [N, 2] and whether
-        the lens model holds there and the point is in front [N]."""
-        fx, fy, cx, cy = self.calibration.fx_fy_cx_cy
-        front = points[:, 2] > 0
-        normalized = points[:, :2] / np.where(front, points[:, 2], 1.0)[:, None]
-        distorted, radial = distort(normalized, self.calibration.distortion)
-        valid = front & (radial >= MIN_RADIAL) & (radial <= MAX_RADIAL)
-        # Beyond the lens model: far outside the image, in the point's own direction (Waymo's guard).
-        reach = np.hypot(self.calibration.width, self.calibration.height)
-        length = np.maximum(np.linalg.norm(normalized, axis=1, keepdims=True), 1e-12)
-        distorted = np.where(valid[:, None], distorted, normalized / length * reach / np.array([fx, fy]))
-        pixels = distorted * np.array([fx, fy]) + np.array([cx, cy])
-        return np.where(front[:, None], pixels, -1.0), valid
-
     def project(self, t: int, world: np.ndarray) -> Projection:
         """Where world points [N, 3] appear in frame t of the unit."""
         return self.project_frames([t], [world])[0]
@@ -251,17 +250,15 @@ class UnitCamera:
 
     def _stored(self, local: np.ndarray) -> Projection:
         """Where camera points [N, 3], as seen, appear in the stored frames."""
-        sensor, valid = self.sensor_pixels(local)
-        size = (self.calibration.width, self.calibration.height)
-        in_view = valid & in_image(sensor, *size)
-        if not self.undistorted:
-            return Projection(local, sensor, in_view)
-        fx, fy, cx, cy = self.calibration.fx_fy_cx_cy
-        front = local[:, 2] > 0
-        z = np.where(front, local[:, 2], 1.0)
-        pinhole = np.stack([fx * local[:, 0] / z + cx, fy * local[:, 1] / z + cy], 1)
-        pinhole = np.where(front[:, None], pinhole, -1.0)
-        return Projection(local, pinhole, in_view & in_image(pinhole, *size))
+        c = self.calibration
+        pixels, in_view = np.empty((len(local), 2)), np.empty(len(local), np.bool_)
+        _stored_pixels(local, self._lens(), c.width, c.height, self.undistorted, pixels, in_view)
+        return Projection(local, pixels, in_view)
+
+    def _lens(self) -> np.ndarray:
+        """[10] fx, fy, cx, cy, k1, k2, p1, p2, k3, reach: the kernels' lens (``_sensor_pixel``)."""
+        c = self.calibration
+        return np.array([*c.fx_fy_cx_cy, *c.distortion, np.hypot(c.width, c.height)], dtype=np.float64)
 
     def _seen(self, readouts: list[Readout], frame: np.ndarray, local: np.ndarray) -> np.ndarray:
         """Camera points [M, 3] at the instant each is seen, from their coordinates [M, 3] at the pose
@@ -269,8 +266,6 @@ class UnitCamera:
         spin = np.array([np.linalg.norm(readout.omega) for readout in readouts])
         turns = zip(readouts, spin, strict=True)
         axes = np.array([readout.omega / w if w != 0.0 else np.zeros(3) for readout, w in turns])
-        c = self.calibration
-        lens = np.array([*c.fx_fy_cx_cy, *c.distortion, np.hypot(c.width, c.height)], dtype=np.float64)
         first = readouts[0]  # the readout axis and direction are the calibration's: every frame's
         seen = np.empty_like(local)
         _seen_points(
@@ -281,7 +276,7 @@ class UnitCamera:
             np.array([readout.velocity for readout in readouts]),
             spin,
             axes,
-            lens,
+            self._lens(),
             first.axis,
             first.reverse,
             float(first.extent),
