@@ -15,10 +15,11 @@ pstudio (a group: cameras of one sequence): ``train_meta.json``; the five member
 adt: opening the sequence with projectaria-tools (``AriaDigitalTwinDataProvider``, once, cold)
   and its frame timestamps, then the chunk's RGB, depth and segmentation frames read from the
   VRS files ``repeat`` times, as the unit's runs read them; the report extrapolates it to a
-  300-frame unit like the unit itself (opening + 300 x per-frame read).
+  300-frame unit like the unit itself (its share of a group's opening + 300 x per-frame read).
 
 Each returns floor_s / floor_cpu_s (the whole floor at the measured size) and floor_frames;
-adt also floor_open_s / floor_open_cpu_s (the opening, inside floor_s).
+adt also floor_open_s / floor_open_cpu_s (the opening, inside floor_s) and floor_open_share (a
+unit's share of it: a group of chunks opens the sequence once).
 """
 
 from __future__ import annotations
@@ -122,7 +123,7 @@ def pstudio(spec: dict) -> dict:
 
 
 def adt(spec: dict) -> dict:
-    from pipeline.adt.source import open_reader
+    from pipeline.adt.source import CHUNKS_PER_GROUP, open_reader
     from pipeline.core.config import RunConfig, with_overrides
 
     config = with_overrides(RunConfig(), spec["overrides"])
@@ -153,6 +154,7 @@ def adt(spec: dict) -> dict:
         "floor_frames": len(stamps) * repeat,
         "floor_open_s": open_wall,
         "floor_open_cpu_s": open_cpu,
+        "floor_open_share": 1.0 / CHUNKS_PER_GROUP,  # a group of chunks opens the sequence once
     }
 
 

@@ -5,7 +5,8 @@ The work is the Beam graph's, through the same function its stages call:
 ``pipeline.unit.run_group(UnitJob(source, input_root, config, output, resume=False), units)`` (read
 the inputs and annotate, filter, encode and write the clips, record each unit), ``spec["repeat"]``
 times (default 1); ``spec["unit"]`` is one unit or a group of them (``unit_group``). The source's
-``annotate`` and ``annotate_group`` are wrapped only to time them. A source whose
+``annotate`` and ``annotate_group`` are wrapped only to time them (a generator group: the
+making of each unit's clips, not the writing between). A source whose
 ``benchmarks/inputs_<source>.py`` defines ``measure_fixed_cost(spec, config)`` (ADT: opening the
 sequence) has that cost measured apart, before the runs, for the extrapolation in ``report``.
 
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import inspect
 import json
 import os
 import sys
@@ -68,15 +70,26 @@ def run(spec: dict) -> dict:
 
     annotate_s = annotate_cpu_s = 0.0
 
+    def clocked(step):
+        """step() timed into annotate_s / annotate_cpu_s."""
+        nonlocal annotate_s, annotate_cpu_s
+        started, started_cpu = time.perf_counter(), time.process_time()
+        try:
+            return step()
+        finally:
+            annotate_s += time.perf_counter() - started
+            annotate_cpu_s += time.process_time() - started_cpu
+
+    def each_timed(items):
+        """A generator group's items, the work of making each timed (not the caller's between)."""
+        done = object()
+        while (item := clocked(lambda: next(items, done))) is not done:
+            yield item
+
     def timed(function):
         def call(*args):
-            nonlocal annotate_s, annotate_cpu_s
-            started, started_cpu = time.perf_counter(), time.process_time()
-            try:
-                return function(*args)
-            finally:
-                annotate_s += time.perf_counter() - started
-                annotate_cpu_s += time.process_time() - started_cpu
+            result = clocked(lambda: function(*args))
+            return each_timed(result) if inspect.isgenerator(result) else result
 
         return call if function else None
 

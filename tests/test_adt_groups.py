@@ -1,0 +1,54 @@
+"""ADT chunks annotated in groups (``pipeline.adt.source.annotate_chunks``): a group opens its
+sequence once and makes, chunk by chunk, the clips each chunk makes alone; an unreadable sequence
+fails every chunk of the group, each error naming its own unit."""
+
+import numpy as np
+
+from pipeline import sources
+from pipeline.adt import source as adt
+from pipeline.core.config import RunConfig, with_overrides
+from pipeline.core.errors import InputError
+from tests.adt_excerpt import SAMPLE, needs_excerpt
+
+# The excerpt's ground-truth window holds two frames: one chunk each.
+ONE_FRAME_CHUNKS = ("adt.chunk_frames=1", "adt.min_frames=1", "adt.max_gt_offset_ms=40")
+
+
+@needs_excerpt
+def test_a_group_opens_its_sequence_once_and_makes_each_chunks_own_clip(monkeypatch):
+    config = with_overrides(RunConfig(), list(ONE_FRAME_CHUNKS))
+    units = adt.list_units(str(SAMPLE), config)
+    assert len(units) == 2 and len({adt.group_of(unit) for unit in units}) == 1
+    alone = [adt.annotate(str(SAMPLE), unit, config) for unit in units]
+    opened = []
+    open_sequence = adt.open_sequence
+
+    def counted(*args):
+        opened.append(args)
+        return open_sequence(*args)
+
+    monkeypatch.setattr(adt, "open_sequence", counted)
+    together = list(adt.annotate_chunks(str(SAMPLE), units, config))
+    assert len(opened) == 1
+    for (one,), (grouped,) in zip(alone, together, strict=True):
+        assert grouped.name == one.name and grouped.images_jpeg == one.images_jpeg
+        for field in ("tracks_xyz", "visibility", "queries_xyt", "extrinsics_w2c", "frame_ids"):
+            np.testing.assert_array_equal(getattr(grouped, field), getattr(one, field))
+
+
+def test_an_unreadable_sequence_fails_each_chunk_under_its_own_name(tmp_path):
+    sequence = tmp_path / "Apartment_release_broken_seq001"
+    sequence.mkdir()
+    units = [(str(sequence), chunk) for chunk in range(3)]
+    results = list(adt.annotate_chunks(str(tmp_path), units, RunConfig()))
+    assert len(results) == 3
+    for unit, result in zip(units, results, strict=True):
+        assert isinstance(result, InputError)
+        assert str(result).startswith(f"{adt.unit_name(unit)}: ")
+
+
+def test_groups_are_three_chunks_of_one_sequence():
+    key = sources.get("adt").group_key
+    assert key(("/data/seq_a", 0)) == key(("/data/seq_a", 2)) != key(("/data/seq_a", 3))
+    assert key(("/data/seq_a", 3)) == key(("/data/seq_a", 5))
+    assert key(("/data/seq_a", 0)) != key(("/data/seq_b", 0))
