@@ -206,11 +206,13 @@ def annotate_chunks(
                 opened = open_sequence(sequence, config)
             except Exception as error:  # noqa: BLE001 - becomes each unit's failure
                 opened = error
+        if isinstance(opened, InputError):
+            yield _named(opened, sequence, unit_name((sequence, chunk)))
+            continue
+        if isinstance(opened, Exception):
+            yield opened
+            continue
         try:
-            if isinstance(opened, InputError):
-                raise _named(opened, sequence, unit_name((sequence, chunk))) from opened
-            if isinstance(opened, Exception):
-                raise opened
             result = annotate_opened(opened, chunk, config)
         except Exception as error:  # noqa: BLE001 - this chunk's failure only
             result = error
