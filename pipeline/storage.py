@@ -2,22 +2,34 @@
 
 ``check_scheme`` turns a path whose filesystem is missing into a one-line hint (the extra to
 install) instead of a traceback; ``use_options`` hands the run's pipeline options
-(``--s3_endpoint_url``, ``--s3_region_name``, ...) to FileSystems in each process that opens files;
-and lets Beam write empty files to S3.
+(``--s3_endpoint_url``, ``--s3_region_name``, ...) to FileSystems in each process that opens files,
+lets Beam write empty files to S3 and makes its S3 calls share one boto3 client.
 """
 
 from __future__ import annotations
 
 import importlib.util
+import os
 
 from apache_beam.io.filesystem import BeamIOError, FileSystem
 from apache_beam.io.filesystems import FileSystems
-from apache_beam.options.pipeline_options import PipelineOptions
+from apache_beam.options.pipeline_options import PipelineOptions, S3Options
 
 # The extra of this package each remote scheme needs.
 EXTRAS = {"gs": "gcp", "s3": "aws"}
 # Beam registers its S3 filesystem without boto3, which it imports only when it opens a file.
 S3_CLIENT = "boto3"
+# The options Beam builds its boto3 S3 client from (apache_beam.io.aws.clients.s3.boto3_client).
+S3_CLIENT_OPTIONS = (
+    "s3_access_key_id",
+    "s3_secret_access_key",
+    "s3_session_token",
+    "s3_endpoint_url",
+    "s3_disable_ssl",
+    "s3_region_name",
+    "s3_api_version",
+    "s3_verify",
+)
 
 
 class StorageError(ValueError):
@@ -51,11 +63,13 @@ def check_scheme(path: str) -> None:
 
 def use_options(options: PipelineOptions | None) -> None:
     """Give FileSystems in this process the run's options (S3 endpoint, credentials, region, ...) and
-    let it write empty files to S3. Beam does the former for the DirectRunner's workers, not for the
-    main process (which lists units and writes before the pipeline exists) nor for Dask's workers."""
+    let it write empty files to S3 with one shared client. Beam does the former for the
+    DirectRunner's workers, not for the main process (which lists units and writes before the
+    pipeline exists) nor for Dask's workers."""
     if options is not None:
         FileSystems.set_options(options)
         allow_empty_s3_objects()
+        share_s3_clients()
 
 
 def allow_empty_s3_objects() -> None:
@@ -76,3 +90,39 @@ def allow_empty_s3_objects() -> None:
 
     finish_with_a_part.sends_a_part = True
     S3Uploader.finish = finish_with_a_part
+
+
+def share_s3_clients() -> None:
+    """Build Beam's boto3 S3 client once per process and options. Beam makes a new boto3 session
+    and client for every S3 call (each open, exists, rename, delete), and each new session parses
+    botocore's service models again: about 0.35 s of CPU per file operation, 6 of every 7 seconds
+    of a small run against S3. boto3's clients are thread-safe; each Beam client keeps its own
+    download position, copied fresh from the first one built."""
+    try:
+        from apache_beam.io.aws.clients.s3.boto3_client import Client
+    except ImportError:
+        return
+    build = Client.__init__
+    if getattr(build, "shares_clients", False):
+        return
+    built: dict[tuple, dict] = {}
+
+    def build_once(self, options) -> None:
+        key = (os.getpid(), *s3_client_options(options))
+        state = built.get(key)
+        if state is None:
+            build(self, options)
+            built[key] = dict(vars(self))
+        else:
+            vars(self).update(state)
+
+    build_once.shares_clients = True
+    Client.__init__ = build_once
+
+
+def s3_client_options(options) -> tuple:
+    """The values of S3_CLIENT_OPTIONS in ``options`` (PipelineOptions or a dict, as Beam takes)."""
+    if isinstance(options, PipelineOptions):
+        view = options.view_as(S3Options)
+        return tuple(repr(getattr(view, name, None)) for name in S3_CLIENT_OPTIONS)
+    return tuple(repr(options.get(name)) for name in S3_CLIENT_OPTIONS)

@@ -8,6 +8,7 @@ import os
 import boto3
 import pytest
 from apache_beam.io.filesystems import FileSystems
+from apache_beam.options.pipeline_options import PipelineOptions
 from moto.server import ThreadedMotoServer
 
 from pipeline import storage
@@ -80,6 +81,29 @@ def test_s3_round_trip_writes_the_local_runs_bytes(s3, reference_run):
     assert written["manifests/full_test.txt"] == b"" and written["failures_drivetrack.jsonl"] == b""
     assert b'"clips_written": 3' in written["run_drivetrack.json"]
     assert not [name for name in written if ".partial" in name or ".write_probe" in name]
+
+
+def test_s3_calls_share_one_boto3_client_and_reads_keep_their_place(s3, sample_split, monkeypatch):
+    """Beam builds a boto3 client for every S3 call; after use_options, one per process and options.
+    Two files read in turns from that one client still give each file's own bytes."""
+    endpoint, client = s3
+    made = []
+    make_client = boto3.session.Session.client
+    monkeypatch.setattr(
+        boto3.session.Session, "client", lambda self, *a, **k: made.append(k) or make_client(self, *a, **k)
+    )
+    storage.use_options(PipelineOptions(s3_options(endpoint)))
+    keys = sorted(item["Key"] for item in client.list_objects_v2(Bucket=BUCKET, Prefix="split/")["Contents"])
+    names = [key for key in keys if key.endswith(".parquet")][:2]
+    assert len(names) == 2 and all(FileSystems.exists(f"s3://{BUCKET}/{key}") for key in names)
+    local = [open(os.path.join(sample_split[0], key[len("split/") :]), "rb").read() for key in names]
+    files = [FileSystems.open(f"s3://{BUCKET}/{key}") for key in names]
+    read = [b"", b""]
+    while any(len(data) < len(whole) for data, whole in zip(read, local, strict=True)):
+        for i, handle in enumerate(files):
+            read[i] += handle.read(4096)
+    assert read == local
+    assert len(made) == 1 and made[0]["endpoint_url"] == endpoint
 
 
 @pytest.mark.parametrize("scheme", ["gs", "s3"])
