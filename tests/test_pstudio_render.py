@@ -10,7 +10,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from pipeline.pstudio.render import render_depth_at, render_depth_image
-from pipeline.pstudio.splats import Splats2D, gaussian_constants, project_splats
+from pipeline.pstudio.splats import Splats2D, front_to_back, gaussian_constants, project_splats
 from pipeline.samples.studio_world import HEIGHT, WIDTH
 
 
@@ -215,3 +215,16 @@ def test_pixel_i_j_is_rendered_at_its_centre():
 def test_points_outside_the_image_have_no_depth():
     depth, surface = render_depth_at(splats_2d([2.0], [0.9]), np.array([[-0.5, 8.0], [8.0, 32.0]]))
     assert np.isnan(depth).all() and not surface.any()
+
+
+def test_splats_at_equal_depth_keep_index_order():
+    """Splats sorted front to back keep ties in index order, as a stable sort would."""
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        depth = rng.integers(0, rng.integers(1, 40), size=rng.integers(0, 300)).astype(np.float64)
+        order = front_to_back(depth)
+        assert (np.diff(depth[order]) >= 0).all()
+        ties = np.diff(depth[order]) == 0
+        assert (np.diff(order)[ties] > 0).all()
+    distinct = rng.permutation(1000).astype(np.float64)
+    np.testing.assert_array_equal(distinct[front_to_back(distinct)], np.arange(1000))

@@ -116,12 +116,12 @@ def _block_lists(points, order, first, last, packed, start, end):
     return slot, lists, counts
 
 
-@numba.njit(parallel=True, cache=True)
+@numba.njit(cache=True)
 def _composite(points, order, tiles, point_starts, starts, packed, out_depth, out_surface):
     """Median depth at each point over its block's list; the points of tile ``tiles[j]`` are
     ``order[point_starts[j]:point_starts[j + 1]]``. Once T <= 0.5 no later splat can set the
     depth, so the loop ends there."""
-    for j in numba.prange(tiles.shape[0]):
+    for j in range(tiles.shape[0]):
         first, start = point_starts[j], starts[tiles[j]]
         slot, lists, counts = _block_lists(
             points, order, first, point_starts[j + 1], packed, start, starts[tiles[j] + 1]
