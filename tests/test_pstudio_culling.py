@@ -95,3 +95,30 @@ def test_splats_at_equal_depth_keep_their_index_order():
     quaternions = np.tile([1.0, 0.0, 0.0, 0.0], (count, 1))
     splats = project_splats(means, quaternions, constants, np.eye(4), INTRINSICS, WIDTH, HEIGHT)
     np.testing.assert_array_equal(splats.index, np.argsort(depth, kind="stable"))
+
+
+def test_depth_limits_keep_every_depth_within_them_and_every_depth_test():
+    """With a depth limit per point, splats deeper than the limit of every point of a tile are
+    left out: a depth within the limit is the unlimited one bit for bit, one beyond it may become
+    "no surface"; so a depth test that any surface beyond the limit fails (|z - D| < delta, limit
+    z + delta) decides the same, here on 6,000 points across a crowded scene."""
+    means, quaternions, constants, w2c = crowded_scene()
+    rng = np.random.default_rng(4)
+    points = np.concatenate([clustered_points(rng), rng.uniform([0, 0], [WIDTH, HEIGHT], (6_000, 2))])
+    splats = project_splats(means, quaternions, constants, w2c, INTRINSICS, WIDTH, HEIGHT, points)
+    depth, surface = render_depth_at(splats, points)
+    # Depths that change slowly across the image (as a surface's do), so a tile's limit is low
+    # where its points are near.
+    z, delta = 0.5 + 6.0 * np.clip(points[:, 0], 0, WIDTH) / WIDTH + rng.uniform(0, 0.2, len(points)), 0.05
+    limited_depth, limited_surface = render_depth_at(splats, points, limits=z + delta)
+    within = surface & (depth <= z + delta)
+    np.testing.assert_array_equal(limited_surface[within], True)
+    np.testing.assert_array_equal(limited_depth[within], depth[within])
+    kept = limited_surface & ~within
+    np.testing.assert_array_equal(limited_depth[kept], depth[kept])  # beyond, yet found: the same
+    np.testing.assert_array_equal(
+        limited_surface & (np.abs(z - limited_depth) < delta), surface & (np.abs(z - depth) < delta)
+    )
+    # The limits did leave splats out: some depths beyond them became "no surface".
+    assert (surface & ~limited_surface).sum() > 100 and within.sum() > 100
+    np.testing.assert_array_equal(np.isnan(limited_depth), np.isnan(depth))

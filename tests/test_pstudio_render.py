@@ -143,10 +143,12 @@ def splats_2d(depths, opacities, offsets=None) -> Splats2D:
     """Hand-made round splats of 2D variance 4 px^2 centred at pixel (8, 8) + offsets."""
     count = len(depths)
     offsets = np.zeros((count, 2)) if offsets is None else np.asarray(offsets, float)
+    opacities = np.asarray(opacities, float)
     return Splats2D(
         xy=np.array([8.0, 8.0]) + offsets,
         conic=np.tile([0.25, 0.0, 0.25], (count, 1)),
-        opacity=np.asarray(opacities, float),
+        opacity=opacities,
+        cutoff=np.log(1 / (255 * opacities)),
         depth=np.asarray(depths, float),
         extent=np.full((count, 2), 20.0),
         index=np.arange(count),

@@ -200,9 +200,12 @@ def track_visibility(
         if not seen.any():
             continue
         # Where no splat takes the transmittance below 0.5 the depth is the 15 m background:
-        # nothing is seen there, whatever the track's depth.
-        depth, surface = render_depth_at(splats, pixels)
-        visible[t, seen] = surface & (np.abs(tracks[t, seen, 2] - depth) < config.pstudio.depth_delta_m)
+        # nothing is seen there, whatever the track's depth. A median depth beyond z + delta fails
+        # the test whatever it is, so splats deeper than that are not composited (the limit's
+        # micrometre covers rounding).
+        z, delta = tracks[t, seen, 2], config.pstudio.depth_delta_m
+        depth, surface = render_depth_at(splats, pixels, limits=z + delta + 1e-6)
+        visible[t, seen] = surface & (np.abs(z - depth) < delta)
     return tracks, visible, depth_maps
 
 

@@ -36,9 +36,10 @@ BACKGROUND_DEPTH_M = 15.0  # the rasterizer's depth where transmittance never dr
 
 
 @numba.njit(cache=True)
-def _bin(xy, extent, tiles_x, tiles_y, wanted):
-    """CSR lists of splat indices per tile, in the splats' (depth) order, for wanted tiles only:
-    (starts [tiles + 1], entries [E])."""
+def _bin(xy, extent, depth, tiles_x, tiles_y, limit):
+    """CSR lists of splat indices per tile, in the splats' (depth) order, each holding the splats
+    no deeper than its ``limit`` [tiles] (-inf: a tile not wanted): (starts [tiles + 1], entries
+    [E])."""
     n = xy.shape[0]
     ranges = np.empty((n, 4), np.int64)  # tile columns x0..x1, rows y0..y1 of each footprint
     for i in range(n):
@@ -50,7 +51,7 @@ def _bin(xy, extent, tiles_x, tiles_y, wanted):
     for i in range(n):
         for ty in range(ranges[i, 2], ranges[i, 3] + 1):
             for tx in range(ranges[i, 0], ranges[i, 1] + 1):
-                starts[ty * tiles_x + tx + 1] += wanted[ty * tiles_x + tx]
+                starts[ty * tiles_x + tx + 1] += depth[i] <= limit[ty * tiles_x + tx]
     starts = np.cumsum(starts)
     entries = np.empty(starts[-1], np.int64)
     fill = starts[:-1].copy()
@@ -58,14 +59,14 @@ def _bin(xy, extent, tiles_x, tiles_y, wanted):
         for ty in range(ranges[i, 2], ranges[i, 3] + 1):
             for tx in range(ranges[i, 0], ranges[i, 1] + 1):
                 tile = ty * tiles_x + tx
-                if wanted[tile]:
+                if depth[i] <= limit[tile]:
                     entries[fill[tile]] = i
                     fill[tile] += 1
     return starts, entries
 
 
 @numba.njit(cache=True)
-def _pack(entries, xy, conic, opacity, depth, extent):
+def _pack(entries, xy, conic, opacity, cutoff, depth, extent):
     """Each tile list entry's splat, copied in list order: [E, 12] (u, v, a, b, c, opacity, z,
     the power below which alpha < 1/255, then its footprint box: u - extent x, u + extent x,
     v - extent y, v + extent y), so a tile's loop reads contiguous memory."""
@@ -75,7 +76,7 @@ def _pack(entries, xy, conic, opacity, depth, extent):
         packed[k, 0], packed[k, 1] = xy[i, 0], xy[i, 1]
         packed[k, 2], packed[k, 3], packed[k, 4] = conic[i, 0], conic[i, 1], conic[i, 2]
         packed[k, 5], packed[k, 6] = opacity[i], depth[i]
-        packed[k, 7] = np.log(1.0 / (255.0 * opacity[i]))
+        packed[k, 7] = cutoff[i]
         packed[k, 8], packed[k, 9] = xy[i, 0] - extent[i, 0], xy[i, 0] + extent[i, 0]
         packed[k, 10], packed[k, 11] = xy[i, 1] - extent[i, 1], xy[i, 1] + extent[i, 1]
     return packed
@@ -148,11 +149,18 @@ def _composite(points, order, tiles, point_starts, starts, packed, out_depth, ou
                 transmittance = after
 
 
-def render_depth_at(splats: Splats2D, points_uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def render_depth_at(
+    splats: Splats2D, points_uv: np.ndarray, limits: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Median depth at image points [P, 2] (continuous pixel coordinates).
 
     Returns (depth [P], surface [P] bool): depth is BACKGROUND_DEPTH_M where the transmittance
     never drops below 0.5 (surface False there) and NaN at points outside [0, width) x [0, height).
+
+    limits: [P] depths beyond which a point's median depth is not wanted (a depth test that any
+    farther surface fails). A point's splats deeper than its limit may be left out (a tile keeps
+    those up to its points' largest limit): the depth is exact where it is within the limit, and
+    where it lies beyond, the point may report no surface instead.
     """
     points = np.ascontiguousarray(points_uv, dtype=np.float64).reshape(-1, 2)
     tiles_x = -(-splats.width // TILE)
@@ -160,10 +168,14 @@ def render_depth_at(splats: Splats2D, points_uv: np.ndarray) -> tuple[np.ndarray
     inside = inside_image(points, splats.width, splats.height)
     inner = points[inside]
     point_tile = point_tiles(inner, splats.width)
-    wanted = np.zeros(tiles_x * tiles_y, np.bool_)
-    wanted[point_tile] = True
-    starts, entries = _bin(splats.xy, splats.extent, tiles_x, tiles_y, wanted)
-    packed = _pack(entries, splats.xy, splats.conic, splats.opacity, splats.depth, splats.extent)
+    limit = np.full(tiles_x * tiles_y, -np.inf)
+    if limits is None:
+        limit[point_tile] = np.inf
+    else:
+        np.maximum.at(limit, point_tile, np.asarray(limits, dtype=np.float64).reshape(-1)[inside])
+    starts, entries = _bin(splats.xy, splats.extent, splats.depth, tiles_x, tiles_y, limit)
+    s = splats
+    packed = _pack(entries, s.xy, s.conic, s.opacity, s.cutoff, s.depth, s.extent)
     order = np.argsort(point_tile, kind="stable")
     tiles, point_starts = np.unique(point_tile[order], return_index=True)
     point_starts = np.append(point_starts, len(order)).astype(np.int64)

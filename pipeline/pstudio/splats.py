@@ -46,21 +46,24 @@ CHUNK = 1024  # splats bounded together before their boxes are tested (_candidat
 @dataclasses.dataclass(frozen=True)
 class GaussianConstants:
     """Per-Gaussian quantities no frame changes (N Gaussians), float64: scales [N, 3], opacity [N],
-    reach [N] = 2 ln(255 opacity), the squared Mahalanobis radius where alpha falls to 1/255, and
-    max_variance [N], the largest scale squared."""
+    reach [N] = 2 ln(255 opacity), the squared Mahalanobis radius where alpha falls to 1/255,
+    max_variance [N], the largest scale squared, and cutoff [N] = ln(1 / (255 opacity)), the
+    exponent below which alpha falls under 1/255 (render.py skips a splat there)."""
 
     scales: np.ndarray
     opacity: np.ndarray
     reach: np.ndarray
     max_variance: np.ndarray
+    cutoff: np.ndarray
 
 
 @numba.njit(cache=True)
-def _reach_and_variance(scales, opacity, reach, max_variance):
+def _reach_and_variance(scales, opacity, reach, max_variance, cutoff):
     for i in range(opacity.shape[0]):
         reach[i] = 2.0 * np.log(255.0 * opacity[i])
         largest = max(scales[i, 0], scales[i, 1], scales[i, 2])
         max_variance[i] = largest * largest
+        cutoff[i] = np.log(1.0 / (255.0 * opacity[i]))
 
 
 def gaussian_constants(scales: np.ndarray, opacities: np.ndarray) -> GaussianConstants:
@@ -68,9 +71,9 @@ def gaussian_constants(scales: np.ndarray, opacities: np.ndarray) -> GaussianCon
     and opacities [N] in [0, 1]."""
     scales = np.ascontiguousarray(scales, dtype=np.float64)
     opacity = np.ascontiguousarray(opacities, dtype=np.float64)
-    reach, max_variance = np.empty(len(opacity)), np.empty(len(opacity))
-    _reach_and_variance(scales, opacity, reach, max_variance)
-    return GaussianConstants(scales, opacity, reach, max_variance)
+    reach, max_variance, cutoff = np.empty(len(opacity)), np.empty(len(opacity)), np.empty(len(opacity))
+    _reach_and_variance(scales, opacity, reach, max_variance, cutoff)
+    return GaussianConstants(scales, opacity, reach, max_variance, cutoff)
 
 
 @dataclasses.dataclass
@@ -78,7 +81,8 @@ class Splats2D:
     """Splats of one frame seen by one camera, culled and sorted front to back (M of them).
 
     xy: [M, 2] projected centres (pixels). conic: [M, 3] (a, b, c) of the inverse 2D
-    covariance. opacity: [M]. depth: [M] view-space z of the centre (metres).
+    covariance. opacity: [M]. cutoff: [M] ``GaussianConstants.cutoff``. depth: [M] view-space z
+    of the centre (metres).
     extent: [M, 2] half-width and half-height of the 1/255 footprint's bounding box (pixels).
     index: [M] index of each splat in the input arrays.
     """
@@ -86,6 +90,7 @@ class Splats2D:
     xy: np.ndarray
     conic: np.ndarray
     opacity: np.ndarray
+    cutoff: np.ndarray
     depth: np.ndarray
     extent: np.ndarray
     index: np.ndarray
@@ -322,6 +327,7 @@ def project_splats(
         xy=kept[:, 0:2],
         conic=kept[:, 2:5],
         opacity=constants.opacity[index],
+        cutoff=constants.cutoff[index],
         depth=kept[:, 5],
         extent=kept[:, 6:8],
         index=index,
