@@ -24,7 +24,7 @@ import numpy as np
 from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
 from pipeline.core.errors import InputError
-from pipeline.core.geometry import invert_se3, project, transform_points, unproject
+from pipeline.core.geometry import in_image, invert_se3, project, transform_points, unproject
 from pipeline.core.sampling import rng_for
 from pipeline.core.visibility import in_view
 from pipeline.export.depth_export import dense_depth_mm, dense_record
@@ -214,18 +214,19 @@ def multiview_mask_fraction(unit: UnitInput, gaussians: np.ndarray) -> np.ndarra
     (floor(u), floor(v)) is on that camera's foreground mask (NaN when never in any image)."""
     views = unit.views
     on_mask = np.zeros(len(gaussians))
-    in_image = np.zeros(len(gaussians))
+    seen_count = np.zeros(len(gaussians))
     for t in range(unit.gaussians.num_frames):
         centres = unit.gaussians.means[t, gaussians].astype(np.float64)
         for view in range(len(views.camera_ids)):
             points = transform_points(views.w2c[view], centres)
-            seen = in_view(points, views.fx_fy_cx_cy[view], views.width, views.height)
-            pixels = np.floor(project(points[seen], views.fx_fy_cx_cy[view])).astype(np.int64)
+            projected = project(points, views.fx_fy_cx_cy[view])
+            seen = (points[:, 2] > 0) & in_image(projected, views.width, views.height)  # in_view
+            pixels = np.floor(projected[seen]).astype(np.int64)
             mask = unit.mask(view, t)
-            in_image[seen] += 1
+            seen_count[seen] += 1
             on_mask[seen] += mask[pixels[:, 1], pixels[:, 0]]
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(in_image > 0, on_mask / in_image, np.nan)
+        return np.where(seen_count > 0, on_mask / seen_count, np.nan)
 
 
 def annotate_unit(unit: UnitInput, config: RunConfig) -> list[ClipRecord]:
