@@ -122,3 +122,17 @@ def test_depth_limits_keep_every_depth_within_them_and_every_depth_test():
     # The limits did leave splats out: some depths beyond them became "no surface".
     assert (surface & ~limited_surface).sum() > 100 and within.sum() > 100
     np.testing.assert_array_equal(np.isnan(limited_depth), np.isnan(depth))
+    # Projecting no splat deeper than the largest limit decides the same (here the left half's
+    # points, whose limits keep out the scene's far part).
+    left = points[:, 0] < WIDTH / 2
+    near = project_splats(
+        means, quaternions, constants, w2c, INTRINSICS, WIDTH, HEIGHT, points[left], (z + delta)[left].max()
+    )
+    near_depth, near_surface = render_depth_at(near, points[left], limits=(z + delta)[left])
+    np.testing.assert_array_equal(near_surface[within[left]], True)
+    np.testing.assert_array_equal(near_depth[within[left]], depth[left][within[left]])
+    np.testing.assert_array_equal(
+        near_surface & (np.abs(z[left] - near_depth) < delta),
+        (surface & (np.abs(z - depth) < delta))[left],
+    )
+    assert len(near) < 0.8 * len(splats)

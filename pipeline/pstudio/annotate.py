@@ -86,9 +86,12 @@ class UnitInput:
         return f"{self.sequence}_{self.camera_id}"
 
 
-def splats_in_view(unit: UnitInput, view: int, t: int, points_uv: np.ndarray | None = None) -> Splats2D:
+def splats_in_view(
+    unit: UnitInput, view: int, t: int, points_uv: np.ndarray | None = None, max_depth: float = np.inf
+) -> Splats2D:
     """The Gaussians of frame t projected into camera ``view`` (all of them are occluders);
-    with ``points_uv`` [P, 2], only those that can reach the tiles of those points."""
+    with ``points_uv`` [P, 2], only those that can reach the tiles of those points; with
+    ``max_depth``, only those no deeper."""
     g, v = unit.gaussians, unit.views
     return project_splats(
         g.means[t],
@@ -99,6 +102,7 @@ def splats_in_view(unit: UnitInput, view: int, t: int, points_uv: np.ndarray | N
         v.width,
         v.height,
         points_uv,
+        max_depth,
     )
 
 
@@ -192,20 +196,21 @@ def track_visibility(
         )
         seen = in_view(tracks[t], intrinsics, unit.views.width, unit.views.height)
         pixels = project(tracks[t, seen], intrinsics)
-        # Exporting needs every splat for the full frame; the same projection serves the tracks.
-        splats = splats_in_view(unit, view, t, None if config.export_depth else pixels)
-        if config.export_depth:
-            depth_image, surface_image = render_depth_image(splats)
-            depth_maps.append(dense_depth_mm(np.where(surface_image, depth_image, np.nan)))
-        if not seen.any():
-            continue
         # Where no splat takes the transmittance below 0.5 the depth is the 15 m background:
         # nothing is seen there, whatever the track's depth. A median depth beyond z + delta fails
-        # the test whatever it is, so splats deeper than that are not composited (the limit's
-        # micrometre covers rounding).
+        # the test whatever it is, so no splat deeper than that is projected or composited (the
+        # limit's micrometre covers rounding).
         z, delta = tracks[t, seen, 2], config.pstudio.depth_delta_m
-        depth, surface = render_depth_at(splats, pixels, limits=z + delta + 1e-6)
-        visible[t, seen] = surface & (np.abs(z - depth) < delta)
+        limits = z + delta + 1e-6
+        if config.export_depth:  # every splat, for the full frame; the same projection serves the tracks
+            splats = splats_in_view(unit, view, t)
+            depth_image, surface_image = render_depth_image(splats)
+            depth_maps.append(dense_depth_mm(np.where(surface_image, depth_image, np.nan)))
+        elif seen.any():
+            splats = splats_in_view(unit, view, t, pixels, limits.max())
+        if seen.any():
+            depth, surface = render_depth_at(splats, pixels, limits)
+            visible[t, seen] = surface & (np.abs(z - depth) < delta)
     return tracks, visible, depth_maps
 
 

@@ -116,11 +116,26 @@ def _reaches(u, v, ext_x, ext_y, width, height, wanted):
 
 @numba.njit(cache=True, error_model="numpy")
 def _footprint_boxes(
-    xs, ys, zs, opacity, reach, max_variance, w2c, intrinsics, width, height, u, v, half_width, half_height
+    xs,
+    ys,
+    zs,
+    opacity,
+    reach,
+    max_variance,
+    w2c,
+    intrinsics,
+    width,
+    height,
+    max_depth,
+    u,
+    v,
+    half_width,
+    half_height,
 ):
     """Per splat (centres xs, ys, zs [M], float32 or float64) a box holding its footprint
     (``_candidates``): centre u, v [M], half_width, half_height [M]; a box far off the image
-    (u = -1e30) when it is culled: behind the near plane, transparent or not finite.
+    (u = -1e30) when it is culled: behind the near plane or deeper than ``max_depth``,
+    transparent or not finite.
 
     Without branches, over columns: LLVM runs it four splats at a time (AVX2). (Rows of [M, 3]
     and a Python error model, which checks every division for zero, kept it one at a time, at
@@ -133,7 +148,7 @@ def _footprint_boxes(
         pz = w2c[2, 0] * mx + w2c[2, 1] * my + w2c[2, 2] * mz + w2c[2, 3]
         px = w2c[0, 0] * mx + w2c[0, 1] * my + w2c[0, 2] * mz + w2c[0, 3]
         py = w2c[1, 0] * mx + w2c[1, 1] * my + w2c[1, 2] * mz + w2c[1, 3]
-        live = (pz > 0.2) & (opacity[k] >= 1.0 / 255.0) & np.isfinite(px + py + pz)
+        live = (pz > 0.2) & (pz <= max_depth) & (opacity[k] >= 1.0 / 255.0) & np.isfinite(px + py + pz)
         inverse = 1.0 / pz if live else 1.0
         x, y = px * inverse if live else 0.0, py * inverse if live else 0.0
         j00, j02 = fx * inverse, -fx * min(lim_x, max(-lim_x, x)) * inverse
@@ -156,8 +171,11 @@ def _footprint_boxes(
 
 
 @numba.njit(cache=True)
-def _candidates(xs, ys, zs, opacity, reach, max_variance, w2c, intrinsics, width, height, wanted, flags):
-    """flags[i] = splat i may meet a wanted block (``wanted``: ``wanted_blocks``), from its centre
+def _candidates(
+    xs, ys, zs, opacity, reach, max_variance, w2c, intrinsics, width, height, max_depth, wanted, flags
+):
+    """flags[i] = splat i, no deeper than ``max_depth``, may meet a wanted block (``wanted``:
+    ``wanted_blocks``), from its centre
     (xs, ys, zs [N], float32 or float64) and a bound of its footprint: Sigma'_xx = |g R S|^2 + 0.3
     <= max_variance |g|^2 + 0.3 with g = row 0 of J W (R a rotation), likewise Sigma'_yy; widened
     by 1e-6 for rounding.
@@ -180,6 +198,7 @@ def _candidates(xs, ys, zs, opacity, reach, max_variance, w2c, intrinsics, width
             intrinsics,
             width,
             height,
+            max_depth,
             u[:count],
             v[:count],
             half_width[:count],
@@ -268,12 +287,15 @@ def project_splats(
     width: int,
     height: int,
     points_uv: np.ndarray | None = None,
+    max_depth: float = np.inf,
 ) -> Splats2D:
     """Project N Gaussians into a camera: those that can touch the image, sorted front to back
     (ties in index order).
 
     With ``points_uv`` [P, 2], keep only the splats that can touch a block holding one of those
-    points: enough to render depth there, and much less to project, sort and bin.
+    points: enough to render depth there, and much less to project, sort and bin. With
+    ``max_depth``, only those whose centre is no deeper (view-space z, metres): enough for
+    ``render.render_depth_at`` with limits up to it.
 
     Args:
       means: [N, 3] world centres. quaternions: [N, 4] (w, x, y, z), unnormalised; float32 or
@@ -298,6 +320,7 @@ def project_splats(
         intrinsics,
         int(width),
         int(height),
+        float(max_depth),
         wanted,
         flags,
     )
