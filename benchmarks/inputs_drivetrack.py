@@ -166,3 +166,26 @@ def prepare(workdir: str, quick: bool, full: bool = False) -> UnitSetup:
         if tag == "default"
         else [],
     )
+
+
+def measure_fixed_cost(spec: dict, config) -> dict:
+    """Called by ``benchmarks.worker`` before the runs: numba's first dispatch of the camera model
+    and of the occlusion and depth lookups (loading them from its cache), once per worker process
+    like the imports, so not a unit's cost (reported, not counted; the extrapolation would carry it
+    6.6 times over). The first camera's records are read first, untimed, to call the camera model
+    with the types a unit calls it with. first_calls_s / first_calls_cpu_s."""
+    from pipeline.drivetrack.annotate import unit_camera
+    from pipeline.drivetrack.depth import camera_occluded_lidar, nearest_depth_max4
+    from pipeline.drivetrack.source import load_unit
+
+    segment, camera = spec["unit"][0]
+    unit = load_unit(spec["input_root"], segment, camera)
+    rng = np.random.default_rng(0)
+    size = np.array([unit.calibration.width, unit.calibration.height], np.float64)
+    world = unit.frames.world_from_vehicle_at_exposure[0][:3, 3] + rng.normal(0, 20.0, (64, 3))
+    pixels, depth = rng.uniform(0, size, (64, 2)), rng.uniform(5.0, 50.0, 64)
+    wall, cpu = time.perf_counter(), time.process_time()
+    unit_camera(unit, config).project(0, world)
+    camera_occluded_lidar(pixels, depth, config.drivetrack.occlusion_margin)
+    nearest_depth_max4(pixels, depth, pixels[:4], int(size[0]), int(size[1]))
+    return {"first_calls_s": time.perf_counter() - wall, "first_calls_cpu_s": time.process_time() - cpu}

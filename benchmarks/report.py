@@ -131,14 +131,14 @@ def report(
                 f"  per frame without the fixed cost ({opening}): {1000 * per_frame:.1f} ms wall, "
                 f"{1000 * per_frame_cpu:.1f} ms CPU"
             )
-        elif "first_calls_s" in first:
-            print(
-                f"  numba's first calls, {1000 * first['first_calls_s']:.0f} ms, once per worker process "
-                "like the imports: measured before the runs, not counted"
-            )
         print(
             f"  EXTRAPOLATED {unit_frames}-frame unit: {f'{fixed:.2f} + ' if fixed else ''}{unit_frames} x "
             f"{per_frame:.3f} = {unit_wall:.1f} s wall, {unit_cpu:.1f} s CPU"
+        )
+    if "first_calls_s" in first and not first.get("fixed_s"):  # else printed with the fixed cost
+        print(
+            f"  numba's first calls, {1000 * first['first_calls_s']:.0f} ms, once per worker process "
+            "like the imports: measured before the runs, not counted"
         )
     target = MEMORY_TARGET_GIB.get(source)
     verdict = f"   target <= {target} GiB: {'met' if max_rss <= target else 'MISSED'}" if target else ""
