@@ -174,8 +174,9 @@ def render_depth_at(
     else:
         np.maximum.at(limit, point_tile, np.asarray(limits, dtype=np.float64).reshape(-1)[inside])
     starts, entries = _bin(splats.xy, splats.extent, splats.depth, tiles_x, tiles_y, limit)
-    s = splats
-    packed = _pack(entries, s.xy, s.conic, s.opacity, s.cutoff, s.depth, s.extent)
+    packed = _pack(
+        entries, splats.xy, splats.conic, splats.opacity, splats.cutoff, splats.depth, splats.extent
+    )
     order = np.argsort(point_tile, kind="stable")
     tiles, point_starts = np.unique(point_tile[order], return_index=True)
     point_starts = np.append(point_starts, len(order)).astype(np.int64)

@@ -175,10 +175,9 @@ def _candidates(
     xs, ys, zs, opacity, reach, max_variance, w2c, intrinsics, width, height, max_depth, wanted, flags
 ):
     """flags[i] = splat i, no deeper than ``max_depth``, may meet a wanted block (``wanted``:
-    ``wanted_blocks``), from its centre
-    (xs, ys, zs [N], float32 or float64) and a bound of its footprint: Sigma'_xx = |g R S|^2 + 0.3
-    <= max_variance |g|^2 + 0.3 with g = row 0 of J W (R a rotation), likewise Sigma'_yy; widened
-    by 1e-6 for rounding.
+    ``wanted_blocks``), from its centre (xs, ys, zs [N], float32 or float64) and a bound of its
+    footprint: Sigma'_xx = |g R S|^2 + 0.3 <= max_variance |g|^2 + 0.3 with g = row 0 of J W (R a
+    rotation), likewise Sigma'_yy; widened by 1e-6 for rounding.
 
     Chunk by chunk: first the boxes (``_footprint_boxes``), then their tests. (One loop with the
     test ran three times slower: each mispredicted test had waited on a division and a square
