@@ -295,7 +295,15 @@ def run(args: argparse.Namespace, beam_args: list[str], output: str) -> int:
         p = beam.Pipeline(options=options)
         _ = p | "RegenerateClips" >> graph.RegenerateClips(job, units, provenance, official, options)
         result = p.run()
-        result.wait_until_finish()
+        try:
+            result.wait_until_finish()
+        finally:
+            # Beam's Dask runner opens a distributed.Client for the run and never closes it: a
+            # caller that goes on (a notebook, the tests) would keep a client that tries to
+            # reconnect once the cluster is gone.
+            client = getattr(result, "client", None)
+            if client is not None:
+                client.close()
     except Exception as error:  # noqa: BLE001 - Beam wraps a step's error; say the cause in one line
         cause = root_cause(error)
         if isinstance(cause, KeyboardInterrupt):

@@ -23,12 +23,16 @@ def tasks_per_worker(client: Client) -> dict[str, int]:
     return client.run(lambda dask_worker: dask_worker.state.executed_count)
 
 
+def clients_connected(client: Client) -> int:
+    return client.run_on_scheduler(lambda dask_scheduler: len(dask_scheduler.clients))
+
+
 @pytest.mark.parametrize("source", ["drivetrack", "pstudio"])
 def test_dask_runner_writes_the_direct_runners_bytes(source, cluster, reference_run, tmp_path):
     local, client = cluster
     reference = reference_run(source)
     sample_input = json.load(open(os.path.join(reference, f"run_{source}.json")))["input"]
-    before = tasks_per_worker(client)
+    before, clients = tasks_per_worker(client), clients_connected(client)
     out = str(tmp_path / "dask")
     result = run_in_process(
         source,
@@ -45,6 +49,9 @@ def test_dask_runner_writes_the_direct_runners_bytes(source, cluster, reference_
     # Both worker processes ran tasks of this pipeline (the submitting process runs none).
     assert set(after) == set(before) and len(after) == 2
     assert all(after[worker] > before[worker] for worker in after), (before, after)
+    # The run closed the client Beam's runner opened (left open, it would try to reconnect once
+    # the cluster is gone).
+    assert clients_connected(client) == clients
     expected = clip_bytes(reference, source)
     assert len(expected) == 4
     assert clip_bytes(out, source) == expected
