@@ -122,11 +122,6 @@ def report(
                 opening += f" of {1000 * first['open_s']:.0f} ms"
             if per_unit:
                 opening += f", + writing a {unit_frames}-frame clip, {1000 * first['write_unit_s']:.0f} ms"
-            if "first_calls_s" in first:
-                opening += (
-                    f"; numba's first calls, {1000 * first['first_calls_s']:.0f} ms, are once per worker "
-                    "process like the imports: not counted"
-                )
             print(
                 f"  per frame without the fixed cost ({opening}): {1000 * per_frame:.1f} ms wall, "
                 f"{1000 * per_frame_cpu:.1f} ms CPU"
@@ -135,7 +130,7 @@ def report(
             f"  EXTRAPOLATED {unit_frames}-frame unit: {f'{fixed:.2f} + ' if fixed else ''}{unit_frames} x "
             f"{per_frame:.3f} = {unit_wall:.1f} s wall, {unit_cpu:.1f} s CPU"
         )
-    if "first_calls_s" in first and not first.get("fixed_s"):  # else printed with the fixed cost
+    if "first_calls_s" in first:
         print(
             f"  numba's first calls, {1000 * first['first_calls_s']:.0f} ms, once per worker process "
             "like the imports: measured before the runs, not counted"
