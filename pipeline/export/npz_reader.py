@@ -1,7 +1,7 @@
 """Read ``.npz`` files from strangers: never unpickle, never allocate what a header merely claims.
 
 An ``.npz`` is a zip of ``.npy`` members. ``np.load`` trusts both layers: an object member runs
-pickle code with ``allow_pickle=True``, and a member's header or the zip entry may claim sizes
+pickle code once pickles are allowed, and a member's header or the zip entry may claim sizes
 that exhaust memory (a few MB of deflate can declare 20 GB). Here each member's ``.npy`` header
 is parsed first (dtype, shape), object and structured dtypes are refused by name, the declared
 size is checked against the zip entry and against a cap the caller derives from the clip, and
