@@ -22,7 +22,7 @@ from pipeline.export.audit_table import encode_parquet, outcome_table
 from pipeline.export.depth_export import encode_depth
 from pipeline.export.files import remove_quietly, write_atomic
 from pipeline.export.layout import audit_path, check_clip_name, clip_path, depth_path
-from pipeline.export.npz_writer import clip_arrays, encode_npz
+from pipeline.export.npz_writer import clip_members, encode_npz
 from pipeline.filters.select import FilterOutcome, apply_filters
 from pipeline.resume import (
     finished_reports,
@@ -144,7 +144,7 @@ def write_clip(output: str, kept: ClipRecord, outcome: FilterOutcome) -> tuple[d
     if kept.num_tracks:
         if kept.depth_export is not None:
             _write(depth_path(output, source, name), encode_depth(kept.depth_export))
-        data = encode_npz(clip_arrays(kept))
+        data = encode_npz(clip_members(kept))
         _write(clip_path(output, source, name), data)
         digest = sha256(data)
         progress(f"clip {name}: {kept.num_tracks} of {outcome.candidates} candidate tracks written")

@@ -12,7 +12,7 @@ from pipeline.core.config import RunConfig, with_overrides
 from pipeline.export.clip_reader import read_clip_bytes
 from pipeline.export.files import write_atomic
 from pipeline.export.manifests import load_official_splits, split_clips
-from pipeline.export.npz_writer import encode_npz, fixed_width_bytes
+from pipeline.export.npz_writer import FixedWidthBytes, encode_npz
 from pipeline.export.validator import check_arrays, check_clip_bytes
 
 INTRINSICS = np.array([100.0, 100.0, 50.0, 50.0])
@@ -83,15 +83,27 @@ def test_members_streamed_into_the_archive_give_the_savez_recipes_bytes(compress
     assert encode_npz(arrays, compress) == savez_recipe(arrays, compress)
 
 
-@pytest.mark.parametrize(
-    "items",
-    [[], [b""], [b"ab", b"c", b"\xff\xd9"], [b"\x00x\x00", b"y\x00"], [bytes(range(256)) * 3, b"z"]],
-)
+FRAME_LISTS = [[], [b""], [b"ab", b"c", b"\xff\xd9"], [b"\x00x\x00", b"y\x00"], [bytes(range(256)) * 3, b"z"]]
+
+
+@pytest.mark.parametrize("items", FRAME_LISTS)
 def test_frames_array_is_what_numpy_makes_of_the_list(items):
     """The release's frames array: what ``np.savez`` makes of a list of bytes, byte for byte."""
-    ours, numpys = fixed_width_bytes(items), np.array(items, dtype=np.bytes_)
+    ours, numpys = FixedWidthBytes(items).array(), np.array(items, dtype=np.bytes_)
     assert ours.dtype == numpys.dtype and ours.shape == numpys.shape
     assert ours.tobytes() == numpys.tobytes()
+
+
+@pytest.mark.parametrize("compress", [False, True])
+def test_frames_written_item_by_item_give_the_savez_recipes_bytes(compress):
+    """Frames padded as they are written into the archive (no array built) give the bytes of
+    ``np.savez`` of the list, for each list above and for JPEG-sized frames."""
+    rng = np.random.default_rng(4)
+    jpegs = [rng.integers(0, 256, size, np.uint8).tobytes() for size in (700_000, 650_123, 699_999)]
+    for items in [*FRAME_LISTS, jpegs]:
+        ours = {"images_jpeg_bytes": FixedWidthBytes(items), "x": np.arange(3)}
+        numpys = {"images_jpeg_bytes": np.array(items, dtype=np.bytes_), "x": np.arange(3)}
+        assert encode_npz(ours, compress) == savez_recipe(numpys, compress)
 
 
 def _break(name):

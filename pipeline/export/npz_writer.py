@@ -6,6 +6,7 @@ writer uses the same container (a zip of ``.npy`` members) with a fixed timestam
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import zipfile
 
@@ -16,38 +17,69 @@ from pipeline.core.clip import ClipRecord
 FIXED_ZIP_TIME = (1980, 1, 1, 0, 0, 0)
 
 
-def fixed_width_bytes(items: list[bytes]) -> np.ndarray:
-    """``np.array(items, dtype=np.bytes_)``: [T] ``|S<longest>``, each item NUL-padded, built with
-    one copy of each item (NumPy's own conversion ran four times slower on JPEG-sized items)."""
-    width = max((len(item) for item in items), default=0)
-    if width == 0:
-        return np.array(list(items), dtype=np.bytes_)
-    buffer = bytearray(width * len(items))
-    for i, item in enumerate(items):
-        buffer[i * width : i * width + len(item)] = item
-    return np.frombuffer(buffer, dtype=f"S{width}")
+@dataclasses.dataclass(frozen=True)
+class FixedWidthBytes:
+    """``np.array(items, dtype=np.bytes_)`` without building it: [T] ``|S<longest>`` (at least
+    ``|S1``, as NumPy makes it), each item NUL-padded to the width. ``encode_npz`` writes the
+    items straight into the archive (a clip of Waymo frames is tens of MB: the array would be one
+    more copy of it, made item by item)."""
+
+    items: list[bytes]
+
+    @property
+    def width(self) -> int:
+        return max(1, max((len(item) for item in self.items), default=0))
+
+    @property
+    def nbytes(self) -> int:
+        return self.width * len(self.items)
+
+    def header(self) -> dict:
+        """The ``.npy`` header fields of the array."""
+        return {"descr": f"|S{self.width}", "fortran_order": False, "shape": (len(self.items),)}
+
+    def write(self, stream) -> None:
+        """The array's bytes, item by item: each item, then its NUL padding."""
+        width = self.width
+        padding = memoryview(bytes(width))
+        for item in self.items:
+            stream.write(item)
+            if len(item) < width:
+                stream.write(padding[: width - len(item)])
+
+    def array(self) -> np.ndarray:
+        """The array itself (read-only)."""
+        buffer = io.BytesIO()
+        self.write(buffer)
+        return np.frombuffer(buffer.getvalue(), dtype=f"S{self.width}")
 
 
-def clip_arrays(clip: ClipRecord) -> dict[str, np.ndarray]:
-    """The released schema's arrays for a clip: frames as a fixed-width bytes array ``|S<longest>``
+def clip_members(clip: ClipRecord) -> dict[str, np.ndarray | FixedWidthBytes]:
+    """The released schema's members for a clip: frames as a fixed-width bytes array ``|S<longest>``
     [T] (what ``np.savez`` makes of the release's list of JPEG bytes; NumPy strips the NUL
     padding on read and a JPEG ends in FF D9), float32 tracks and queries, bool visibility,
     float64 intrinsics as the release writes them, float64 extrinsics (a camera 15 km from the
     world's origin is rounded by ~1 mm in float32). No object array: the file opens with a
     plain ``np.load``."""
-    arrays = {
-        "images_jpeg_bytes": fixed_width_bytes(clip.images_jpeg),
+    members = {
+        "images_jpeg_bytes": FixedWidthBytes(clip.images_jpeg),
         "queries_xyt": clip.queries_xyt.astype(np.float32),
         "tracks_XYZ": clip.tracks_xyz.astype(np.float32),
         "visibility": clip.visibility.astype(bool),
         "fx_fy_cx_cy": np.asarray(clip.fx_fy_cx_cy, dtype=np.float64),
     }
     if clip.extrinsics_w2c is not None:
-        arrays["extrinsics_w2c"] = clip.extrinsics_w2c.astype(np.float64)
-    return arrays
+        members["extrinsics_w2c"] = clip.extrinsics_w2c.astype(np.float64)
+    return members
 
 
-def encode_npz(arrays: dict[str, np.ndarray], compress: bool = False) -> bytes:
+def clip_arrays(clip: ClipRecord) -> dict[str, np.ndarray]:
+    """``clip_members`` as the arrays ``np.load`` gives back."""
+    members = clip_members(clip)
+    return {key: v.array() if isinstance(v, FixedWidthBytes) else v for key, v in members.items()}
+
+
+def encode_npz(members: dict[str, np.ndarray | FixedWidthBytes], compress: bool = False) -> bytes:
     """A deterministic ``.npz`` readable by np.load: stored like ``np.savez``, or deflated like
     ``np.savez_compressed`` with ``compress``.
 
@@ -60,14 +92,22 @@ def encode_npz(arrays: dict[str, np.ndarray], compress: bool = False) -> bytes:
     buffer = io.BytesIO()
     method = zipfile.ZIP_DEFLATED if compress else zipfile.ZIP_STORED
     with zipfile.ZipFile(buffer, "w", compression=method, allowZip64=True) as archive:
-        for key in sorted(arrays):
-            array = np.asanyarray(arrays[key])
+        for key in sorted(members):
+            value = members[key]
+            padded = isinstance(value, FixedWidthBytes)
+            if not padded:
+                value = np.asanyarray(value)
             header = io.BytesIO()
-            np.lib.format.write_array_header_1_0(header, np.lib.format.header_data_from_array_1_0(array))
+            fields = value.header() if padded else np.lib.format.header_data_from_array_1_0(value)
+            np.lib.format.write_array_header_1_0(header, fields)
             info = zipfile.ZipInfo(f"{key}.npy", date_time=FIXED_ZIP_TIME)
             info.compress_type = method
             info.external_attr = 0o644 << 16
-            info.file_size = header.tell() + array.nbytes
+            info.file_size = header.tell() + value.nbytes
             with archive.open(info, "w") as member:
-                np.lib.format.write_array(member, array, version=(1, 0), allow_pickle=False)
+                if padded:
+                    member.write(header.getvalue())
+                    value.write(member)
+                else:
+                    np.lib.format.write_array(member, value, version=(1, 0), allow_pickle=False)
     return buffer.getvalue()
