@@ -5,6 +5,7 @@ lens distortion and rolling shutters on a moving ego vehicle, against an indepen
 import dataclasses
 import os
 
+import cv2
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
@@ -13,7 +14,7 @@ from pipeline.core.config import RunConfig, with_overrides
 from pipeline.drivetrack import columns as C
 from pipeline.drivetrack.annotate import annotate_unit, unit_camera
 from pipeline.drivetrack.source import load_unit
-from pipeline.drivetrack.undistort import undistortion_maps
+from pipeline.drivetrack.undistort import JPEG_QUALITY, undistort_image, undistortion_maps
 from pipeline.export.npz_writer import clip_arrays
 from pipeline.export.validator import check_arrays, quality_findings
 from pipeline.samples.waymo_world import POSE_DELAY_S, SEGMENT, frame_time
@@ -132,6 +133,20 @@ def test_undistortion_maps_read_the_sensor_pixel_of_each_stored_pixel(sample_spl
         np.stack([map_x[rows, cols].ravel(), map_y[rows, cols].ravel()], 1) + 0.5
     )  # OpenCV: centres at integers
     np.testing.assert_allclose(read, sensor_pixels(3, rays), atol=2e-3)
+
+
+def test_undistorted_frame_has_the_bytes_of_the_three_channel_remap(sample_split):
+    """``undistort_image`` remaps with a fourth channel (OpenCV's fast path): the JPEG is the one
+    a plain 3-channel remap and encode give, on a textured frame with saturated edges."""
+    calibration = load_unit(sample_split[0], SEGMENT, 2).calibration
+    maps = undistortion_maps(calibration)
+    rng = np.random.default_rng(5)
+    image = rng.integers(0, 256, (calibration.height, calibration.width, 3), np.uint8)
+    image = cv2.GaussianBlur(image, (0, 0), 1.5)
+    image[:, : calibration.width // 8] = (0, 255, 255)
+    plain = cv2.remap(image, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    expected = cv2.imencode(".jpg", plain, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])[1].tobytes()
+    assert undistort_image(image, maps) == expected
 
 
 @pytest.fixture(scope="module")
