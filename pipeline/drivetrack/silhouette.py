@@ -47,9 +47,11 @@ def silhouette_mask(points_uv: np.ndarray, width: int, height: int, closing_px: 
     size = closing_px or adaptive_closing_px(points_uv[inside])
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
     grow = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size // 2 | 1, size // 2 | 1))
-    # Only the points' bounding box, padded beyond the reach of both kernels, can change: working
-    # on it alone gives the same mask as the whole image (a vehicle is a small part of a frame).
-    pad = 2 * size
+    # Only the points' bounding box, padded by a kernel's size, can change: working on it alone
+    # gives the same mask as the whole image (a vehicle is a small part of a frame). The closing is
+    # non-zero within r = size // 2 of a point, growing adds less than r; the erosion, which takes
+    # what lies past the box's edge for 1, reads r around a pixel within r of a point: 2r < size.
+    pad = size
     x0, x1 = max(xs.min() - pad, 0), min(xs.max() + pad + 1, width)
     y0, y1 = max(ys.min() - pad, 0), min(ys.max() + pad + 1, height)
     box = np.zeros((y1 - y0, x1 - x0), np.uint8)
