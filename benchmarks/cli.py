@@ -8,8 +8,9 @@ Per-unit benchmark (default; ``benchmarks/units.py``), for each source:
 3. the speed-up of the same set of units (``--units``) from 1 to ``--workers`` (default 2)
    worker processes, each single-threaded and bound to a CPU of its own;
 4. the read+decode floor: the bare cost of reading and decoding the unit's inputs, in one more
-   such process (``benchmarks/floors.py``), and the unit's time over it (time on one core: the
-   CPU time of these single-threaded pinned processes, their wall time on an idle machine);
+   such process right after each 1-worker run (``benchmarks/floors.py``), and the unit's time
+   over it (time on one core: the CPU time of these single-threaded pinned processes, their wall
+   time on an idle machine);
 5. the CPU-hours of the whole benchmark (units of the release x CPU per unit).
 
 It ends with one table (ms/frame, peak RSS, speed-up, CPU-hours, unit/floor, each against its

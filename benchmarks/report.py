@@ -44,6 +44,8 @@ COLUMNS = (
     ("cpu_per_wall", "CPU/wall", "{:.2f}", None, 8),
 )
 EXTRAPOLATED = ("ms_per_frame", "cpu_hours", "floor_ratio")
+# A floor process's timed figures (``benchmarks.floors.measure``), averaged over the floor runs.
+FLOOR_FIGURES = ("floor_s", "floor_cpu_s", "floor_open_s", "floor_open_cpu_s")
 
 
 def speedup_line(what: str, one_wall: float, many_wall: float, workers: int, tail: str = "") -> float:
@@ -63,12 +65,13 @@ def report(
     one_wall: float,
     many: list[UnitRun] | None,
     many_wall: float | None,
-    floor: UnitRun,
+    floors: list[UnitRun],
     workers: int,
     pinned: bool = True,
 ) -> dict:
     """Print one source's figures (``setup``: its ``benchmarks.units.UnitSetup``; ``one`` / ``many``:
-    the runs with 1 and ``workers`` workers; ``floor``: the floor process) and return them."""
+    the runs with 1 and ``workers`` workers; ``floors``: the floor process run right after each of
+    ``one``) and return them."""
     source = setup.source
     work = fmean(r.result["work_s"] for r in one)
     work_cpu = fmean(r.result["work_cpu_s"] for r in one)
@@ -138,22 +141,31 @@ def report(
     target = MEMORY_TARGET_GIB.get(source)
     verdict = f"   target <= {target} GiB: {'met' if max_rss <= target else 'MISSED'}" if target else ""
     print(f"  peak memory of the unit's process (max RSS, its VmHWM): {max_rss:.2f} GiB{verdict}")
-    # The floor, at the measured size, then for the release unit like the unit itself.
-    measured = floor.result
-    frames_read = measured["floor_frames"]
+    # The floor (mean of the runs paired with the unit's), at the measured size, then for the
+    # release unit like the unit itself.
+    measured = {key: fmean(f.result[key] for f in floors) for key in FLOOR_FIGURES if key in floors[0].result}
+    frames_read = floors[0].result["floor_frames"]
     floor_open, floor_open_cpu = measured.get("floor_open_s", 0.0), measured.get("floor_open_cpu_s", 0.0)
     # A unit's share of the opening (ADT: a group of chunks opens its sequence once).
-    open_share = measured.get("floor_open_share", 1.0)
+    open_share = floors[0].result.get("floor_open_share", 1.0)
     floor_unit = open_share * floor_open + unit_frames * (measured["floor_s"] - floor_open) / frames_read
     floor_unit_cpu = (
         open_share * floor_open_cpu + unit_frames * (measured["floor_cpu_s"] - floor_open_cpu) / frames_read
     )
     floor_ratio = unit_cpu / floor_unit_cpu
     print(
-        f"read+decode floor of the unit's inputs (a fresh process, {where}): {measured['floor_s']:.2f} s "
-        f"wall, {measured['floor_cpu_s']:.2f} s CPU for {frames_read} frames"
+        f"read+decode floor of the unit's inputs (a fresh process right after each unit's, {where}; mean of "
+        f"{len(floors)}): {measured['floor_s']:.2f} s wall, {measured['floor_cpu_s']:.2f} s CPU for "
+        f"{frames_read} frames"
         + (f" (opening {floor_open_cpu:.2f} s CPU)" if floor_open else "")
-        + f"; peak memory {floor.max_rss / GIB:.2f} GiB"
+        + f"; peak memory {max(f.max_rss for f in floors) / GIB:.2f} GiB"
+    )
+    print(
+        "  floor / unit work CPU of each pair (s, at the measured size): "
+        + ", ".join(
+            f"{f.result['floor_cpu_s']:.2f} / {r.result['work_cpu_s']:.2f}"
+            for f, r in zip(floors, one, strict=True)
+        )
     )
     print(
         f"  {'EXTRAPOLATED ' if setup.extrapolate_frames else ''}{unit_frames}-frame unit: floor "

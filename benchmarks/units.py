@@ -7,7 +7,7 @@ of its (segment, camera) units, which share one read of the lidar), Panoptic Stu
 (sequence, camera), ADT (sequence, 300-frame chunk). Its work is the graph's own,
 ``pipeline.unit.run_group`` (``benchmarks.worker``), in a fresh single-threaded pinned process
 (``benchmarks.processes``); its floor (``benchmarks.floors``) is measured in one more such
-process; the figures are printed by ``benchmarks.report``.
+process right after each 1-worker run; the figures are printed by ``benchmarks.report``.
 
 Each source's inputs are built (once, cached under the work folder) by
 ``benchmarks/inputs_<source>.py``: ``prepare(workdir, quick[, full]) -> UnitSetup`` (or None:
@@ -102,7 +102,7 @@ def bench_source(
     source: str, args: argparse.Namespace, prepared: tuple[UnitSetup | None, float] | None = None
 ) -> dict:
     """Prepare the source's unit (unless ``prepared``: ``prepare_source``'s result), run the scaling
-    set with 1 and ``args.workers`` workers, measure the unit's read+decode floor, print; returns
+    set with 1 (each run paired with its read+decode floor) and ``args.workers`` workers, print; returns
     the figures (``report``), {} when skipped."""
     module = importlib.import_module(f"benchmarks.inputs_{source}")
     workdir = os.path.abspath(os.path.join(args.workdir, source))
@@ -118,25 +118,38 @@ def bench_source(
     scratch = tempfile.mkdtemp(prefix="runs-", dir=workdir)
     try:
         print(
-            f"running {len(setup.units)} unit(s), one fresh single-threaded process each, 1 worker ...",
+            f"running {len(setup.units)} unit(s), one fresh single-threaded process each, 1 worker, each "
+            "followed by its read+decode floor (one more such process) ...",
             flush=True,
         )
-        one, one_wall = run_processes(_specs(setup, scratch, "w1"), 1, scratch, args.pin)
+        one, one_wall, floors = paired_with_floors(_specs(setup, scratch, "w1"), scratch, args.pin)
         many, many_wall = None, None
         if args.workers > 1 and len(setup.units) > 1:
             print(f"running the same {len(setup.units)} unit(s) with {args.workers} workers ...", flush=True)
             many, many_wall = run_processes(
                 _specs(setup, scratch, f"w{args.workers}"), args.workers, scratch, args.pin
             )
-        print("measuring the read+decode floor of the unit's inputs (one more such process) ...", flush=True)
-        floor_spec = dict(_specs(setup, scratch, "floor")[0], mode="floor")
-        (floor,), _ = run_processes([floor_spec], 1, scratch, args.pin)
         beam_args = getattr(module, "beam_run_args", None)
         if args.beam and beam_args and args.workers > 1 and len(setup.units) > 1:
             beam_scaling(setup, beam_args(setup.units), args.workers, scratch)
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
-    return report(setup, one, one_wall, many, many_wall, floor, args.workers, args.pin)
+    return report(setup, one, one_wall, many, many_wall, floors, args.workers, args.pin)
+
+
+def paired_with_floors(specs: list[dict], scratch: str, pin: bool) -> tuple[list, float, list]:
+    """The 1-worker runs, each unit's process followed at once by a process measuring its read+decode
+    floor (``mode="floor"``), so that the two figures of each pair meet the same state of a shared
+    machine (the unit first: files not yet in the page cache slow the unit, not its floor):
+    (unit runs, their wall time in all, floor runs)."""
+    runs, floors, wall = [], [], 0.0
+    for spec in specs:
+        (run,), seconds = run_processes([spec], 1, scratch, pin)
+        (floor,), _ = run_processes([dict(spec, mode="floor")], 1, scratch, pin)
+        runs.append(run)
+        floors.append(floor)
+        wall += seconds
+    return runs, wall, floors
 
 
 def beam_scaling(setup: UnitSetup, run_args: list[str], workers: int, scratch: str) -> float:
