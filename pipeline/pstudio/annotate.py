@@ -24,7 +24,7 @@ import numpy as np
 from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
 from pipeline.core.errors import InputError
-from pipeline.core.geometry import in_image, invert_se3, project, transform_points, unproject
+from pipeline.core.geometry import invert_se3, project, transform_points, unproject
 from pipeline.core.sampling import rng_for
 from pipeline.core.visibility import in_view
 from pipeline.export.depth_export import dense_depth_mm, dense_record
@@ -216,20 +216,27 @@ def track_visibility(
 
 def multiview_mask_fraction(unit: UnitInput, gaussians: np.ndarray) -> np.ndarray:
     """[K] fraction of (frame, camera) pairs with the centre in the image whose pixel
-    (floor(u), floor(v)) is on that camera's foreground mask (NaN when never in any image)."""
+    (floor(u), floor(v)) is on that camera's foreground mask (NaN when never in any image).
+
+    Each frame's centres go to every camera at once ([V, K]: per camera, the numbers
+    ``transform_points``, ``project`` and ``in_view`` give)."""
     views = unit.views
+    rotations, translations = views.w2c[:, :3, :3], views.w2c[:, None, :3, 3]
+    fx, fy, cx, cy = (views.fx_fy_cx_cy[:, i, None] for i in range(4))  # [V, 1] each
     on_mask = np.zeros(len(gaussians))
     seen_count = np.zeros(len(gaussians))
     for t in range(unit.gaussians.num_frames):
         centres = unit.gaussians.means[t, gaussians].astype(np.float64)
+        points = np.einsum("vij,kj->vki", rotations, centres) + translations  # [V, K, 3]
+        z = points[..., 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u, v = fx * points[..., 0] / z + cx, fy * points[..., 1] / z + cy
+        seen = (z > 0) & (u >= 0) & (u < views.width) & (v >= 0) & (v < views.height)  # [V, K]
+        seen_count += seen.sum(axis=0)
         for view in range(len(views.camera_ids)):
-            points = transform_points(views.w2c[view], centres)
-            projected = project(points, views.fx_fy_cx_cy[view])
-            seen = (points[:, 2] > 0) & in_image(projected, views.width, views.height)  # in_view
-            pixels = np.floor(projected[seen]).astype(np.int64)
-            mask = unit.mask(view, t)
-            seen_count[seen] += 1
-            on_mask[seen] += mask[pixels[:, 1], pixels[:, 0]]
+            on = seen[view]
+            rows, cols = np.floor(v[view, on]).astype(np.int64), np.floor(u[view, on]).astype(np.int64)
+            on_mask[on] += unit.mask(view, t)[rows, cols]
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(seen_count > 0, on_mask / seen_count, np.nan)
 

@@ -34,8 +34,12 @@ class MaskCache:
         self._lock = threading.Lock()
 
     def mask(self, data: bytes, width: int, height: int, what: str) -> np.ndarray:
-        """The mask (non-zero pixels) of the PNG or JPEG ``data``; InputError naming ``what`` when
-        it is not a ``width`` x ``height`` image."""
+        """The mask (non-zero pixels) [H, W] bool of the PNG or JPEG ``data``; InputError naming
+        ``what`` when it is not a ``width`` x ``height`` image."""
+        return unpack_mask(self.packed(data, width, height, what), width, height)
+
+    def packed(self, data: bytes, width: int, height: int, what: str) -> np.ndarray:
+        """``mask`` bit-packed (``np.packbits`` of the [H, W] bools, row-major)."""
         key = (data, width, height)
         with self._lock:
             packed = self._packed.get(key)
@@ -44,7 +48,7 @@ class MaskCache:
         if packed is None:
             packed = np.packbits(decode_image(data, width, height, what, noun="mask") > 0)
             self._insert(key, packed)
-        return np.unpackbits(packed, count=width * height).view(np.bool_).reshape(height, width)
+        return packed
 
     def _insert(self, key: tuple[bytes, int, int], packed: np.ndarray) -> None:
         size = len(key[0]) + packed.nbytes
@@ -56,6 +60,11 @@ class MaskCache:
             while self.bytes > self.max_bytes:
                 old_key, old = self._packed.popitem(last=False)
                 self.bytes -= len(old_key[0]) + old.nbytes
+
+
+def unpack_mask(packed: np.ndarray, width: int, height: int) -> np.ndarray:
+    """A packed mask (``MaskCache.packed``) as [H, W] bool."""
+    return np.unpackbits(packed, count=width * height).view(np.bool_).reshape(height, width)
 
 
 MASKS = MaskCache()

@@ -17,7 +17,7 @@ from pipeline.core.images import check_jpeg
 from pipeline.export.files import open_binary, read_input
 from pipeline.export.npz_reader import NpzArchive, NpzError
 from pipeline.pstudio.annotate import Gaussians, Views
-from pipeline.pstudio.masks import MASKS
+from pipeline.pstudio.masks import MASKS, unpack_mask
 
 # More Gaussians than any Dynamic 3D Gaussians scene holds (a few hundred thousand): a header claiming
 # more is refused before anything is allocated.
@@ -184,12 +184,15 @@ def read_gaussians(path: str, frames: int) -> Gaussians:
 
 
 class SequenceFiles:
-    """Images and masks of one sequence, by (camera column, frame) as train_meta's ``fn`` names them."""
+    """Images and masks of one sequence, by (camera column, frame) as train_meta's ``fn`` names them.
+    Each mask file is read once per opened sequence (the units of a group share it), and decoded
+    once per process (``pipeline.pstudio.masks``)."""
 
     def __init__(self, input_root: str, sequence: str, meta: dict, views: Views):
         self.folder = FileSystems.join(data_root(input_root), sequence)
         self.names = meta["fn"]
         self.views = views
+        self._masks: dict[tuple[int, int], np.ndarray] = {}  # (view, t) -> the cache's packed mask
 
     def image(self, view: int, t: int) -> bytes:
         path = FileSystems.join(self.folder, "ims", self.names[t][view])
@@ -198,7 +201,10 @@ class SequenceFiles:
         return data
 
     def mask(self, view: int, t: int) -> np.ndarray:
-        """Foreground mask [H, W] bool (seg PNG, non-zero = foreground), decoded once per process
-        (``pipeline.pstudio.masks``)."""
-        path = FileSystems.join(self.folder, "seg", self.names[t][view].rsplit(".", 1)[0] + ".png")
-        return MASKS.mask(read_input(path), self.views.width, self.views.height, path)
+        """Foreground mask [H, W] bool (seg PNG, non-zero = foreground)."""
+        width, height = self.views.width, self.views.height
+        packed = self._masks.get((view, t))
+        if packed is None:
+            path = FileSystems.join(self.folder, "seg", self.names[t][view].rsplit(".", 1)[0] + ".png")
+            packed = self._masks[view, t] = MASKS.packed(read_input(path), width, height, path)
+        return unpack_mask(packed, width, height)
