@@ -9,7 +9,8 @@ cache maps a mask file's exact bytes and the expected size to the decoded mask, 
 evicted beyond MAX_BYTES. Keyed by content, a hit returns exactly what decoding
 those bytes returns: outputs do not depend on which units a worker ran before, in what order,
 or on retries. Files are still read once per opened sequence (``reader.SequenceFiles``: a path or
-timestamp would not prove the bytes unchanged from one group of units to the next). Thread-safe: a runner may run units on several threads of one process.
+timestamp would not prove the bytes unchanged from one group of units to the next). Thread-safe:
+a runner may run units on several threads of one process.
 """
 
 from __future__ import annotations
