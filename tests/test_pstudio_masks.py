@@ -55,7 +55,7 @@ def test_a_hit_is_the_decoded_mask_and_a_fresh_array(decoded):
     mask = rng.random((36, 52)) < 0.3
     cache = masks.MaskCache()
     for _ in range(3):
-        got = cache.mask(png(mask), 52, 36, "m.png")
+        got = masks.unpack_mask(cache.packed(png(mask), 52, 36, "m.png"), 52, 36)
         np.testing.assert_array_equal(got, mask)
         got[:] = False  # the caller's to change
     assert decoded["m.png"] == 1
@@ -67,11 +67,11 @@ def test_the_cache_stays_within_its_bound(decoded):
     one = len(files[0]) + 40 * 64 // 8
     cache = masks.MaskCache(max_bytes=3 * one)
     for data in files:
-        cache.mask(data, 64, 40, "m.png")
+        cache.packed(data, 64, 40, "m.png")
     assert cache.bytes <= 3 * one
-    cache.mask(files[-1], 64, 40, "m.png")  # recent: kept
+    cache.packed(files[-1], 64, 40, "m.png")  # recent: kept
     assert decoded["m.png"] == 6
-    cache.mask(files[0], 64, 40, "m.png")  # the oldest: evicted
+    cache.packed(files[0], 64, 40, "m.png")  # the oldest: evicted
     assert decoded["m.png"] == 7
 
 
@@ -80,6 +80,6 @@ def test_bad_files_are_refused_every_time(decoded):
     good = png(np.ones((20, 30), bool))
     for _ in range(2):
         with pytest.raises(InputError, match="bad.png: corrupt mask"):
-            cache.mask(good[:60], 30, 20, "bad.png")
+            cache.packed(good[:60], 30, 20, "bad.png")
         with pytest.raises(InputError, match="small.png: mask is 30x20, expected 60x40"):
-            cache.mask(good, 60, 40, "small.png")
+            cache.packed(good, 60, 40, "small.png")

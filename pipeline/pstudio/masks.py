@@ -34,13 +34,10 @@ class MaskCache:
         self._packed: collections.OrderedDict[tuple[bytes, int, int], np.ndarray] = collections.OrderedDict()
         self._lock = threading.Lock()
 
-    def mask(self, data: bytes, width: int, height: int, what: str) -> np.ndarray:
-        """The mask (non-zero pixels) [H, W] bool of the PNG or JPEG ``data``; InputError naming
-        ``what`` when it is not a ``width`` x ``height`` image."""
-        return unpack_mask(self.packed(data, width, height, what), width, height)
-
     def packed(self, data: bytes, width: int, height: int, what: str) -> np.ndarray:
-        """``mask`` bit-packed (``np.packbits`` of the [H, W] bools, row-major)."""
+        """The mask (non-zero pixels) of the PNG or JPEG ``data``, bit-packed (``np.packbits`` of
+        the [H, W] bools, row-major; ``unpack_mask`` gives them back); InputError naming ``what``
+        when it is not a ``width`` x ``height`` image."""
         key = (data, width, height)
         with self._lock:
             packed = self._packed.get(key)
