@@ -48,7 +48,8 @@ class GaussianConstants:
     """Per-Gaussian quantities no frame changes (N Gaussians), float64: scales [N, 3], opacity [N],
     reach [N] = 2 ln(255 opacity), the squared Mahalanobis radius where alpha falls to 1/255,
     max_variance [N], the largest scale squared, and cutoff [N] = ln(1 / (255 opacity)), the
-    exponent below which alpha falls under 1/255 (render.py skips a splat there)."""
+    exponent below which alpha falls under 1/255 (render.py skips a splat there; computed as the
+    rasterizer writes it, not as -reach / 2, which may round differently)."""
 
     scales: np.ndarray
     opacity: np.ndarray
