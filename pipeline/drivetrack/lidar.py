@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import numba
 import numpy as np
 
 from pipeline.core.errors import InputError
@@ -67,36 +68,57 @@ def range_image_to_vehicle(
 class TopSweep:
     """A TOP sweep in the world: points [M, 3] of the kept pixels (range > 0, row-major), kept
     [H, W], and what their normals need: the lidar-frame grid [H, W, 3] of every pixel, the ranges
-    [H, W], each kept point's world-from-vehicle rotation [M, 3, 3] and the vehicle-from-lidar
-    rotation [3, 3]."""
+    [H, W], the world-from-vehicle rotations [P, 3, 3] of the sweep's poses with the pose of each
+    kept point [M] (``kept_poses``), and the vehicle-from-lidar rotation [3, 3]."""
 
     points: np.ndarray
     kept: np.ndarray
     grid: np.ndarray
     ranges: np.ndarray
-    rotations: np.ndarray
+    pose_rotations: np.ndarray
+    pose_of_point: np.ndarray
     lidar_rotation: np.ndarray
 
     def normals(self, index: np.ndarray) -> np.ndarray:
         """Unit world-frame normals [K, 3], facing the lidar, of the kept points ``index`` [K]."""
         local = range_image_normals(self.grid, self.ranges, np.flatnonzero(self.kept)[index])
-        return np.einsum("kij,kj->ki", self.rotations[index] @ self.lidar_rotation, local)
+        rotations = self.pose_rotations[self.pose_of_point[index]]
+        return np.einsum("kij,kj->ki", rotations @ self.lidar_rotation, local)
 
 
-def kept_poses(pixel_pose: np.ndarray, kept: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray]:
-    """World-from-vehicle rotations [M, 3, 3] and translations [M, 3] of the kept pixels [H, W]
-    (row-major) from the pixel poses [H, W, 6]. Where each column holds one pose (the TOP lidar
-    fires a column at once) they are computed once per column: the same numbers, H times fewer."""
+def kept_poses(
+    pixel_pose: np.ndarray, kept: np.ndarray, what: str
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """World-from-vehicle rotations [P, 3, 3] and translations [P, 3] of the poses the kept pixels
+    [H, W] were fired at, and the pose of each kept pixel [M] (row-major), from the pixel poses
+    [H, W, 6]. Where each column holds one pose (the TOP lidar fires a column at once), P is the
+    number of columns with a kept pixel: the same numbers as per pixel, H times fewer; else P = M."""
     if np.all(pixel_pose == pixel_pose[:1]):
         used = kept.any(axis=0)
         poses = pixel_pose[0, used].astype(np.float64)  # [C, 6], the columns with a kept pixel
-        column = (np.cumsum(used) - 1)[np.flatnonzero(kept) % kept.shape[1]]  # [M] into poses
+        pose_of_point = (np.cumsum(used) - 1)[np.flatnonzero(kept) % kept.shape[1]]
     else:
-        poses, column = pixel_pose[kept].astype(np.float64), slice(None)
+        poses = pixel_pose[kept].astype(np.float64)
+        pose_of_point = np.arange(len(poses))
     if not np.isfinite(poses).all():
         raise InputError(f"{what}: per-pixel lidar pose contains NaN or infinity")
     rotation = rotation_from_roll_pitch_yaw(poses[:, 0], poses[:, 1], poses[:, 2])
-    return rotation[column], poses[column, 3:6]
+    return rotation, np.ascontiguousarray(poses[:, 3:6]), pose_of_point
+
+
+@numba.njit(cache=True, nogil=True)
+def posed_points(points, rotations, translations, pose_of_point):
+    """Points [M, 3] moved by their poses: rotations[k] @ p + translations[k], k = pose_of_point[m]
+    ([P, 3, 3], [P, 3], [M]), without gathering a rotation per point. Each row's products are
+    summed as NumPy's einsum("mij,mj->mi") sums them, (x + z) + y: the same bits."""
+    out = np.empty_like(points)
+    for m in range(points.shape[0]):
+        k = pose_of_point[m]
+        x, y, z = points[m, 0], points[m, 1], points[m, 2]
+        for i in range(3):
+            rotated = (rotations[k, i, 0] * x + rotations[k, i, 2] * z) + rotations[k, i, 1] * y
+            out[m, i] = rotated + translations[k, i]
+    return out
 
 
 def top_lidar_world_points(
@@ -123,6 +145,8 @@ def top_lidar_world_points(
         raise InputError(f"{what}: no returns (every range <= 0)")
     grid = sensor_points(range_image, extrinsic, inclinations)
     points = grid[kept] @ extrinsic[:3, :3].T + extrinsic[:3, 3]
-    rotation, translation = kept_poses(pixel_pose, kept, what)
-    world = np.einsum("mij,mj->mi", rotation, points) + translation
-    return TopSweep(world, kept, grid, range_image.astype(np.float64), rotation, extrinsic[:3, :3])
+    rotations, translations, pose_of_point = kept_poses(pixel_pose, kept, what)
+    world = posed_points(points, rotations, translations, pose_of_point)
+    return TopSweep(
+        world, kept, grid, range_image.astype(np.float64), rotations, pose_of_point, extrinsic[:3, :3]
+    )
