@@ -214,6 +214,21 @@ def test_pixel_i_j_is_rendered_at_its_centre():
     np.testing.assert_array_equal(hit, [False, True])
 
 
+def test_front_to_back_is_the_stable_argsort():
+    """Depths a few ulps apart (they agree above the index bits of the sort keys), exact ties, and
+    depths the keys cannot order (zero, negative, infinite, NaN) all come out in the stable
+    argsort's order."""
+    rng = np.random.default_rng(11)
+    for trial in range(300):
+        base = rng.uniform(0.3, 12.0, size=rng.integers(1, 30))
+        depth = rng.choice(base, size=rng.integers(0, 3000))
+        ulps = rng.integers(0, 4, size=len(depth)).astype(np.uint64)
+        depth = (depth.view(np.uint64) + ulps).view(np.float64)
+        if trial % 10 == 0 and len(depth):
+            depth[rng.integers(len(depth))] = rng.choice([0.0, -1.0, np.inf, np.nan])
+        np.testing.assert_array_equal(front_to_back(depth), np.argsort(depth, kind="stable"))
+
+
 def test_points_outside_the_image_have_no_depth():
     depth, surface = render_depth_at(splats_2d([2.0], [0.9]), np.array([[-0.5, 8.0], [8.0, 32.0]]))
     assert np.isnan(depth).all() and not surface.any()

@@ -268,14 +268,53 @@ def _preprocess(
         keep[k] = True
 
 
-def front_to_back(depth: np.ndarray) -> np.ndarray:
-    """The order [M] of depths [M] from near to far, ties in index order: the stable argsort,
-    paid for only when there are ties (quicksort's order is the stable one without them)."""
-    order = np.argsort(depth)
-    ordered = depth[order]
-    if (ordered[1:] == ordered[:-1]).any():
-        order = np.argsort(depth, kind="stable")
+@numba.njit(cache=True)
+def _depth_index_keys(depth, bits):
+    """[M] uint64: each depth's bits with its lowest ``bits`` replaced by its index."""
+    raw = depth.view(np.uint64)
+    keys = np.empty(depth.shape[0], np.uint64)
+    shift = np.uint64(bits)
+    for i in range(depth.shape[0]):
+        keys[i] = ((raw[i] >> shift) << shift) | np.uint64(i)
+    return keys
+
+
+@numba.njit(cache=True)
+def _order_of_sorted_keys(keys, bits, depth):
+    """The indices held by sorted ``_depth_index_keys`` [M], each run of keys that agree above the
+    index bits (depths within ~2^-33 of each other, relatively) put in (depth, index) order."""
+    n, shift = keys.shape[0], np.uint64(bits)
+    order = np.empty(n, np.int64)
+    for i in range(n):
+        order[i] = np.int64(keys[i] & ((np.uint64(1) << shift) - np.uint64(1)))
+    first = 0
+    while first < n:
+        last = first + 1
+        while last < n and keys[last] >> shift == keys[first] >> shift:
+            last += 1
+        if last - first > 1:  # in index order so far: a stable sort by depth finishes it
+            run = order[first:last].copy()
+            order[first:last] = run[np.argsort(depth[run], kind="mergesort")]
+        first = last
     return order
+
+
+def front_to_back(depth: np.ndarray) -> np.ndarray:
+    """The order [M] of depths [M] from near to far, ties in index order: the stable argsort.
+
+    Positive depths (a projected splat's z is above 0.2) are ordered by one sort of 64-bit keys,
+    each depth's bits with its index in place of the lowest ones: positive doubles order as their
+    bits, so the keys order by depth, then index, except among depths that agree above the index
+    bits, which are put in order after. NumPy's sort of integers is vectorised and its argsort is
+    not: a bench frame's 97,000 splat depths take ~4 ms this way, 6-7 ms by argsort with a check
+    for ties."""
+    depth = np.ascontiguousarray(depth, dtype=np.float64)
+    if not (np.all(depth > 0) and np.all(depth < np.inf)):
+        return np.argsort(depth, kind="stable")
+    bits = max(1, (len(depth) - 1).bit_length())
+    keys = _depth_index_keys(depth, bits)
+    keys.sort()
+    return _order_of_sorted_keys(keys, bits, depth)
 
 
 def project_splats(
