@@ -36,10 +36,12 @@ BACKGROUND_DEPTH_M = 15.0  # the rasterizer's depth where transmittance never dr
 
 
 @numba.njit(cache=True)
-def _bin(xy, extent, depth, tiles_x, tiles_y, limit):
-    """CSR lists of splat indices per tile, in the splats' (depth) order, each holding the splats
-    no deeper than its ``limit`` [tiles] (-inf: a tile not wanted): (starts [tiles + 1], entries
-    [E])."""
+def _tile_lists(xy, extent, conic, opacity, cutoff, depth, tiles_x, tiles_y, limit):
+    """Per tile, the splats (in their depth order) whose footprint box meets it and that are no
+    deeper than its ``limit`` [tiles] (-inf: a tile not wanted), each copied into its tile's list
+    so that a tile's loop reads contiguous memory: (starts [tiles + 1], packed [E, 12]), a list
+    entry being (u, v, a, b, c, opacity, z, the power below which alpha < 1/255, then the
+    footprint box: u - extent x, u + extent x, v - extent y, v + extent y)."""
     n = xy.shape[0]
     ranges = np.empty((n, 4), np.int64)  # tile columns x0..x1, rows y0..y1 of each footprint
     for i in range(n):
@@ -53,33 +55,21 @@ def _bin(xy, extent, depth, tiles_x, tiles_y, limit):
             for tx in range(ranges[i, 0], ranges[i, 1] + 1):
                 starts[ty * tiles_x + tx + 1] += depth[i] <= limit[ty * tiles_x + tx]
     starts = np.cumsum(starts)
-    entries = np.empty(starts[-1], np.int64)
+    packed = np.empty((starts[-1], 12))
     fill = starts[:-1].copy()
     for i in range(n):
         for ty in range(ranges[i, 2], ranges[i, 3] + 1):
             for tx in range(ranges[i, 0], ranges[i, 1] + 1):
                 tile = ty * tiles_x + tx
                 if depth[i] <= limit[tile]:
-                    entries[fill[tile]] = i
+                    k = fill[tile]
                     fill[tile] += 1
-    return starts, entries
-
-
-@numba.njit(cache=True)
-def _pack(entries, xy, conic, opacity, cutoff, depth, extent):
-    """Each tile list entry's splat, copied in list order: [E, 12] (u, v, a, b, c, opacity, z,
-    the power below which alpha < 1/255, then its footprint box: u - extent x, u + extent x,
-    v - extent y, v + extent y), so a tile's loop reads contiguous memory."""
-    packed = np.empty((entries.shape[0], 12))
-    for k in range(entries.shape[0]):
-        i = entries[k]
-        packed[k, 0], packed[k, 1] = xy[i, 0], xy[i, 1]
-        packed[k, 2], packed[k, 3], packed[k, 4] = conic[i, 0], conic[i, 1], conic[i, 2]
-        packed[k, 5], packed[k, 6] = opacity[i], depth[i]
-        packed[k, 7] = cutoff[i]
-        packed[k, 8], packed[k, 9] = xy[i, 0] - extent[i, 0], xy[i, 0] + extent[i, 0]
-        packed[k, 10], packed[k, 11] = xy[i, 1] - extent[i, 1], xy[i, 1] + extent[i, 1]
-    return packed
+                    packed[k, 0], packed[k, 1] = xy[i, 0], xy[i, 1]
+                    packed[k, 2], packed[k, 3], packed[k, 4] = conic[i, 0], conic[i, 1], conic[i, 2]
+                    packed[k, 5], packed[k, 6], packed[k, 7] = opacity[i], depth[i], cutoff[i]
+                    packed[k, 8], packed[k, 9] = xy[i, 0] - extent[i, 0], xy[i, 0] + extent[i, 0]
+                    packed[k, 10], packed[k, 11] = xy[i, 1] - extent[i, 1], xy[i, 1] + extent[i, 1]
+    return starts, packed
 
 
 @numba.njit(cache=True)
@@ -173,9 +163,16 @@ def render_depth_at(
         limit[point_tile] = np.inf
     else:
         np.maximum.at(limit, point_tile, np.asarray(limits, dtype=np.float64).reshape(-1)[inside])
-    starts, entries = _bin(splats.xy, splats.extent, splats.depth, tiles_x, tiles_y, limit)
-    packed = _pack(
-        entries, splats.xy, splats.conic, splats.opacity, splats.cutoff, splats.depth, splats.extent
+    starts, packed = _tile_lists(
+        splats.xy,
+        splats.extent,
+        splats.conic,
+        splats.opacity,
+        splats.cutoff,
+        splats.depth,
+        tiles_x,
+        tiles_y,
+        limit,
     )
     order = np.argsort(point_tile, kind="stable")
     tiles, point_starts = np.unique(point_tile[order], return_index=True)
