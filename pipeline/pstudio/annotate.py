@@ -127,12 +127,13 @@ def attach_queries(
     gaussian = np.full(attempts, -1)
     distance = np.full(attempts, np.nan)
     for t in np.unique(frames):
-        rows, cols = np.nonzero(unit.mask(view, int(t)))
+        on_mask = np.flatnonzero(unit.mask(view, int(t)))  # row-major, as np.nonzero's (row, column)
         picked = np.nonzero(frames == t)[0]
-        if not len(rows):
+        if not len(on_mask):
             continue
-        choice = np.minimum((draws[picked] * len(rows)).astype(np.int64), len(rows) - 1)
-        pixels = np.stack([cols[choice], rows[choice]], axis=1) + 0.5
+        choice = on_mask[np.minimum((draws[picked] * len(on_mask)).astype(np.int64), len(on_mask) - 1)]
+        rows, cols = np.divmod(choice, unit.views.width)
+        pixels = np.stack([cols, rows], axis=1) + 0.5
         depth, surface = render_depth_at(splats_in_view(unit, view, int(t), pixels), pixels)
         points = transform_points(world_from_cam, unproject(pixels[surface], depth[surface], intrinsics))
         nearest_distance, nearest = nearest_centres(unit.gaussians.means[t], foreground, points)
