@@ -210,10 +210,23 @@ def _candidates(
 
 @numba.njit(cache=True)
 def _preprocess(
-    candidates, means, quaternions, scales, opacity, reach, w2c, intrinsics, width, height, wanted, out, keep
+    candidates,
+    means,
+    quaternions,
+    scales,
+    opacity,
+    reach,
+    cutoff,
+    w2c,
+    intrinsics,
+    width,
+    height,
+    wanted,
+    out,
+    keep,
 ):
     """Per candidate k (splat i = candidates[k]): out[k] = (u, v, conic a, b, c, z, extent x,
-    extent y); keep[k] = its footprint meets a wanted block. Means [N, 3] and quaternions
+    extent y, opacity, cutoff); keep[k] = its footprint meets a wanted block. Means [N, 3] and quaternions
     [N, 4] may be float32 (read as float64)."""
     fx, fy, cx, cy = intrinsics[0], intrinsics[1], intrinsics[2], intrinsics[3]
     lim_x = 1.3 * 0.5 * width / fx
@@ -265,6 +278,7 @@ def _preprocess(
         out[k, 0], out[k, 1] = u, v
         out[k, 2], out[k, 3], out[k, 4] = cov_c / det, -cov_b / det, cov_a / det
         out[k, 5], out[k, 6], out[k, 7] = pz, ext_x, ext_y
+        out[k, 8], out[k, 9] = opacity[i], cutoff[i]  # read here in index order, not gathered later
         keep[k] = True
 
 
@@ -364,7 +378,7 @@ def project_splats(
         flags,
     )
     candidates = np.flatnonzero(flags)
-    out = np.empty((len(candidates), 8))
+    out = np.empty((len(candidates), 10))
     keep = np.empty(len(candidates), np.bool_)
     _preprocess(
         candidates,
@@ -373,6 +387,7 @@ def project_splats(
         c.scales,
         c.opacity,
         c.reach,
+        c.cutoff,
         w2c,
         intrinsics,
         int(width),
@@ -384,15 +399,14 @@ def project_splats(
     rows = np.flatnonzero(keep)
     rows = rows[front_to_back(out[rows, 5])]
     kept = np.take(out, rows, axis=0)
-    index = candidates[rows]
     return Splats2D(
         xy=kept[:, 0:2],
         conic=kept[:, 2:5],
-        opacity=constants.opacity[index],
-        cutoff=constants.cutoff[index],
+        opacity=kept[:, 8],
+        cutoff=kept[:, 9],
         depth=kept[:, 5],
         extent=kept[:, 6:8],
-        index=index,
+        index=candidates[rows],
         width=int(width),
         height=int(height),
     )
