@@ -226,8 +226,8 @@ def _preprocess(
     keep,
 ):
     """Per candidate k (splat i = candidates[k]): out[k] = (u, v, conic a, b, c, z, extent x,
-    extent y, opacity, cutoff); keep[k] = its footprint meets a wanted block. Means [N, 3] and quaternions
-    [N, 4] may be float32 (read as float64)."""
+    extent y, opacity, cutoff); keep[k] = its footprint meets a wanted block. Means [N, 3] and
+    quaternions [N, 4] may be float32 (read as float64)."""
     fx, fy, cx, cy = intrinsics[0], intrinsics[1], intrinsics[2], intrinsics[3]
     lim_x = 1.3 * 0.5 * width / fx
     lim_y = 1.3 * 0.5 * height / fy
