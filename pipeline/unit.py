@@ -66,12 +66,26 @@ class UnitOutcome:
 
 
 def failure(unit: str, stage: str, error: BaseException) -> dict:
-    """A failures_<source>.jsonl record; unexpected errors keep their innermost frame for debugging."""
+    """A failures_<source>.jsonl record; unexpected errors keep their innermost frame for debugging.
+    An error caused by Ctrl-C is raised as the KeyboardInterrupt: the run stops, the unit has not
+    failed (numba has reported a Ctrl-C taken during a kernel's call as a SystemError, "returned a
+    result with an exception set", with the KeyboardInterrupt as its cause)."""
+    raise_interrupt(error)
     record = {"unit": unit, "stage": stage, "error": f"{type(error).__name__}: {error}"}
     if not isinstance(error, (InputError, OutputError)):
         frame = traceback.extract_tb(error.__traceback__)[-1]
         record["where"] = f"{frame.filename}:{frame.lineno}"
     return record
+
+
+def raise_interrupt(error: BaseException) -> None:
+    """Raise the KeyboardInterrupt in ``error``'s chain of causes and contexts, if there is one."""
+    seen = set()
+    while error is not None and id(error) not in seen:
+        if isinstance(error, KeyboardInterrupt):
+            raise error
+        seen.add(id(error))
+        error = error.__cause__ or error.__context__
 
 
 def finished_earlier(job: UnitJob, name: str) -> list[dict] | None:
@@ -186,8 +200,8 @@ def filter_unit(job: UnitJob, name: str, clips: list[ClipRecord]) -> list:
         try:
             filtered.append(filter_clip(job, clip))
         except Exception as error:  # noqa: BLE001 - every failure becomes data
-            progress(f"clip {clip.name} FAILED: {error}")
             filtered.append(failure(f"{name} ({clip.name})", "clip", error))
+            progress(f"clip {clip.name} FAILED: {error}")
     return filtered
 
 
@@ -200,8 +214,8 @@ def write_unit(job: UnitJob, name: str, filtered: list, on_written=None) -> Unit
         try:
             report, digest = write_clip(job.output, kept, verdicts)
         except Exception as error:  # noqa: BLE001
-            progress(f"clip {kept.name} FAILED: {error}")
             outcome.failures.append(failure(f"{name} ({kept.name})", "clip", error))
+            progress(f"clip {kept.name} FAILED: {error}")
             continue
         if on_written is not None:
             on_written(kept, verdicts, digest)
@@ -229,8 +243,9 @@ def annotate_units(job: UnitJob, units: list) -> Iterator[tuple[str, str, object
     for item, result in zip(todo, annotate_group(job, todo), strict=True):
         name = job.source.unit_name(item)
         if isinstance(result, Exception):
+            record = failure(name, "annotate", result)
             progress(f"unit {name} FAILED: {result}")
-            yield name, FAILURE, failure(name, "annotate", result)
+            yield name, FAILURE, record
         else:
             yield name, CLIPS, result
 

@@ -91,6 +91,30 @@ def test_a_failed_unit_leaves_its_groups_other_units_finished(grouped, tmp_path)
     assert CALLS[-1] == ["b_bad"] and again[0].resumed and again[1].failures == bad.failures
 
 
+def interrupted_in_a_kernel() -> SystemError:
+    """The error numba has handed back for a Ctrl-C taken during a kernel's call."""
+    try:
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as interrupt:
+            message = "CPUDispatcher(<function kernel>) returned a result with an exception set"
+            raise SystemError(message) from interrupt
+    except SystemError as error:
+        return error
+
+
+def test_ctrl_c_inside_a_kernel_stops_the_run_instead_of_failing_the_unit(grouped, tmp_path, capsys):
+    def interrupted(input_root, units, config):
+        return [interrupted_in_a_kernel() if u == "b_1" else annotate(input_root, u, config) for u in units]
+
+    sources.register(dataclasses.replace(GROUPED, annotate_group=interrupted))
+    out = tmp_path / "out"
+    assert run_main(["--source", "toy", "--input", grouped, "--output", str(out)]) == 130
+    assert "interrupted:" in capsys.readouterr().err
+    failures = failures_path(str(out), "toy")
+    assert not os.path.exists(failures) or "b_1" not in open(failures).read()
+
+
 def test_a_group_finished_earlier_is_not_annotated_again(grouped, tmp_path):
     job = UnitJob(GROUPED, grouped, RunConfig(), str(tmp_path / "out"))
     run_group(job, ["a_1", "a_2"])
