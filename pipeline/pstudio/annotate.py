@@ -136,7 +136,9 @@ def attach_queries(
         pixels = np.stack([cols, rows], axis=1) + 0.5
         depth, surface = render_depth_at(splats_in_view(unit, view, int(t), pixels), pixels)
         points = transform_points(world_from_cam, unproject(pixels[surface], depth[surface], intrinsics))
-        nearest_distance, nearest = nearest_centres(unit.gaussians.means[t], foreground, points)
+        nearest_distance, nearest = nearest_centres(
+            unit.gaussians.means[t], foreground, points, config.pstudio.max_attach_distance_m
+        )
         close = nearest_distance <= config.pstudio.max_attach_distance_m
         gaussian[picked[surface][close]] = foreground[nearest[close]]
         distance[picked[surface][close]] = nearest_distance[close]

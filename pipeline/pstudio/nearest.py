@@ -1,15 +1,21 @@
-"""Nearest Gaussian centre to a few points, by brute force.
+"""Nearest Gaussian centre to a few points, by brute force over the centres that can be near.
 
-A unit attaches a handful of queries per frame to the nearest of ~10^5 foreground centres; a
-KD-tree built per frame for them costs far more than comparing every centre. Distances are
-computed as scipy's cKDTree computes them, sqrt(((x0 - c0)^2 + (x1 - c1)^2) + (x2 - c2)^2) in
-float64; among centres at exactly the same distance the first candidate is taken.
+A unit attaches a few dozen queries per frame to the nearest of ~10^5 foreground centres, and
+keeps an attachment only within ``max_attach_distance_m``; a KD-tree built per frame for them
+costs far more than comparing every centre. With such a bound, one pass over the centres first
+drops those that cannot be within it of any point: a centre is compared with the points only if
+its cell (cells of the bound's side, over the points' bounding box) is, along each axis, at most
+one from a point's. Distances are computed as scipy's cKDTree computes them, sqrt(((x0 - c0)^2
++ (x1 - c1)^2) + (x2 - c2)^2) in float64; among centres at exactly the same distance the first
+candidate is taken.
 """
 
 from __future__ import annotations
 
 import numba
 import numpy as np
+
+MAX_AXIS_CELLS = 1 << 16  # points spread wider than this many cells along an axis: no prefilter
 
 
 @numba.njit(cache=True)
@@ -28,19 +34,55 @@ def _nearest(centres, candidates, points, out_distance, out_index):
     out_distance[:] = np.sqrt(best)
 
 
+@numba.njit(cache=True)
+def _near_some_point(centres, candidates, size, low, occupied):
+    """Positions in ``candidates`` [S], ascending, of the centres whose cell (side ``size``, from
+    ``low`` [3]) is along every axis at most one from a point's (``occupied`` [3, D]: per axis,
+    the cells within one of a point's)."""
+    keep = np.empty(candidates.shape[0], np.int64)
+    count = 0
+    dims = occupied.shape[1]
+    inverse = 1.0 / size  # a cell index an ulp off is covered by the cell's margin
+    for k in range(candidates.shape[0]):
+        c = candidates[k]
+        x = (np.float64(centres[c, 0]) - low[0]) * inverse
+        y = (np.float64(centres[c, 1]) - low[1]) * inverse
+        z = (np.float64(centres[c, 2]) - low[2]) * inverse
+        if x >= 0 and x < dims and y >= 0 and y < dims and z >= 0 and z < dims:
+            if occupied[0, int(x)] and occupied[1, int(y)] and occupied[2, int(z)]:
+                keep[count] = k
+                count += 1
+    return keep[:count]
+
+
 def nearest_centres(
-    centres: np.ndarray, candidates: np.ndarray, points: np.ndarray
+    centres: np.ndarray, candidates: np.ndarray, points: np.ndarray, within: float = np.inf
 ) -> tuple[np.ndarray, np.ndarray]:
     """For points [P, 3] (float64), the nearest of the centres [N, 3] (float32 or float64) listed
-    in ``candidates`` [F]: (distance [P], position in ``candidates`` [P])."""
+    in ``candidates`` [F] no farther than ``within``: (distance [P], position in ``candidates``
+    [P]); inf and -1 where none is."""
     points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
-    distance = np.empty(len(points))
-    index = np.empty(len(points), np.int64)
-    _nearest(
-        np.ascontiguousarray(centres),
-        np.ascontiguousarray(candidates, dtype=np.int64),
-        points,
-        distance,
-        index,
-    )
+    centres = np.ascontiguousarray(centres)
+    candidates = np.ascontiguousarray(candidates, dtype=np.int64)
+    distance = np.full(len(points), np.inf)
+    index = np.full(len(points), -1, np.int64)
+    finite = np.isfinite(points).all(axis=1)
+    near = np.arange(len(candidates))
+    if 0 < within < np.inf and finite.any():
+        # A centre within ``within`` of a point differs from it by less than one cell along each
+        # axis (the cell a millionth wider, so that rounding cannot carry it two cells off).
+        size = within * (1 + 1e-6)
+        low = points[finite].min(axis=0) - 2 * size  # every point's cell is at least 1
+        cells = np.floor((points[finite] - low) / size).astype(np.int64)
+        dims = int(cells.max()) + 2
+        if dims <= MAX_AXIS_CELLS:
+            occupied = np.zeros((3, dims), np.bool_)
+            for shift in (-1, 0, 1):
+                occupied[np.arange(3), cells + shift] = True
+            near = _near_some_point(centres, candidates, size, low, occupied)
+    found_distance, found = np.empty(int(finite.sum())), np.empty(int(finite.sum()), np.int64)
+    _nearest(centres, candidates[near], points[finite], found_distance, found)
+    hit = (found >= 0) & (found_distance <= within)
+    distance[np.flatnonzero(finite)[hit]] = found_distance[hit]
+    index[np.flatnonzero(finite)[hit]] = near[found[hit]]
     return distance, index
