@@ -24,7 +24,7 @@ from apache_beam.options.pipeline_options import PipelineOptions
 import pipeline
 from pipeline import graph, sources, storage
 from pipeline.core.config import RunConfig, with_overrides
-from pipeline.core.errors import InputError, OutputError
+from pipeline.core.errors import InputError, OutputError, root_cause
 from pipeline.export.files import is_local, read_bytes, remove_quietly, write_atomic
 from pipeline.export.layout import failures_path, run_record_path, sample_folder
 from pipeline.export.manifests import load_official_splits
@@ -186,13 +186,6 @@ def check_inputs(input_root: str | None, config: RunConfig) -> tuple[dict, dict]
 def absolute(path: str) -> str:
     """A local path made absolute (workers may run elsewhere); remote URLs unchanged."""
     return os.path.abspath(path) if path and is_local(path) else path
-
-
-def root_cause(error: BaseException) -> BaseException:
-    """The innermost exception of a chain (Beam re-raises a step's error as a RuntimeError)."""
-    while (error.__cause__ or error.__context__) is not None:
-        error = error.__cause__ or error.__context__
-    return error
 
 
 class _ReportedByUs(logging.Filter):

@@ -16,7 +16,7 @@ from collections.abc import Iterator
 
 from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
-from pipeline.core.errors import InputError, OutputError
+from pipeline.core.errors import InputError, OutputError, root_cause
 from pipeline.core.progress import progress
 from pipeline.export.audit_table import encode_parquet, outcome_table
 from pipeline.export.depth_export import encode_depth
@@ -67,25 +67,16 @@ class UnitOutcome:
 
 def failure(unit: str, stage: str, error: BaseException) -> dict:
     """A failures_<source>.jsonl record; unexpected errors keep their innermost frame for debugging.
-    An error caused by Ctrl-C is raised as the KeyboardInterrupt: the run stops, the unit has not
-    failed (numba has reported a Ctrl-C taken during a kernel's call as a SystemError, "returned a
-    result with an exception set", with the KeyboardInterrupt as its cause)."""
-    raise_interrupt(error)
+    An error whose innermost cause is a Ctrl-C raises that KeyboardInterrupt: the run stops, the
+    unit has not failed (numba has reported a Ctrl-C taken during a kernel's call as a
+    SystemError, "returned a result with an exception set", caused by the KeyboardInterrupt)."""
+    if isinstance(cause := root_cause(error), KeyboardInterrupt):
+        raise cause
     record = {"unit": unit, "stage": stage, "error": f"{type(error).__name__}: {error}"}
     if not isinstance(error, (InputError, OutputError)):
         frame = traceback.extract_tb(error.__traceback__)[-1]
         record["where"] = f"{frame.filename}:{frame.lineno}"
     return record
-
-
-def raise_interrupt(error: BaseException) -> None:
-    """Raise the KeyboardInterrupt in ``error``'s chain of causes and contexts, if there is one."""
-    seen = set()
-    while error is not None and id(error) not in seen:
-        if isinstance(error, KeyboardInterrupt):
-            raise error
-        seen.add(id(error))
-        error = error.__cause__ or error.__context__
 
 
 def finished_earlier(job: UnitJob, name: str) -> list[dict] | None:

@@ -83,6 +83,6 @@ def nearest_centres(
     found_distance, found = np.empty(int(finite.sum())), np.empty(int(finite.sum()), np.int64)
     _nearest(centres, candidates[near], points[finite], found_distance, found)
     hit = (found >= 0) & (found_distance <= within)
-    distance[np.flatnonzero(finite)[hit]] = found_distance[hit]
-    index[np.flatnonzero(finite)[hit]] = near[found[hit]]
+    rows = np.flatnonzero(finite)[hit]
+    distance[rows], index[rows] = found_distance[hit], near[found[hit]]
     return distance, index
