@@ -9,7 +9,15 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from pipeline.pstudio.render import render_depth_at, render_depth_image
-from pipeline.pstudio.splats import BLOCK, gaussian_constants, inside_image, project_splats
+from pipeline.pstudio.splats import (
+    BLOCK,
+    _boxes_reach,
+    _reaches,
+    gaussian_constants,
+    inside_image,
+    project_splats,
+    wanted_blocks,
+)
 
 WIDTH, HEIGHT = 200, 120
 INTRINSICS = np.array([180.0, 170.0, 100.3, 59.7])
@@ -136,3 +144,27 @@ def test_depth_limits_keep_every_depth_within_them_and_every_depth_test():
         (surface & (np.abs(z - depth) < delta))[left],
     )
     assert len(near) < 0.8 * len(splats)
+
+
+def test_the_culls_branchless_box_test_is_the_box_test():
+    """The cull tests its boxes without branches (``_boxes_reach``): the same answer as
+    ``_reaches`` for 40,000 boxes on and off the image, on block and image edges, tiny and huge,
+    against sparse and full block tables."""
+    rng = np.random.default_rng(6)
+    count = 40_000
+    u = np.concatenate(
+        [rng.uniform(-50, WIDTH + 50, count // 2), rng.integers(-2, WIDTH // BLOCK + 2, count // 2) * 4.0]
+    )
+    v = np.concatenate(
+        [rng.uniform(-50, HEIGHT + 50, count // 2), rng.integers(-2, HEIGHT // BLOCK + 2, count // 2) * 4.0]
+    )
+    ext = np.exp(rng.uniform(np.log(1e-6), np.log(300), (2, count)))
+    ext[:, ::7] = rng.integers(0, 9, (2, len(ext[0, ::7]))) * 2.0  # box edges on block edges
+    u[::11] = -1e30  # culled splats' boxes
+    for points in (clustered_points(rng), rng.uniform([0, 0], [WIDTH, HEIGHT], (5, 2)), None):
+        wanted = wanted_blocks(points, WIDTH, HEIGHT)
+        flags = np.empty(count, bool)
+        _boxes_reach(u, v, ext[0], ext[1], WIDTH, HEIGHT, wanted, flags)
+        expected = [_reaches(*box, WIDTH, HEIGHT, wanted) for box in zip(u, v, ext[0], ext[1], strict=True)]
+        np.testing.assert_array_equal(flags, expected)
+        assert 0.01 < flags.mean() < 0.99

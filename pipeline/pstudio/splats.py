@@ -116,6 +116,22 @@ def _reaches(u, v, ext_x, ext_y, width, height, wanted):
 
 
 @numba.njit(cache=True, error_model="numpy")
+def _boxes_reach(u, v, ext_x, ext_y, width, height, wanted, flags):
+    """flags[k] = ``_reaches`` of box k (centres u, v [M], half sizes ext_x, ext_y [M], finite),
+    without branches: the block range clamped to the table instead of returning early (a box off
+    the image is refused by its own test), so that mispredicted tests cost nothing."""
+    last_x, last_y = wanted.shape[1] - 2, wanted.shape[0] - 2
+    for k in range(u.shape[0]):
+        left, right, top, bottom = u[k] - ext_x[k], u[k] + ext_x[k], v[k] - ext_y[k], v[k] + ext_y[k]
+        inside = (right >= 0) & (left < width) & (bottom >= 0) & (top < height)
+        x0 = int(np.floor(min(max(left / BLOCK, 0.0), last_x)))
+        x1 = int(np.floor(min(max(right / BLOCK, 0.0), last_x))) + 1
+        y0 = int(np.floor(min(max(top / BLOCK, 0.0), last_y)))
+        y1 = int(np.floor(min(max(bottom / BLOCK, 0.0), last_y))) + 1
+        flags[k] = inside & (wanted[y1, x1] - wanted[y0, x1] - wanted[y1, x0] + wanted[y0, x0] > 0)
+
+
+@numba.njit(cache=True, error_model="numpy")
 def _footprint_boxes(
     xs,
     ys,
@@ -204,8 +220,16 @@ def _candidates(
             half_width[:count],
             half_height[:count],
         )
-        for k in range(count):
-            flags[first + k] = _reaches(u[k], v[k], half_width[k], half_height[k], width, height, wanted)
+        _boxes_reach(
+            u[:count],
+            v[:count],
+            half_width[:count],
+            half_height[:count],
+            width,
+            height,
+            wanted,
+            flags[first:last],
+        )
 
 
 @numba.njit(cache=True)
