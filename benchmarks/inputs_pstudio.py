@@ -133,7 +133,10 @@ def prepare(workdir: str, quick: bool, full: bool = False) -> UnitSetup:
                     f"measured on {sizes['frames']} frames of the full scene (300,000 Gaussians, 27 "
                     f"cameras); the {FULL['frames']}-frame unit is {FULL['frames']} x its per-frame "
                     "cost (extrapolated); peak memory holds the 30 frames' means and rotations "
-                    "(8.4 MB a frame; 150 frames add about 1 GiB)"
+                    "(8.4 MB a frame; 150 frames add about 1 GiB); a unit's 800 query attempts fall "
+                    f"on {sizes['frames']} frames instead of {FULL['frames']} (27 a frame instead of "
+                    "5.3), so its query pass costs more a frame (13.5-17 ms against 8.6-10.5 ms with "
+                    "5.3 a frame, 2026-11-26): this leans high; make bench-full measures 150 frames"
                 ]
                 if tag == "default"
                 else []
