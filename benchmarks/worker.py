@@ -8,7 +8,10 @@ times (default 1); ``spec["unit"]`` is one unit or a group of them (``unit_group
 ``annotate`` and ``annotate_group`` are wrapped only to time them (a generator group: the
 making of each unit's clips, not the writing between). A source whose
 ``benchmarks/inputs_<source>.py`` defines ``measure_fixed_cost(spec, config)`` (ADT: opening the
-sequence) has that cost measured apart, before the runs, for the extrapolation in ``report``.
+sequence) has that cost measured apart, before the runs, for the extrapolation in ``report``; the
+functions it names in ``FIXED_IN_WORK`` ((module, name) pairs: ADT's ``open_sequence``, which each
+repeated run calls again) are timed inside the runs too, so that the report can take exactly
+what the runs paid for them out of the per-frame cost.
 
 With ``spec["mode"] == "floor"`` the process measures the unit's read+decode floor instead
 (``benchmarks.floors``): the bare cost of reading and decoding the unit's inputs.
@@ -69,6 +72,7 @@ def run(spec: dict) -> dict:
     fixed = measure_fixed_cost(spec, config) if measure_fixed_cost else {}
 
     annotate_s = annotate_cpu_s = 0.0
+    fixed_in_work = [0.0, 0.0]  # wall, CPU seconds of the FIXED_IN_WORK functions inside the runs
 
     def clocked(step):
         """step() timed into annotate_s / annotate_cpu_s."""
@@ -79,6 +83,23 @@ def run(spec: dict) -> dict:
         finally:
             annotate_s += time.perf_counter() - started
             annotate_cpu_s += time.process_time() - started_cpu
+
+    def clocked_apart(function):
+        """function, timed into fixed_in_work."""
+
+        def call(*args, **kwargs):
+            started, started_cpu = time.perf_counter(), time.process_time()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                fixed_in_work[0] += time.perf_counter() - started
+                fixed_in_work[1] += time.process_time() - started_cpu
+
+        return call
+
+    for module_name, name in getattr(inputs, "FIXED_IN_WORK", ()):
+        module = importlib.import_module(module_name)
+        setattr(module, name, clocked_apart(getattr(module, name)))
 
     def each_timed(items):
         """A generator group's items, the work of making each timed (not the caller's between)."""
@@ -115,6 +136,11 @@ def run(spec: dict) -> dict:
         "annotate_cpu_s": annotate_cpu_s,
         **unit_counts([report for outcome in outcomes for report in outcome.reports]),
         **fixed,
+        **(
+            {"fixed_in_work_s": fixed_in_work[0], "fixed_in_work_cpu_s": fixed_in_work[1]}
+            if hasattr(inputs, "FIXED_IN_WORK")
+            else {}
+        ),
         "peak_rss": peak_rss(),
     }
 
