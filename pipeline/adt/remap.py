@@ -99,8 +99,13 @@ class Remap:
         # At u = W - 1 the library reads pixel W (past the row) with weight 0: any pixel will do.
         x1, y1 = np.minimum(x0 + 1, width - 1), np.minimum(y0 + 1, height - 1)
         # [N, 4] flat pixel indices and float32 weights, in the library's order of summation;
-        # no sample: weights 0, so the sum is 0.
-        self.taps = np.stack([y1 * width + x1, y1 * width + x0, y0 * width + x1, y0 * width + x0], axis=1)
+        # no sample: weights 0, so the sum is 0. The indices as int32: half the bytes to stream
+        # (an RGB frame's gather 4.0 -> 2.6 ms, a depth frame's 1.8 -> 1.2).
+        if 3 * height * width > np.iinfo(np.int32).max:
+            raise ValueError(f"remap: a {width}x{height} source image is too large for int32 taps")
+        self.taps = np.stack(
+            [y1 * width + x1, y1 * width + x0, y0 * width + x1, y0 * width + x0], axis=1
+        ).astype(np.int32)
         self.weights = np.stack([dxdy, dy - dxdy, dx - dxdy, np.float32(1) - dx - dy + dxdy], axis=1)
         self.weights[~valid] = 0
         # Single-channel images: the last weight in double, from the same float32 dx, dy.
