@@ -341,8 +341,11 @@ def annotate_chunk(
             depth = frame.depth_mm[rows, cols].astype(np.float64) / 1000.0
             index = np.arange(len(flat))
         ids = frame.ids[rows, cols]
+        posed, which = np.unique(ids, return_inverse=True)  # each object's pose looked up once
         poses = (
-            np.stack([frame.world_from_object[i] for i in ids.tolist()]) if len(ids) else np.zeros((0, 4, 4))
+            np.stack([frame.world_from_object[i] for i in posed.tolist()])[which]
+            if len(ids)
+            else np.zeros((0, 4, 4))
         )
         q_obj_points.append(attach(xy, depth, intrinsics, frame.cam_from_world, poses))
         q_xy.append(xy)
