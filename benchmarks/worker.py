@@ -46,6 +46,26 @@ def unit_group(unit: list) -> list[tuple]:
     return [tuple(item) for item in unit] if isinstance(unit[0], list) else [tuple(unit)]
 
 
+def clock_apart(functions, totals: list[float]) -> None:
+    """Wrap each function named by ``functions`` ((module, name) pairs) in its module so that
+    every call adds its wall and CPU seconds to totals [2] (wall, CPU)."""
+
+    def clocked(function):
+        def call(*args, **kwargs):
+            started, started_cpu = time.perf_counter(), time.process_time()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                totals[0] += time.perf_counter() - started
+                totals[1] += time.process_time() - started_cpu
+
+        return call
+
+    for module_name, name in functions:
+        module = importlib.import_module(module_name)
+        setattr(module, name, clocked(getattr(module, name)))
+
+
 def run(spec: dict) -> dict:
     """The unit's work, timed: work_s / work_cpu_s (all runs), annotate_s / annotate_cpu_s (the
     source's annotate), the output counts of the last run, the fixed costs when measured apart,
@@ -84,22 +104,7 @@ def run(spec: dict) -> dict:
             annotate_s += time.perf_counter() - started
             annotate_cpu_s += time.process_time() - started_cpu
 
-    def clocked_apart(function):
-        """function, timed into fixed_in_work."""
-
-        def call(*args, **kwargs):
-            started, started_cpu = time.perf_counter(), time.process_time()
-            try:
-                return function(*args, **kwargs)
-            finally:
-                fixed_in_work[0] += time.perf_counter() - started
-                fixed_in_work[1] += time.process_time() - started_cpu
-
-        return call
-
-    for module_name, name in getattr(inputs, "FIXED_IN_WORK", ()):
-        module = importlib.import_module(module_name)
-        setattr(module, name, clocked_apart(getattr(module, name)))
+    clock_apart(getattr(inputs, "FIXED_IN_WORK", ()), fixed_in_work)
 
     def each_timed(items):
         """A generator group's items, the work of making each timed (not the caller's between)."""

@@ -1,15 +1,18 @@
 """The benchmark's table and its JSON (``python -m benchmarks``): built from given figures (the
 verdicts against the targets, the ``all`` row), and one tiny real run end to end
-(``pstudio --quick --units 1 --workers 1``: a unit process and a floor process). No timing
+(``pstudio --quick --units 1 --workers 1``: a unit process and a floor process), and the
+worker's clock for what repeated runs pay again (on a fake clock). No timing
 assertions: only that every column is there, each figure positive, and ``all`` sums the sources."""
 
 from __future__ import annotations
 
 import json
+import sys
+import types
 
 import pytest
 
-from benchmarks import cli
+from benchmarks import cli, worker
 from benchmarks.report import COLUMNS, CPU_HOURS_TARGET, format_table, summary_table
 
 KEYS = ["source", *(key for key, *_ in COLUMNS)]
@@ -85,3 +88,23 @@ def test_quick_run_prints_the_table_and_writes_it_as_json(tmp_path, capsys):
     assert summary[1].split()[:2] == ["source", "ms/frame"]
     assert summary[2].startswith("pstudio") and summary[3].startswith("all")
     assert f"table written to {path}" in out
+
+
+def test_the_functions_a_repeated_run_pays_again_are_clocked_apart(monkeypatch):
+    """``FIXED_IN_WORK`` functions (ADT: opening the sequence in each of the runs) are wrapped in
+    their module, so that every call adds exactly its own wall and CPU seconds to the totals the
+    report takes out of the per-frame cost (a fake clock that only the wrapped call advances)."""
+    clock = [0.0]
+    module = types.ModuleType("fixed_in_work_probe")
+    module.open_again = lambda seconds: clock.__setitem__(0, clock[0] + seconds) or seconds
+    monkeypatch.setitem(sys.modules, module.__name__, module)
+    monkeypatch.setattr(
+        worker,
+        "time",
+        types.SimpleNamespace(perf_counter=lambda: clock[0], process_time=lambda: 2 * clock[0]),
+    )
+    totals = [0.0, 0.0]
+    worker.clock_apart([(module.__name__, "open_again")], totals)
+    assert module.open_again(0.25) == 0.25 and module.open_again(0.5) == 0.5
+    clock[0] += 10.0  # work outside the wrapped calls is not counted
+    assert totals == [0.75, 1.5]
