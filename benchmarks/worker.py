@@ -46,20 +46,22 @@ def unit_group(unit: list) -> list[tuple]:
     return [tuple(item) for item in unit] if isinstance(unit[0], list) else [tuple(unit)]
 
 
+def timed_into(totals: list[float], step):
+    """step(), its wall and CPU seconds added to totals [2] (wall, CPU)."""
+    started, started_cpu = time.perf_counter(), time.process_time()
+    try:
+        return step()
+    finally:
+        totals[0] += time.perf_counter() - started
+        totals[1] += time.process_time() - started_cpu
+
+
 def clock_apart(functions, totals: list[float]) -> None:
     """Wrap each function named by ``functions`` ((module, name) pairs) in its module so that
     every call adds its wall and CPU seconds to totals [2] (wall, CPU)."""
 
     def clocked(function):
-        def call(*args, **kwargs):
-            started, started_cpu = time.perf_counter(), time.process_time()
-            try:
-                return function(*args, **kwargs)
-            finally:
-                totals[0] += time.perf_counter() - started
-                totals[1] += time.process_time() - started_cpu
-
-        return call
+        return lambda *args, **kwargs: timed_into(totals, lambda: function(*args, **kwargs))
 
     for module_name, name in functions:
         module = importlib.import_module(module_name)
@@ -91,20 +93,12 @@ def run(spec: dict) -> dict:
     measure_fixed_cost = getattr(inputs, "measure_fixed_cost", None)
     fixed = measure_fixed_cost(spec, config) if measure_fixed_cost else {}
 
-    annotate_s = annotate_cpu_s = 0.0
+    annotating = [0.0, 0.0]  # wall, CPU seconds of the source's annotate
     fixed_in_work = [0.0, 0.0]  # wall, CPU seconds of the FIXED_IN_WORK functions inside the runs
+    clock_apart(getattr(inputs, "FIXED_IN_WORK", ()), fixed_in_work)
 
     def clocked(step):
-        """step() timed into annotate_s / annotate_cpu_s."""
-        nonlocal annotate_s, annotate_cpu_s
-        started, started_cpu = time.perf_counter(), time.process_time()
-        try:
-            return step()
-        finally:
-            annotate_s += time.perf_counter() - started
-            annotate_cpu_s += time.process_time() - started_cpu
-
-    clock_apart(getattr(inputs, "FIXED_IN_WORK", ()), fixed_in_work)
+        return timed_into(annotating, step)
 
     def each_timed(items):
         """A generator group's items, the work of making each timed (not the caller's between)."""
@@ -137,15 +131,12 @@ def run(spec: dict) -> dict:
     return {
         "work_s": time.perf_counter() - wall,
         "work_cpu_s": time.process_time() - cpu,
-        "annotate_s": annotate_s,
-        "annotate_cpu_s": annotate_cpu_s,
+        "annotate_s": annotating[0],
+        "annotate_cpu_s": annotating[1],
         **unit_counts([report for outcome in outcomes for report in outcome.reports]),
         **fixed,
-        **(
-            {"fixed_in_work_s": fixed_in_work[0], "fixed_in_work_cpu_s": fixed_in_work[1]}
-            if hasattr(inputs, "FIXED_IN_WORK")
-            else {}
-        ),
+        "fixed_in_work_s": fixed_in_work[0],
+        "fixed_in_work_cpu_s": fixed_in_work[1],
         "peak_rss": peak_rss(),
     }
 
