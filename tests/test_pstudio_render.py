@@ -139,6 +139,31 @@ def test_isotropic_gaussian_projects_to_scaled_disc():
     )
 
 
+def test_a_zero_quaternion_is_the_identity_rotation():
+    """Dynamic 3D Gaussians normalise rotations as torch's ``normalize`` does, q / max(|q|, 1e-12),
+    so a zero quaternion stays zero and the rasterizer's rotation matrix of it is the identity:
+    a flat Gaussian (3 cm x 1 cm) with q = 0 projects as with q = (1, 0, 0, 0), not as turned
+    by 90 degrees about the view axis."""
+    quaternions = np.array(
+        [[0.0, 0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], [np.sqrt(0.5), 0.0, 0.0, np.sqrt(0.5)]]
+    )
+    conics = [
+        project(
+            np.array([[0.0, 0.0, 2.0]]),
+            q[None],
+            np.array([[0.03, 0.01, 0.01]]),
+            np.array([0.8]),
+            np.eye(4),
+            np.array([500.0, 400.0, 320.0, 180.0]),
+            WIDTH,
+            HEIGHT,
+        ).conic
+        for q in quaternions
+    ]
+    np.testing.assert_array_equal(conics[0], conics[1])
+    assert not np.allclose(conics[1], conics[2])
+
+
 def splats_2d(depths, opacities, offsets=None) -> Splats2D:
     """Hand-made round splats of 2D variance 4 px^2 centred at pixel (8, 8) + offsets."""
     count = len(depths)

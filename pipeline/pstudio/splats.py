@@ -3,7 +3,8 @@
 The maths of the reference CUDA rasterizer's preprocessing, in float64:
 
 - view-space centre p = W m + t; culled when p_z <= 0.2 (the rasterizer's frustum test);
-- Sigma = R S S^T R^T from the normalised quaternion (w, x, y, z) and scales;
+- Sigma = R S S^T R^T from the quaternion (w, x, y, z) normalised as torch's ``normalize`` does,
+  q / max(|q|, 1e-12) (a zero quaternion stays zero: R is the identity), and the scales;
 - Sigma' = J W Sigma W^T J^T with the perspective Jacobian J at p, whose x/z and y/z are clamped
   to 1.3 x the half field of view; then 0.3 px^2 added to the diagonal (low-pass filter);
 - conic = Sigma'^-1; a splat with det(Sigma') = 0 is dropped.
@@ -41,6 +42,7 @@ import numpy as np
 TILE = 16  # pixels per side of the square tiles splats are binned into
 BLOCK = 4  # pixels per side of the blocks a point's splat list is cut to (TILE / BLOCK blocks a side)
 CHUNK = 1024  # splats bounded together before their boxes are tested (_candidates)
+PREPROCESS_CHUNK = 128  # candidates projected together (_preprocess): their columns stay in L1
 
 
 @dataclasses.dataclass(frozen=True)
@@ -102,24 +104,12 @@ class Splats2D:
         return len(self.depth)
 
 
-@numba.njit(cache=True)
-def _reaches(u, v, ext_x, ext_y, width, height, wanted):
-    """Whether the box [u +- ext_x] x [v +- ext_y] meets the image and a wanted block
-    (``wanted``: ``wanted_blocks``' summed-area table)."""
-    if u + ext_x < 0 or u - ext_x >= width or v + ext_y < 0 or v - ext_y >= height:
-        return False
-    x0 = max(0, int(np.floor((u - ext_x) / BLOCK)))
-    x1 = min(wanted.shape[1] - 2, int(np.floor((u + ext_x) / BLOCK))) + 1
-    y0 = max(0, int(np.floor((v - ext_y) / BLOCK)))
-    y1 = min(wanted.shape[0] - 2, int(np.floor((v + ext_y) / BLOCK))) + 1
-    return wanted[y1, x1] - wanted[y0, x1] - wanted[y1, x0] + wanted[y0, x0] > 0
-
-
 @numba.njit(cache=True, error_model="numpy")
 def _boxes_reach(u, v, ext_x, ext_y, width, height, wanted, flags):
-    """flags[k] = ``_reaches`` of box k (centres u, v [M], half sizes ext_x, ext_y [M], finite),
-    without branches: the block range clamped to the table instead of returning early (a box off
-    the image is refused by its own test), so that mispredicted tests cost nothing."""
+    """flags[k] = the box k [u +- ext_x] x [v +- ext_y] (centres u, v [M], half sizes ext_x, ext_y
+    [M], finite) meets the image and a wanted block (``wanted``: ``wanted_blocks``' summed-area
+    table). Without branches: the block range clamped to the table (a box off the image is refused
+    by its own test), so that mispredicted tests cost nothing and LLVM can run boxes side by side."""
     last_x, last_y = wanted.shape[1] - 2, wanted.shape[0] - 2
     for k in range(u.shape[0]):
         left, right, top, bottom = u[k] - ext_x[k], u[k] + ext_x[k], v[k] - ext_y[k], v[k] + ext_y[k]
@@ -232,6 +222,67 @@ def _candidates(
         )
 
 
+@numba.njit(cache=True, error_model="numpy")
+def _covariances(columns, count, w2c, intrinsics, width, height, out):
+    """Columns 0..count of ``columns`` [11, C] (rows: mean x, y, z, quaternion w, x, y, z, scale x,
+    y, z, reach; float64) -> rows of ``out`` [9, C]: u, v, Sigma'_xx, Sigma'_xy, Sigma'_yy, z, -,
+    -, det(Sigma'). Without branches over columns, so that LLVM runs it four splats at a time."""
+    fx, fy, cx, cy = intrinsics[0], intrinsics[1], intrinsics[2], intrinsics[3]
+    lim_x = 1.3 * 0.5 * width / fx
+    lim_y = 1.3 * 0.5 * height / fy
+    w00, w01, w02, w03 = w2c[0, 0], w2c[0, 1], w2c[0, 2], w2c[0, 3]
+    w10, w11, w12, w13 = w2c[1, 0], w2c[1, 1], w2c[1, 2], w2c[1, 3]
+    w20, w21, w22, w23 = w2c[2, 0], w2c[2, 1], w2c[2, 2], w2c[2, 3]
+    for k in range(count):
+        mx, my, mz = columns[0, k], columns[1, k], columns[2, k]
+        px = w00 * mx + w01 * my + w02 * mz + w03
+        py = w10 * mx + w11 * my + w12 * mz + w13
+        pz = w20 * mx + w21 * my + w22 * mz + w23
+        tx = min(lim_x, max(-lim_x, px / pz)) * pz
+        ty = min(lim_y, max(-lim_y, py / pz)) * pz
+        j00, j02 = fx / pz, -fx * tx / (pz * pz)
+        j11, j12 = fy / pz, -fy * ty / (pz * pz)
+        qw, qx, qy, qz = columns[3, k], columns[4, k], columns[5, k], columns[6, k]
+        # As torch.nn.functional.normalize (Dynamic 3D Gaussians' renderer): q / max(|q|, 1e-12).
+        norm = max(np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz), 1e-12)
+        qw, qx, qy, qz = qw / norm, qx / norm, qy / norm, qz / norm
+        r00, r01, r02 = 1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qw * qz), 2 * (qx * qz + qw * qy)
+        r10, r11, r12 = 2 * (qx * qy + qw * qz), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qw * qx)
+        r20, r21, r22 = 2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx), 1 - 2 * (qx * qx + qy * qy)
+        sx, sy, sz = columns[7, k], columns[8, k], columns[9, k]
+        # M = W R S (columns scaled), so that Sigma' = J M M^T J^T.
+        m00 = (w00 * r00 + w01 * r10 + w02 * r20) * sx
+        m01 = (w00 * r01 + w01 * r11 + w02 * r21) * sy
+        m02 = (w00 * r02 + w01 * r12 + w02 * r22) * sz
+        m10 = (w10 * r00 + w11 * r10 + w12 * r20) * sx
+        m11 = (w10 * r01 + w11 * r11 + w12 * r21) * sy
+        m12 = (w10 * r02 + w11 * r12 + w12 * r22) * sz
+        m20 = (w20 * r00 + w21 * r10 + w22 * r20) * sx
+        m21 = (w20 * r01 + w21 * r11 + w22 * r21) * sy
+        m22 = (w20 * r02 + w21 * r12 + w22 * r22) * sz
+        a0, a1, a2 = j00 * m00 + j02 * m20, j00 * m01 + j02 * m21, j00 * m02 + j02 * m22
+        b0, b1, b2 = j11 * m10 + j12 * m20, j11 * m11 + j12 * m21, j11 * m12 + j12 * m22
+        cov_a = a0 * a0 + a1 * a1 + a2 * a2 + 0.3
+        cov_b = a0 * b0 + a1 * b1 + a2 * b2
+        cov_c = b0 * b0 + b1 * b1 + b2 * b2 + 0.3
+        out[0, k], out[1, k] = fx * px / pz + cx, fy * py / pz + cy
+        out[2, k], out[3, k], out[4, k] = cov_a, cov_b, cov_c
+        out[5, k], out[8, k] = pz, cov_a * cov_c - cov_b * cov_b
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _conics(columns, count, out):
+    """``_covariances``' rows of ``out`` [9, C] -> rows 2-4 the conic (a, b, c) = Sigma'^-1 and
+    rows 6-7 the box half sizes of the ellipse where alpha reaches 1/255, d^T Sigma'^-1 d <=
+    reach = 2 ln(255 opacity) (``columns`` row 10). A loop of its own: with all nine outputs
+    written in one loop, LLVM did not vectorise it."""
+    for k in range(count):
+        cov_a, cov_b, cov_c, det = out[2, k], out[3, k], out[4, k], out[8, k]
+        out[6, k] = np.sqrt(columns[10, k] * cov_a) * (1 + 1e-9) + 1e-9
+        out[7, k] = np.sqrt(columns[10, k] * cov_c) * (1 + 1e-9) + 1e-9
+        out[2, k], out[3, k], out[4, k] = cov_c / det, -cov_b / det, cov_a / det
+
+
 @numba.njit(cache=True)
 def _preprocess(
     candidates,
@@ -250,60 +301,42 @@ def _preprocess(
     keep,
 ):
     """Per candidate k (splat i = candidates[k]): out[k] = (u, v, conic a, b, c, z, extent x,
-    extent y, opacity, cutoff); keep[k] = its footprint meets a wanted block. Means [N, 3] and
-    quaternions [N, 4] may be float32 (read as float64)."""
-    fx, fy, cx, cy = intrinsics[0], intrinsics[1], intrinsics[2], intrinsics[3]
-    lim_x = 1.3 * 0.5 * width / fx
-    lim_y = 1.3 * 0.5 * height / fy
-    for k in range(candidates.shape[0]):
-        i = candidates[k]
-        keep[k] = False
-        mx, my, mz = np.float64(means[i, 0]), np.float64(means[i, 1]), np.float64(means[i, 2])
-        px = w2c[0, 0] * mx + w2c[0, 1] * my + w2c[0, 2] * mz + w2c[0, 3]
-        py = w2c[1, 0] * mx + w2c[1, 1] * my + w2c[1, 2] * mz + w2c[1, 3]
-        pz = w2c[2, 0] * mx + w2c[2, 1] * my + w2c[2, 2] * mz + w2c[2, 3]
-        tx = min(lim_x, max(-lim_x, px / pz)) * pz
-        ty = min(lim_y, max(-lim_y, py / pz)) * pz
-        j00, j02 = fx / pz, -fx * tx / (pz * pz)
-        j11, j12 = fy / pz, -fy * ty / (pz * pz)
-        u = fx * px / pz + cx
-        v = fy * py / pz + cy
-        qw, qx = np.float64(quaternions[i, 0]), np.float64(quaternions[i, 1])
-        qy, qz = np.float64(quaternions[i, 2]), np.float64(quaternions[i, 3])
-        norm = np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
-        qw, qx, qy, qz = qw / norm, qx / norm, qy / norm, qz / norm
-        r00, r01, r02 = 1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qw * qz), 2 * (qx * qz + qw * qy)
-        r10, r11, r12 = 2 * (qx * qy + qw * qz), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qw * qx)
-        r20, r21, r22 = 2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx), 1 - 2 * (qx * qx + qy * qy)
-        sx, sy, sz = scales[i, 0], scales[i, 1], scales[i, 2]
-        # M = W R S (columns scaled), so that Sigma' = J M M^T J^T.
-        m00 = (w2c[0, 0] * r00 + w2c[0, 1] * r10 + w2c[0, 2] * r20) * sx
-        m01 = (w2c[0, 0] * r01 + w2c[0, 1] * r11 + w2c[0, 2] * r21) * sy
-        m02 = (w2c[0, 0] * r02 + w2c[0, 1] * r12 + w2c[0, 2] * r22) * sz
-        m10 = (w2c[1, 0] * r00 + w2c[1, 1] * r10 + w2c[1, 2] * r20) * sx
-        m11 = (w2c[1, 0] * r01 + w2c[1, 1] * r11 + w2c[1, 2] * r21) * sy
-        m12 = (w2c[1, 0] * r02 + w2c[1, 1] * r12 + w2c[1, 2] * r22) * sz
-        m20 = (w2c[2, 0] * r00 + w2c[2, 1] * r10 + w2c[2, 2] * r20) * sx
-        m21 = (w2c[2, 0] * r01 + w2c[2, 1] * r11 + w2c[2, 2] * r21) * sy
-        m22 = (w2c[2, 0] * r02 + w2c[2, 1] * r12 + w2c[2, 2] * r22) * sz
-        a0, a1, a2 = j00 * m00 + j02 * m20, j00 * m01 + j02 * m21, j00 * m02 + j02 * m22
-        b0, b1, b2 = j11 * m10 + j12 * m20, j11 * m11 + j12 * m21, j11 * m12 + j12 * m22
-        cov_a = a0 * a0 + a1 * a1 + a2 * a2 + 0.3
-        cov_b = a0 * b0 + a1 * b1 + a2 * b2
-        cov_c = b0 * b0 + b1 * b1 + b2 * b2 + 0.3
-        det = cov_a * cov_c - cov_b * cov_b
-        if det <= 0.0:
-            continue
-        # alpha >= 1/255  <=>  d^T Sigma'^-1 d <= 2 ln(255 opacity): that ellipse's bounding box.
-        ext_x = np.sqrt(reach[i] * cov_a) * (1 + 1e-9) + 1e-9
-        ext_y = np.sqrt(reach[i] * cov_c) * (1 + 1e-9) + 1e-9
-        if not _reaches(u, v, ext_x, ext_y, width, height, wanted):
-            continue
-        out[k, 0], out[k, 1] = u, v
-        out[k, 2], out[k, 3], out[k, 4] = cov_c / det, -cov_b / det, cov_a / det
-        out[k, 5], out[k, 6], out[k, 7] = pz, ext_x, ext_y
-        out[k, 8], out[k, 9] = opacity[i], cutoff[i]  # read here in index order, not gathered later
-        keep[k] = True
+    extent y, opacity, cutoff); keep[k] = det(Sigma') > 0 and its footprint meets a wanted block.
+    Means [N, 3] and quaternions [N, 4] may be float32 (read as float64).
+
+    PREPROCESS_CHUNK candidates at a time: gathered into columns, projected by the vectorised
+    ``_covariances`` and ``_conics``, their boxes tested by ``_boxes_reach``, then written out
+    (a bench frame's 76,000 candidates: 5.7 -> 3.7 ms; 9,300 scattered ones: 2.7 -> 1.3 ms)."""
+    columns = np.empty((11, PREPROCESS_CHUNK))
+    rows = np.empty((9, PREPROCESS_CHUNK))
+    reaches = np.empty(PREPROCESS_CHUNK, np.bool_)
+    for first in range(0, candidates.shape[0], PREPROCESS_CHUNK):
+        count = min(PREPROCESS_CHUNK, candidates.shape[0] - first)
+        for j in range(count):
+            i = candidates[first + j]
+            columns[0, j], columns[1, j], columns[2, j] = means[i, 0], means[i, 1], means[i, 2]
+            columns[3, j], columns[4, j] = quaternions[i, 0], quaternions[i, 1]
+            columns[5, j], columns[6, j] = quaternions[i, 2], quaternions[i, 3]
+            columns[7, j], columns[8, j], columns[9, j] = scales[i, 0], scales[i, 1], scales[i, 2]
+            columns[10, j] = reach[i]
+        _covariances(columns, count, w2c, intrinsics, width, height, rows)
+        _conics(columns, count, rows)
+        _boxes_reach(
+            rows[0, :count],
+            rows[1, :count],
+            rows[6, :count],
+            rows[7, :count],
+            width,
+            height,
+            wanted,
+            reaches[:count],
+        )
+        for j in range(count):
+            k, i = first + j, candidates[first + j]
+            keep[k] = reaches[j] and rows[8, j] > 0.0
+            for field in range(8):
+                out[k, field] = rows[field, j]
+            out[k, 8], out[k, 9] = opacity[i], cutoff[i]  # read here in index order, not gathered later
 
 
 @numba.njit(cache=True)
