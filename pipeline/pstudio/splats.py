@@ -150,6 +150,13 @@ def _footprint_boxes(
     fx, fy, cx, cy = intrinsics[0], intrinsics[1], intrinsics[2], intrinsics[3]
     lim_x = 1.3 * 0.5 * width / fx
     lim_y = 1.3 * 0.5 * height / fy
+    # |g|^2 for g = j00 W_0 + j02 W_2 (rows of W's rotation) is j00^2 |W_0|^2 + 2 j00 j02 W_0.W_2
+    # + j02^2 |W_2|^2: these products once, not per splat (rounding covered by the widening).
+    n0 = w2c[0, 0] * w2c[0, 0] + w2c[0, 1] * w2c[0, 1] + w2c[0, 2] * w2c[0, 2]
+    n1 = w2c[1, 0] * w2c[1, 0] + w2c[1, 1] * w2c[1, 1] + w2c[1, 2] * w2c[1, 2]
+    n2 = w2c[2, 0] * w2c[2, 0] + w2c[2, 1] * w2c[2, 1] + w2c[2, 2] * w2c[2, 2]
+    d02 = 2.0 * (w2c[0, 0] * w2c[2, 0] + w2c[0, 1] * w2c[2, 1] + w2c[0, 2] * w2c[2, 2])
+    d12 = 2.0 * (w2c[1, 0] * w2c[2, 0] + w2c[1, 1] * w2c[2, 1] + w2c[1, 2] * w2c[2, 2])
     for k in range(xs.shape[0]):
         mx, my, mz = np.float64(xs[k]), np.float64(ys[k]), np.float64(zs[k])
         pz = w2c[2, 0] * mx + w2c[2, 1] * my + w2c[2, 2] * mz + w2c[2, 3]
@@ -158,23 +165,14 @@ def _footprint_boxes(
         live = (pz > 0.2) & (pz <= max_depth) & (opacity[k] >= 1.0 / 255.0) & np.isfinite(px + py + pz)
         inverse = 1.0 / pz if live else 1.0
         x, y = px * inverse if live else 0.0, py * inverse if live else 0.0
-        j00, j02 = fx * inverse, -fx * min(lim_x, max(-lim_x, x)) * inverse
-        j11, j12 = fy * inverse, -fy * min(lim_y, max(-lim_y, y)) * inverse
-        g0 = j00 * w2c[0, 0] + j02 * w2c[2, 0]
-        g1 = j00 * w2c[0, 1] + j02 * w2c[2, 1]
-        g2 = j00 * w2c[0, 2] + j02 * w2c[2, 2]
-        h0 = j11 * w2c[1, 0] + j12 * w2c[2, 0]
-        h1 = j11 * w2c[1, 1] + j12 * w2c[2, 1]
-        h2 = j11 * w2c[1, 2] + j12 * w2c[2, 2]
+        tx, ty = -min(lim_x, max(-lim_x, x)), -min(lim_y, max(-lim_y, y))  # j02 / j00, j12 / j11
+        g = fx * fx * inverse * inverse * (n0 + tx * (d02 + tx * n2))
+        h = fy * fy * inverse * inverse * (n1 + ty * (d12 + ty * n2))
         spread = reach[k] if live else 0.0
         u[k] = fx * x + cx if live else -1e30
         v[k] = fy * y + cy
-        half_width[k] = (
-            np.sqrt(spread * (max_variance[k] * (g0 * g0 + g1 * g1 + g2 * g2) + 0.3)) * (1 + 1e-6) + 1e-6
-        )
-        half_height[k] = (
-            np.sqrt(spread * (max_variance[k] * (h0 * h0 + h1 * h1 + h2 * h2) + 0.3)) * (1 + 1e-6) + 1e-6
-        )
+        half_width[k] = np.sqrt(spread * (max_variance[k] * g + 0.3)) * (1 + 1e-6) + 1e-6
+        half_height[k] = np.sqrt(spread * (max_variance[k] * h + 0.3)) * (1 + 1e-6) + 1e-6
 
 
 @numba.njit(cache=True)
