@@ -118,18 +118,24 @@ def test_selected_pixels_equal_the_full_frame(frame):
     assert len(project(**frame, width=WIDTH, height=HEIGHT, points_uv=few)) < len(selected)
 
 
-def test_isotropic_gaussian_projects_to_scaled_disc():
-    """A sphere of sigma 0.01 m at z = 2 on the axis: 2D variance (f sigma / z)^2 + 0.3 px^2."""
-    splats = project(
+def on_axis(quaternion, scales) -> Splats2D:
+    """One Gaussian of opacity 0.8 at z = 2 m on the optical axis (fx 500, fy 400, the identity
+    camera), projected."""
+    return project(
         np.array([[0.0, 0.0, 2.0]]),
-        np.array([[2.0, 0.0, 0.0, 0.0]]),
-        np.array([[0.01, 0.01, 0.01]]),
+        np.array([quaternion], float),
+        np.array([scales], float),
         np.array([0.8]),
         np.eye(4),
         np.array([500.0, 400.0, 320.0, 180.0]),
         WIDTH,
         HEIGHT,
     )
+
+
+def test_isotropic_gaussian_projects_to_scaled_disc():
+    """A sphere of sigma 0.01 m at z = 2 on the axis: 2D variance (f sigma / z)^2 + 0.3 px^2."""
+    splats = on_axis([2.0, 0.0, 0.0, 0.0], [0.01, 0.01, 0.01])
     var_x, var_y = (500 * 0.01 / 2) ** 2 + 0.3, (400 * 0.01 / 2) ** 2 + 0.3
     np.testing.assert_allclose(splats.xy, [[320.0, 180.0]])
     np.testing.assert_allclose(splats.conic, [[1 / var_x, 0.0, 1 / var_y]], atol=1e-12)
@@ -144,24 +150,11 @@ def test_a_zero_quaternion_is_the_identity_rotation():
     so a zero quaternion stays zero and the rasterizer's rotation matrix of it is the identity:
     a flat Gaussian (3 cm x 1 cm) with q = 0 projects as with q = (1, 0, 0, 0), not as turned
     by 90 degrees about the view axis."""
-    quaternions = np.array(
-        [[0.0, 0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], [np.sqrt(0.5), 0.0, 0.0, np.sqrt(0.5)]]
-    )
-    conics = [
-        project(
-            np.array([[0.0, 0.0, 2.0]]),
-            q[None],
-            np.array([[0.03, 0.01, 0.01]]),
-            np.array([0.8]),
-            np.eye(4),
-            np.array([500.0, 400.0, 320.0, 180.0]),
-            WIDTH,
-            HEIGHT,
-        ).conic
-        for q in quaternions
-    ]
-    np.testing.assert_array_equal(conics[0], conics[1])
-    assert not np.allclose(conics[1], conics[2])
+    flat = [0.03, 0.01, 0.01]
+    zero, identity = on_axis([0.0] * 4, flat).conic, on_axis([1.0, 0.0, 0.0, 0.0], flat).conic
+    turned = on_axis([np.sqrt(0.5), 0.0, 0.0, np.sqrt(0.5)], flat).conic
+    np.testing.assert_array_equal(zero, identity)
+    assert not np.allclose(identity, turned)
 
 
 def splats_2d(depths, opacities, offsets=None) -> Splats2D:
