@@ -11,6 +11,7 @@ from scipy.spatial.transform import Rotation
 from pipeline.pstudio.render import render_depth_at, render_depth_image
 from pipeline.pstudio.splats import (
     BLOCK,
+    LIMIT_SCAN_BLOCKS,
     _boxes_reach,
     gaussian_constants,
     inside_image,
@@ -129,11 +130,11 @@ def test_depth_limits_keep_every_depth_within_them_and_every_depth_test():
     # The limits did leave splats out: some depths beyond them became "no surface".
     assert (surface & ~limited_surface).sum() > 100 and within.sum() > 100
     np.testing.assert_array_equal(np.isnan(limited_depth), np.isnan(depth))
-    # Projecting no splat deeper than the largest limit decides the same (here the left half's
-    # points, whose limits keep out the scene's far part).
+    # Projecting only the splats no deeper than the largest limit of a block they reach decides
+    # the same (here the left half's points, whose limits keep out the scene's far part).
     left = points[:, 0] < WIDTH / 2
     near = project_splats(
-        means, quaternions, constants, w2c, INTRINSICS, WIDTH, HEIGHT, points[left], (z + delta)[left].max()
+        means, quaternions, constants, w2c, INTRINSICS, WIDTH, HEIGHT, points[left], (z + delta)[left]
     )
     near_depth, near_surface = render_depth_at(near, points[left], limits=(z + delta)[left])
     np.testing.assert_array_equal(near_surface[within[left]], True)
@@ -143,6 +144,27 @@ def test_depth_limits_keep_every_depth_within_them_and_every_depth_test():
         (surface & (np.abs(z - depth) < delta))[left],
     )
     assert len(near) < 0.8 * len(splats)
+    # Exactly those: of the splats reaching the points' blocks, the ones with a block in their box
+    # whose points' largest limit is no shallower than their depth (boxes over more than
+    # LIMIT_SCAN_BLOCKS blocks are kept unscanned).
+    reaching = project_splats(means, quaternions, constants, w2c, INTRINSICS, WIDTH, HEIGHT, points[left])
+    limit_of = {}
+    for (x, y), limit in zip(points[left], (z + delta)[left], strict=True):
+        if 0 <= x < WIDTH and 0 <= y < HEIGHT:
+            block = (int(x // BLOCK), int(y // BLOCK))
+            limit_of[block] = max(limit_of.get(block, -np.inf), limit)
+    low, high = reaching.xy - reaching.extent, reaching.xy + reaching.extent
+    last = np.array([WIDTH // BLOCK - 1, HEIGHT // BLOCK - 1])
+    first_block = np.clip(np.floor(low / BLOCK), 0, last).astype(int)
+    last_block = np.clip(np.floor(high / BLOCK), 0, last).astype(int)
+    expected, unscanned = [], 0
+    for k, ((x0, y0), (x1, y1)) in enumerate(zip(first_block, last_block, strict=True)):
+        covered = [(x, y) for x in range(x0, x1 + 1) for y in range(y0, y1 + 1)]
+        scanned = len(covered) <= LIMIT_SCAN_BLOCKS
+        unscanned += not scanned
+        expected.append(not scanned or any(limit_of.get(b, -np.inf) >= reaching.depth[k] for b in covered))
+    np.testing.assert_array_equal(near.index, reaching.index[np.array(expected)])
+    assert unscanned > 10 and 0 < np.sum(expected) < 0.5 * len(reaching)
 
 
 def box_meets_a_block(u, v, ext_x, ext_y, blocks) -> bool:

@@ -88,11 +88,11 @@ class UnitInput:
 
 
 def splats_in_view(
-    unit: UnitInput, view: int, t: int, points_uv: np.ndarray | None = None, max_depth: float = np.inf
+    unit: UnitInput, view: int, t: int, points_uv: np.ndarray | None = None, limits: np.ndarray | None = None
 ) -> Splats2D:
     """The Gaussians of frame t projected into camera ``view`` (all of them are occluders);
-    with ``points_uv`` [P, 2], only those that can reach the tiles of those points; with
-    ``max_depth``, only those no deeper."""
+    with ``points_uv`` [P, 2], only those that can reach the blocks of those points; with
+    ``limits`` [P], only those no deeper than a limit there (``project_splats``)."""
     g, v = unit.gaussians, unit.views
     return project_splats(
         g.means[t],
@@ -103,7 +103,7 @@ def splats_in_view(
         v.width,
         v.height,
         points_uv,
-        max_depth,
+        limits,
     )
 
 
@@ -211,7 +211,7 @@ def track_visibility(
             depth_image, surface_image = render_depth_image(splats)
             depth_maps.append(dense_depth_mm(np.where(surface_image, depth_image, np.nan)))
         elif seen.any():
-            splats = splats_in_view(unit, view, t, pixels, limits.max())
+            splats = splats_in_view(unit, view, t, pixels, limits)
         if seen.any():
             depth, surface = render_depth_at(splats, pixels, limits)
             visible[t, seen] = surface & (np.abs(z - depth) < delta)

@@ -19,7 +19,9 @@ sequence (``gaussian_constants``); per frame, only the means and rotations are r
 stored, or float64). When depth is wanted at some points, a splat is dropped on its projected
 centre and a bound of its footprint (its largest scale, whatever its rotation) before its
 covariance is computed: only the splats that can reach a BLOCK x BLOCK-pixel block holding one
-of the points are projected in full, and of those, the ones whose footprint does are kept.
+of the points are projected in full, and of those, the ones whose footprint does are kept; with a
+depth limit per point, only those no deeper than the largest limit of a block their footprint
+covers (a third fewer on the bench's visibility pass: 71,000 -> 48,000 splats a frame).
 
 The kernels (here and in render.py) are serial: the pipeline's parallelism is across units, one
 single-threaded worker per core. On one thread numba's parallel loops ran no faster (one frame's
@@ -43,6 +45,7 @@ TILE = 16  # pixels per side of the square tiles splats are binned into
 BLOCK = 4  # pixels per side of the blocks a point's splat list is cut to (TILE / BLOCK blocks a side)
 CHUNK = 1024  # splats bounded together before their boxes are tested (_candidates)
 PREPROCESS_CHUNK = 128  # candidates projected together (_preprocess): their columns stay in L1
+LIMIT_SCAN_BLOCKS = 64  # a larger box is not scanned for its blocks' depth limits (it is kept)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -121,6 +124,28 @@ def _boxes_reach(u, v, ext_x, ext_y, width, height, wanted, flags):
         y0 = int(np.floor(min(max(top / BLOCK, 0.0), last_y)))
         y1 = int(np.floor(min(max(bottom / BLOCK, 0.0), last_y))) + 1
         flags[k] = inside & (wanted[y1, x1] - wanted[y0, x1] - wanted[y1, x0] + wanted[y0, x0] > 0)
+
+
+@numba.njit(cache=True)
+def _boxes_within_limits(u, v, ext_x, ext_y, depth, limits, flags):
+    """Where flags[k] (the box k [u +- ext_x] x [v +- ext_y] meets the image and a wanted block):
+    flags[k] = one of the blocks it covers has a limit (``block_limits`` [blocks_y, blocks_x]) no
+    shallower than depth[k]; a box over more than LIMIT_SCAN_BLOCKS blocks stays flagged."""
+    last_x, last_y = limits.shape[1] - 1, limits.shape[0] - 1
+    for k in range(u.shape[0]):
+        if not flags[k]:
+            continue
+        x0 = int(np.floor(min(max((u[k] - ext_x[k]) / BLOCK, 0.0), last_x)))
+        x1 = int(np.floor(min(max((u[k] + ext_x[k]) / BLOCK, 0.0), last_x)))
+        y0 = int(np.floor(min(max((v[k] - ext_y[k]) / BLOCK, 0.0), last_y)))
+        y1 = int(np.floor(min(max((v[k] + ext_y[k]) / BLOCK, 0.0), last_y)))
+        if (x1 - x0 + 1) * (y1 - y0 + 1) > LIMIT_SCAN_BLOCKS:
+            continue
+        within = False
+        for y in range(y0, y1 + 1):
+            for x in range(x0, x1 + 1):
+                within |= limits[y, x] >= depth[k]
+        flags[k] = within
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -297,11 +322,13 @@ def _preprocess(
     width,
     height,
     wanted,
+    limits,
     out,
     keep,
 ):
     """Per candidate k (splat i = candidates[k]): out[k] = (u, v, conic a, b, c, z, extent x,
-    extent y, opacity, cutoff); keep[k] = det(Sigma') > 0 and its footprint meets a wanted block.
+    extent y, opacity, cutoff); keep[k] = det(Sigma') > 0 and its footprint meets a wanted block
+    whose limit (``limits``: ``block_limits``, or None) is no shallower than z.
     Means [N, 3] and quaternions [N, 4] may be float32 (read as float64).
 
     PREPROCESS_CHUNK candidates at a time: gathered into columns, projected by the vectorised
@@ -331,6 +358,16 @@ def _preprocess(
             wanted,
             reaches[:count],
         )
+        if limits is not None:
+            _boxes_within_limits(
+                rows[0, :count],
+                rows[1, :count],
+                rows[6, :count],
+                rows[7, :count],
+                rows[5, :count],
+                limits,
+                reaches[:count],
+            )
         for j in range(count):
             k, i = first + j, candidates[first + j]
             keep[k] = reaches[j] and rows[8, j] > 0.0
@@ -397,15 +434,16 @@ def project_splats(
     width: int,
     height: int,
     points_uv: np.ndarray | None = None,
-    max_depth: float = np.inf,
+    limits: np.ndarray | None = None,
 ) -> Splats2D:
     """Project N Gaussians into a camera: those that can touch the image, sorted front to back
     (ties in index order).
 
     With ``points_uv`` [P, 2], keep only the splats that can touch a block holding one of those
     points: enough to render depth there, and much less to project, sort and bin. With
-    ``max_depth``, only those whose centre is no deeper (view-space z, metres): enough for
-    ``render.render_depth_at`` with limits up to it.
+    ``limits`` [P] too (view-space z, metres), only those no deeper than the largest limit of the
+    points in a block they touch: enough for ``render.render_depth_at`` with those limits (a
+    point's splats deeper than its limit may be left out).
 
     Args:
       means: [N, 3] world centres. quaternions: [N, 4] (w, x, y, z), unnormalised; float32 or
@@ -416,6 +454,8 @@ def project_splats(
     w2c = np.ascontiguousarray(w2c, dtype=np.float64)
     intrinsics = np.asarray(fx_fy_cx_cy, dtype=np.float64)
     wanted = wanted_blocks(points_uv, width, height)
+    depth_limits = None if limits is None else block_limits(points_uv, limits, width, height)
+    max_depth = np.inf if depth_limits is None else depth_limits.max()
     c = constants
     flags = np.empty(len(means), np.bool_)
     xs, ys, zs = np.ascontiguousarray(means.T)  # each contiguous, as the vectorised bounds want them
@@ -450,6 +490,7 @@ def project_splats(
         int(width),
         int(height),
         wanted,
+        depth_limits,
         out,
         keep,
     )
@@ -494,3 +535,14 @@ def wanted_blocks(points_uv: np.ndarray | None, width: int, height: int) -> np.n
         inner = points[inside_image(points, width, height)]
         wanted[(inner[:, 1] // BLOCK).astype(np.int64) + 1, (inner[:, 0] // BLOCK).astype(np.int64) + 1] = 1
     return wanted.cumsum(axis=0).cumsum(axis=1)
+
+
+def block_limits(points_uv: np.ndarray, limits: np.ndarray, width: int, height: int) -> np.ndarray:
+    """[blocks_y, blocks_x] the largest of ``limits`` [P] over the points [P, 2] in each block
+    (-inf in a block with none)."""
+    points = np.asarray(points_uv, dtype=np.float64).reshape(-1, 2)
+    inside = inside_image(points, width, height)
+    grid = np.full((-(-height // BLOCK), -(-width // BLOCK)), -np.inf)
+    rows, cols = (points[inside, 1] // BLOCK).astype(np.int64), (points[inside, 0] // BLOCK).astype(np.int64)
+    np.maximum.at(grid, (rows, cols), np.asarray(limits, dtype=np.float64).reshape(-1)[inside])
+    return grid
