@@ -57,14 +57,26 @@ def source_points(source, target) -> np.ndarray:
 @numba.njit(cache=True, nogil=True)
 def _bilinear_rgb(flat, taps, weights, out):
     """out [N, 3] uint8 from the flattened [H, W, 3] image: per channel, the float32 sum of the
-    four taps [N, 4] x weights [N, 4] in their order, truncated (as the library's cast)."""
+    four taps [N, 4] x weights [N, 4] in their order, truncated (as the library's cast). A tap's
+    three channels are read together, each tap and weight once (a loop over the channels re-read
+    them after every store: an excerpt frame 4.6 -> 3.2 ms, the same bytes)."""
     for i in range(taps.shape[0]):
-        for channel in range(3):
-            total = np.float32(flat[3 * taps[i, 0] + channel]) * weights[i, 0]
-            total += np.float32(flat[3 * taps[i, 1] + channel]) * weights[i, 1]
-            total += np.float32(flat[3 * taps[i, 2] + channel]) * weights[i, 2]
-            total += np.float32(flat[3 * taps[i, 3] + channel]) * weights[i, 3]
-            out[i, channel] = int(total)  # toward zero; a float32 -0.00001 is 0 as in the library
+        a, b, c, d = 3 * taps[i, 0], 3 * taps[i, 1], 3 * taps[i, 2], 3 * taps[i, 3]
+        w0, w1, w2, w3 = weights[i, 0], weights[i, 1], weights[i, 2], weights[i, 3]
+        red = np.float32(flat[a]) * w0
+        green = np.float32(flat[a + 1]) * w0
+        blue = np.float32(flat[a + 2]) * w0
+        red += np.float32(flat[b]) * w1
+        green += np.float32(flat[b + 1]) * w1
+        blue += np.float32(flat[b + 2]) * w1
+        red += np.float32(flat[c]) * w2
+        green += np.float32(flat[c + 1]) * w2
+        blue += np.float32(flat[c + 2]) * w2
+        red += np.float32(flat[d]) * w3
+        green += np.float32(flat[d + 1]) * w3
+        blue += np.float32(flat[d + 2]) * w3
+        # toward zero; a float32 -0.00001 is 0 as in the library
+        out[i, 0], out[i, 1], out[i, 2] = int(red), int(green), int(blue)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -76,6 +88,13 @@ def _bilinear_depth(flat, taps, weights, last_weight, out):
         total += np.float32(flat[taps[i, 1]]) * weights[i, 1]
         total += np.float32(flat[taps[i, 2]]) * weights[i, 2]
         out[i] = np.float32(np.float64(total) + np.float64(flat[taps[i, 3]]) * last_weight[i])
+
+
+@numba.njit(cache=True, nogil=True)
+def _gather(flat, index, out):
+    """out[i] = flat[index[i]] ([N]; NumPy's fancy indexing of an excerpt id frame: 2.2 -> 1.5 ms)."""
+    for i in range(index.shape[0]):
+        out[i] = flat[index[i]]
 
 
 class Remap:
@@ -138,6 +157,8 @@ class Remap:
 
     def labels(self, labels: np.ndarray) -> np.ndarray:
         """[H, W] any dtype -> [h, w], nearest (the library's ``distort_label_by_calibration``)."""
-        out = self._flat(labels, (), ())[self.nearest]
+        flat = self._flat(labels, (), ())
+        out = np.empty(len(self.nearest), flat.dtype)
+        _gather(flat, self.nearest, out)
         out[self.invalid] = 0
         return out.reshape(self.shape)
