@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 from pipeline.pstudio.render import render_depth_at, render_depth_image
 from pipeline.pstudio.splats import (
     BLOCK,
-    LIMIT_SCAN_BLOCKS,
+    LIMIT_BOX_BLOCKS,
     _boxes_reach,
     gaussian_constants,
     inside_image,
@@ -145,8 +145,8 @@ def test_depth_limits_keep_every_depth_within_them_and_every_depth_test():
     )
     assert len(near) < 0.8 * len(splats)
     # Exactly those: of the splats reaching the points' blocks, the ones with a block in their box
-    # whose points' largest limit is no shallower than their depth (boxes over more than
-    # LIMIT_SCAN_BLOCKS blocks are kept unscanned).
+    # whose points' largest limit is no shallower than their depth (boxes wider than
+    # LIMIT_BOX_BLOCKS blocks either way are kept untested).
     reaching = project_splats(means, quaternions, constants, w2c, INTRINSICS, WIDTH, HEIGHT, points[left])
     limit_of = {}
     for (x, y), limit in zip(points[left], (z + delta)[left], strict=True):
@@ -160,7 +160,7 @@ def test_depth_limits_keep_every_depth_within_them_and_every_depth_test():
     expected, unscanned = [], 0
     for k, ((x0, y0), (x1, y1)) in enumerate(zip(first_block, last_block, strict=True)):
         covered = [(x, y) for x in range(x0, x1 + 1) for y in range(y0, y1 + 1)]
-        scanned = len(covered) <= LIMIT_SCAN_BLOCKS
+        scanned = max(x1 - x0, y1 - y0) < LIMIT_BOX_BLOCKS
         unscanned += not scanned
         expected.append(not scanned or any(limit_of.get(b, -np.inf) >= reaching.depth[k] for b in covered))
     np.testing.assert_array_equal(near.index, reaching.index[np.array(expected)])

@@ -45,7 +45,7 @@ TILE = 16  # pixels per side of the square tiles splats are binned into
 BLOCK = 4  # pixels per side of the blocks a point's splat list is cut to (TILE / BLOCK blocks a side)
 CHUNK = 1024  # splats bounded together before their boxes are tested (_candidates)
 PREPROCESS_CHUNK = 128  # candidates projected together (_preprocess): their columns stay in L1
-LIMIT_SCAN_BLOCKS = 64  # a larger box is not scanned for its blocks' depth limits (it is kept)
+LIMIT_BOX_BLOCKS = 7  # the widest box (blocks a side) tested against depth limits; a wider one is kept
 
 
 @dataclasses.dataclass(frozen=True)
@@ -126,26 +126,27 @@ def _boxes_reach(u, v, ext_x, ext_y, width, height, wanted, flags):
         flags[k] = inside & (wanted[y1, x1] - wanted[y0, x1] - wanted[y1, x0] + wanted[y0, x0] > 0)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _boxes_within_limits(u, v, ext_x, ext_y, depth, limits, flags):
     """Where flags[k] (the box k [u +- ext_x] x [v +- ext_y] meets the image and a wanted block):
-    flags[k] = one of the blocks it covers has a limit (``block_limits`` [blocks_y, blocks_x]) no
-    shallower than depth[k]; a box over more than LIMIT_SCAN_BLOCKS blocks stays flagged."""
-    last_x, last_y = limits.shape[1] - 1, limits.shape[0] - 1
+    flags[k] = one of the blocks it covers has a depth limit no shallower than depth[k], read as
+    the largest of four windows of ``block_limits`` [3, 3, blocks_y, blocks_x] (2^kx x 2^ky
+    blocks, the largest that fit, from the box's corners); a box wider than LIMIT_BOX_BLOCKS
+    blocks either way stays flagged."""
+    last_x, last_y = limits.shape[3] - 1, limits.shape[2] - 1
     for k in range(u.shape[0]):
-        if not flags[k]:
-            continue
         x0 = int(np.floor(min(max((u[k] - ext_x[k]) / BLOCK, 0.0), last_x)))
         x1 = int(np.floor(min(max((u[k] + ext_x[k]) / BLOCK, 0.0), last_x)))
         y0 = int(np.floor(min(max((v[k] - ext_y[k]) / BLOCK, 0.0), last_y)))
         y1 = int(np.floor(min(max((v[k] + ext_y[k]) / BLOCK, 0.0), last_y)))
-        if (x1 - x0 + 1) * (y1 - y0 + 1) > LIMIT_SCAN_BLOCKS:
+        if not flags[k] or x1 - x0 >= LIMIT_BOX_BLOCKS or y1 - y0 >= LIMIT_BOX_BLOCKS:
             continue
-        within = False
-        for y in range(y0, y1 + 1):
-            for x in range(x0, x1 + 1):
-                within |= limits[y, x] >= depth[k]
-        flags[k] = within
+        kx = (x1 - x0 >= 1) + (x1 - x0 >= 3)  # floor(log2(blocks across))
+        ky = (y1 - y0 >= 1) + (y1 - y0 >= 3)
+        x2, y2 = x1 + 1 - (1 << kx), y1 + 1 - (1 << ky)
+        window = limits[ky, kx]
+        deepest = max(max(window[y0, x0], window[y0, x2]), max(window[y2, x0], window[y2, x2]))
+        flags[k] = deepest >= depth[k]
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -455,7 +456,7 @@ def project_splats(
     intrinsics = np.asarray(fx_fy_cx_cy, dtype=np.float64)
     wanted = wanted_blocks(points_uv, width, height)
     depth_limits = None if limits is None else block_limits(points_uv, limits, width, height)
-    max_depth = np.inf if depth_limits is None else depth_limits.max()
+    max_depth = np.inf if depth_limits is None else depth_limits[0, 0].max()
     c = constants
     flags = np.empty(len(means), np.bool_)
     xs, ys, zs = np.ascontiguousarray(means.T)  # each contiguous, as the vectorised bounds want them
@@ -538,11 +539,21 @@ def wanted_blocks(points_uv: np.ndarray | None, width: int, height: int) -> np.n
 
 
 def block_limits(points_uv: np.ndarray, limits: np.ndarray, width: int, height: int) -> np.ndarray:
-    """[blocks_y, blocks_x] the largest of ``limits`` [P] over the points [P, 2] in each block
-    (-inf in a block with none)."""
+    """[3, 3, blocks_y, blocks_x]: entry (ky, kx, y, x) the largest of ``limits`` [P] over the
+    points [P, 2] in the blocks y .. y + 2^ky - 1, x .. x + 2^kx - 1 (-inf where there are none),
+    so that any box of up to LIMIT_BOX_BLOCKS blocks a side takes four reads."""
     points = np.asarray(points_uv, dtype=np.float64).reshape(-1, 2)
     inside = inside_image(points, width, height)
-    grid = np.full((-(-height // BLOCK), -(-width // BLOCK)), -np.inf)
+    blocks_x, blocks_y = -(-width // BLOCK), -(-height // BLOCK)
+    windows = np.full((3, 3, blocks_y, blocks_x), -np.inf)
     rows, cols = (points[inside, 1] // BLOCK).astype(np.int64), (points[inside, 0] // BLOCK).astype(np.int64)
-    np.maximum.at(grid, (rows, cols), np.asarray(limits, dtype=np.float64).reshape(-1)[inside])
-    return grid
+    np.maximum.at(windows[0, 0], (rows, cols), np.asarray(limits, dtype=np.float64).reshape(-1)[inside])
+    for k in (1, 2):
+        half = 1 << (k - 1)
+        windows[0, k] = windows[0, k - 1]
+        np.maximum(windows[0, k, :, :-half], windows[0, k - 1, :, half:], out=windows[0, k, :, :-half])
+    for k in (1, 2):
+        half = 1 << (k - 1)
+        windows[k] = windows[k - 1]
+        np.maximum(windows[k, :, :-half], windows[k - 1, :, half:], out=windows[k, :, :-half])
+    return windows
