@@ -5,8 +5,10 @@ keeps an attachment only within ``max_attach_distance_m``; a KD-tree built per f
 costs far more than comparing every centre. With such a bound, one pass over the centres first
 drops those that cannot be within it of any point: a centre is compared with the points only if
 its cell (cells of the bound's side, over the points' bounding box) is, along each axis, at most
-one from a point's. Distances are computed as scipy's cKDTree computes them, sqrt(((x0 - c0)^2
-+ (x1 - c1)^2) + (x2 - c2)^2) in float64; among centres at exactly the same distance the first
+one from a point's cell (tested per axis first, then the cell itself: on the bench's frames
+28,000 of 120,000 centres pass the first test and 3,000 the second; 4.4 -> 2.8 ms a frame).
+Distances are computed as scipy's cKDTree computes them, sqrt(((x0 - c0)^2 + (x1 - c1)^2) +
+(x2 - c2)^2) in float64; among centres at exactly the same distance the first
 candidate is taken.
 """
 
@@ -16,6 +18,7 @@ import numba
 import numpy as np
 
 MAX_AXIS_CELLS = 1 << 16  # points spread wider than this many cells along an axis: no prefilter
+NEIGHBOURS = np.stack(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1], indexing="ij"), axis=-1).reshape(-1, 3)
 
 
 @numba.njit(cache=True)
@@ -35,24 +38,37 @@ def _nearest(centres, candidates, points, out_distance, out_index):
 
 
 @numba.njit(cache=True)
-def _near_some_point(centres, candidates, size, low, occupied):
+def _near_some_point(centres, candidates, size, low, occupied, cell_keys):
     """Positions in ``candidates`` [S], ascending, of the centres whose cell (side ``size``, from
-    ``low`` [3]) is along every axis at most one from a point's (``occupied`` [3, D]: per axis,
-    the cells within one of a point's)."""
+    ``low`` [3]) is at most one from a point's along every axis: first per axis (``occupied``
+    [3, D]: the cells within one of a point's), without branches; then, for those, the cell itself
+    (``cell_keys``: the sorted keys (x D + y) D + z of the cells within one of a point's)."""
     keep = np.empty(candidates.shape[0], np.int64)
     count = 0
     dims = occupied.shape[1]
+    top = dims - 1.0
     inverse = 1.0 / size  # a cell index an ulp off is covered by the cell's margin
     for k in range(candidates.shape[0]):
         c = candidates[k]
         x = (np.float64(centres[c, 0]) - low[0]) * inverse
         y = (np.float64(centres[c, 1]) - low[1]) * inverse
         z = (np.float64(centres[c, 2]) - low[2]) * inverse
-        if x >= 0 and x < dims and y >= 0 and y < dims and z >= 0 and z < dims:
-            if occupied[0, int(x)] and occupied[1, int(y)] and occupied[2, int(z)]:
-                keep[count] = k
-                count += 1
-    return keep[:count]
+        inside = (x >= 0) & (x < dims) & (y >= 0) & (y < dims) & (z >= 0) & (z < dims)
+        ix, iy, iz = int(min(max(x, 0.0), top)), int(min(max(y, 0.0), top)), int(min(max(z, 0.0), top))
+        keep[count] = k
+        count += inside & occupied[0, ix] & occupied[1, iy] & occupied[2, iz]
+    exact = 0
+    for j in range(count):
+        c = candidates[keep[j]]
+        ix = int((np.float64(centres[c, 0]) - low[0]) * inverse)
+        iy = int((np.float64(centres[c, 1]) - low[1]) * inverse)
+        iz = int((np.float64(centres[c, 2]) - low[2]) * inverse)
+        key = (ix * dims + iy) * dims + iz
+        found = np.searchsorted(cell_keys, key)
+        if found < cell_keys.shape[0] and cell_keys[found] == key:
+            keep[exact] = keep[j]
+            exact += 1
+    return keep[:exact]
 
 
 def nearest_centres(
@@ -79,7 +95,9 @@ def nearest_centres(
             occupied = np.zeros((3, dims), np.bool_)
             for shift in (-1, 0, 1):
                 occupied[np.arange(3), cells + shift] = True
-            near = _near_some_point(centres, candidates, size, low, occupied)
+            around = (cells[:, None, :] + NEIGHBOURS[None]).reshape(-1, 3)
+            cell_keys = np.unique((around[:, 0] * dims + around[:, 1]) * dims + around[:, 2])
+            near = _near_some_point(centres, candidates, size, low, occupied, cell_keys)
     found_distance, found = np.empty(int(finite.sum())), np.empty(int(finite.sum()), np.int64)
     _nearest(centres, candidates[near], points[finite], found_distance, found)
     hit = (found >= 0) & (found_distance <= within)
