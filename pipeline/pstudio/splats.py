@@ -45,7 +45,9 @@ TILE = 16  # pixels per side of the square tiles splats are binned into
 BLOCK = 4  # pixels per side of the blocks a point's splat list is cut to (TILE / BLOCK blocks a side)
 CHUNK = 1024  # splats bounded together before their boxes are tested (_candidates)
 PREPROCESS_CHUNK = 128  # candidates projected together (_preprocess): their columns stay in L1
-LIMIT_BOX_BLOCKS = 7  # the widest box (blocks a side) tested against depth limits; a wider one is kept
+# The widest box (blocks a side) tested against depth limits, 2 x 4 - 1: block_limits' windows are
+# 1, 2 and 4 blocks a side, and two cover a box's side. A wider box is kept untested.
+LIMIT_BOX_BLOCKS = 7
 
 
 @dataclasses.dataclass(frozen=True)
