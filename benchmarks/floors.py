@@ -14,12 +14,13 @@ pstudio (a group: cameras of one sequence): ``train_meta.json``; the five member
   grey-level, as the reader decodes them.
 adt: opening the sequence with projectaria-tools (``AriaDigitalTwinDataProvider``, once, cold)
   and its frame timestamps, then the chunk's RGB, depth and segmentation frames read from the
-  VRS files ``repeat`` times, as the unit's runs read them; the report extrapolates it to a
-  300-frame unit like the unit itself (its share of a group's opening + 300 x per-frame read).
+  VRS files ``repeat`` times, as the unit's runs read them, then closing it; the report
+  extrapolates it to a 300-frame unit like the unit itself (its share of a group's opening and
+  closing + 300 x per-frame read).
 
 Each returns floor_s / floor_cpu_s (the whole floor at the measured size) and floor_frames;
-adt also floor_open_s / floor_open_cpu_s (the opening, inside floor_s) and floor_open_share (a
-unit's share of it: a group of chunks opens the sequence once).
+adt also floor_open_s / floor_open_cpu_s (the opening and closing, inside floor_s) and
+floor_open_share (a unit's share of it: a group of chunks opens and closes the sequence once).
 """
 
 from __future__ import annotations
@@ -148,13 +149,14 @@ def adt(spec: dict) -> dict:
                 reader.ids(timestamp)
 
     wall, cpu = _timed(read)
+    close_wall, close_cpu = _timed(reader.close)
     return {
-        "floor_s": open_wall + wall,
-        "floor_cpu_s": open_cpu + cpu,
+        "floor_s": open_wall + wall + close_wall,
+        "floor_cpu_s": open_cpu + cpu + close_cpu,
         "floor_frames": len(stamps) * repeat,
-        "floor_open_s": open_wall,
-        "floor_open_cpu_s": open_cpu,
-        "floor_open_share": 1.0 / CHUNKS_PER_GROUP,  # a group of chunks opens the sequence once
+        "floor_open_s": open_wall + close_wall,
+        "floor_open_cpu_s": open_cpu + close_cpu,
+        "floor_open_share": 1.0 / CHUNKS_PER_GROUP,  # a group of chunks opens and closes the sequence once
     }
 
 

@@ -1,9 +1,10 @@
 """ADT benchmark inputs (``prepare``): the real excerpt (``pipeline.adt.source.excerpt_path()``),
 read through projectaria-tools. Its ground-truth window holds 2 frames, so its unit is that 2-frame
-chunk, run ``REPEAT`` times through ``pipeline.unit.run_group`` (each run opens the sequence, as a
-group does); a release unit (300 frames) is extrapolated: its share of its group's opening (the
-sequence opened and its re-rendering tables built once for ``CHUNKS_PER_GROUP`` chunks, measured
-apart by ``measure_fixed_cost`` with the source's own ``open_sequence``), the filter, encode and
+chunk, run ``REPEAT`` times through ``pipeline.unit.run_group`` (each run opens and closes the
+sequence, as a group does); a release unit (300 frames) is extrapolated: its share of its group's
+opening and closing (the sequence opened, its re-rendering tables built and the sequence closed once
+for ``CHUNKS_PER_GROUP`` chunks, measured apart by ``measure_fixed_cost`` with the source's own
+``open_sequence`` and ``close_sequence``), the filter, encode and
 write stage of a 300-frame clip (measured apart, once per unit), plus 300 x the measured per-frame
 cost of reading, re-rendering and annotating.
 """
@@ -20,9 +21,9 @@ from pipeline.adt.source import CHUNKS_PER_GROUP, EXCERPT_SETTINGS, SHARED_EXCER
 from pipeline.core.config import RunConfig
 
 CHUNK_FRAMES = 300
-# Each repeated run opens the sequence again (warm: the tables cached); the worker times these
-# openings inside the runs and the report takes them out of the per-frame cost.
-FIXED_IN_WORK = (("pipeline.adt.source", "open_sequence"),)
+# Each repeated run opens and closes the sequence again (warm: the tables cached); the worker times
+# these inside the runs and the report takes them out of the per-frame cost.
+FIXED_IN_WORK = (("pipeline.adt.source", "open_sequence"), ("pipeline.adt.source", "close_sequence"))
 RELEASE_UNITS = 1956  # one clip per (sequence, 300-frame chunk) unit, 215 sequences
 REPEAT, QUICK_REPEAT = 15, 2
 
@@ -65,14 +66,15 @@ def prepare(workdir: str, quick: bool) -> UnitSetup | None:
     )
 
 
-def _open_once(sequence: str, config: RunConfig) -> tuple[float, float]:
-    """Wall and CPU seconds of what a group of ADT units does once, before its chunks: open the
+def _open_and_close_once(sequence: str, config: RunConfig) -> tuple[float, float]:
+    """Wall and CPU seconds of what a group of ADT units does once, around its chunks: open the
     sequence, read its frame timestamps and build the re-rendering tables (``open_sequence``; the
-    tables are cached per calibration in the process, so the first opening builds them)."""
-    from pipeline.adt.source import open_sequence
+    tables are cached per calibration in the process, so the first opening builds them), then
+    close it (``close_sequence``)."""
+    from pipeline.adt.source import close_sequence, open_sequence
 
     wall, cpu = time.perf_counter(), time.process_time()
-    open_sequence(sequence, config)
+    close_sequence(open_sequence(sequence, config))
     return time.perf_counter() - wall, time.process_time() - cpu
 
 
@@ -125,18 +127,18 @@ def measure_fixed_cost(spec: dict, config: RunConfig) -> dict:
     """The unit's costs that do not scale with its frames, measured apart (called by
     ``benchmarks.worker`` before the runs).
 
-    fixed_s / fixed_cpu_s: the unit's share of its group's opening (``CHUNKS_PER_GROUP`` chunks of a
-    sequence share one, cold: its re-rendering tables built);
-    open_s / open_cpu_s: that whole opening; first_calls_s / first_calls_cpu_s: numba's first
-    dispatch of the re-rendering loops (once per worker process, reported, not counted);
-    (fixed_in_work_s / fixed_in_work_cpu_s, the openings the ``repeat`` runs pay inside their work,
-    are timed in the runs themselves: ``FIXED_IN_WORK``);
+    fixed_s / fixed_cpu_s: the unit's share of its group's opening and closing (``CHUNKS_PER_GROUP``
+    chunks of a sequence share one, cold: its re-rendering tables built);
+    open_s / open_cpu_s: that whole opening and closing; first_calls_s / first_calls_cpu_s: numba's
+    first dispatch of the re-rendering loops (once per worker process, reported, not counted);
+    (fixed_in_work_s / fixed_in_work_cpu_s, the openings and closings the ``repeat`` runs pay inside
+    their work, are timed in the runs themselves: ``FIXED_IN_WORK``);
     write_unit_s / write_unit_cpu_s: the filter, encode and write stage of a 300-frame clip
     (``_release_size_write``): a unit writes one clip, so the 2-frame runs' own write stage (its
     audit table and record are a 300-frame unit's too) is taken out of the per-frame cost and this
     counted once per unit."""
     sequence = spec["unit"][0]
-    open_wall, open_cpu = _open_once(sequence, config)
+    open_wall, open_cpu = _open_and_close_once(sequence, config)
     first_wall, first_cpu = _first_calls(sequence, config)
     write_wall, write_cpu = _release_size_write(spec, config)
     return {

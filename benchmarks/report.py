@@ -5,7 +5,7 @@ Figures of a release unit (``unit_frames`` frames): ms/frame = its time on one c
 frames; CPU-hours = that time x the release's units; unit/floor = that time / the same for the
 bare reading and decoding of its inputs (``benchmarks.floors``). Where the measured input is
 shorter than a release unit (ADT's 2-frame excerpt; DriveTrack and Panoptic Studio at the default
-size), the unit is extrapolated: fixed cost (ADT: opening the sequence, measured apart) + frames x
+size), the unit is extrapolated: fixed cost (ADT: opening and closing the sequence, measured apart) + frames x
 the measured per-frame cost, and its floor likewise; such figures carry ``*``. Peak memory (max
 RSS) is always the measured process's, at the size benched.
 
@@ -120,7 +120,8 @@ def report(
         unit_wall = fixed + unit_frames * per_frame
         unit_cpu = fixed_cpu + unit_frames * per_frame_cpu
         if fixed:
-            opening = f"its share of its group's opening of the sequence, {1000 * first['fixed_s']:.0f} ms"
+            share = 1000 * first["fixed_s"]
+            opening = f"its share of its group's opening and closing of the sequence, {share:.0f} ms"
             if "open_s" in first:
                 opening += f" of {1000 * first['open_s']:.0f} ms"
             if per_unit:
@@ -146,7 +147,7 @@ def report(
     measured = {key: fmean(f.result[key] for f in floors) for key in FLOOR_FIGURES if key in floors[0].result}
     frames_read = floors[0].result["floor_frames"]
     floor_open, floor_open_cpu = measured.get("floor_open_s", 0.0), measured.get("floor_open_cpu_s", 0.0)
-    # A unit's share of the opening (ADT: a group of chunks opens its sequence once).
+    # A unit's share of the opening (ADT: a group of chunks opens and closes its sequence once).
     open_share = floors[0].result.get("floor_open_share", 1.0)
     floor_unit = open_share * floor_open + unit_frames * (measured["floor_s"] - floor_open) / frames_read
     floor_unit_cpu = (

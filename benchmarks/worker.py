@@ -7,10 +7,11 @@ the inputs and annotate, filter, encode and write the clips, record each unit), 
 times (default 1); ``spec["unit"]`` is one unit or a group of them (``unit_group``). The source's
 ``annotate`` and ``annotate_group`` are wrapped only to time them (a generator group: the
 making of each unit's clips, not the writing between). A source whose
-``benchmarks/inputs_<source>.py`` defines ``measure_fixed_cost(spec, config)`` (ADT: opening the
-sequence) has that cost measured apart, before the runs, for the extrapolation in ``report``; the
-functions it names in ``FIXED_IN_WORK`` ((module, name) pairs: ADT's ``open_sequence``, which each
-repeated run calls again) are timed inside the runs too, so that the report can take exactly
+``benchmarks/inputs_<source>.py`` defines ``measure_fixed_cost(spec, config)`` (ADT: opening and
+closing the sequence) has that cost measured apart, before the runs, for the extrapolation in
+``report``; the functions it names in ``FIXED_IN_WORK`` ((module, name) pairs: ADT's
+``open_sequence`` and ``close_sequence``, which each repeated run calls again) are timed inside the
+runs too, so that the report can take exactly
 what the runs paid for them out of the per-frame cost.
 
 With ``spec["mode"] == "floor"`` the process measures the unit's read+decode floor instead

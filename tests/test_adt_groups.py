@@ -1,6 +1,7 @@
 """ADT chunks annotated in groups (``pipeline.adt.source.annotate_chunks``): a group opens its
-sequence once and makes, chunk by chunk, the clips each chunk makes alone; an unreadable sequence
-fails every chunk of the group, each error naming its own unit."""
+sequence once (and closes it once, after its last chunk) and makes, chunk by chunk, the clips each
+chunk makes alone; an unreadable sequence fails every chunk of the group, each error naming its own
+unit."""
 
 import numpy as np
 
@@ -14,26 +15,52 @@ from tests.adt_excerpt import SAMPLE, needs_excerpt
 ONE_FRAME_CHUNKS = ("adt.chunk_frames=1", "adt.min_frames=1", "adt.max_gt_offset_ms=40")
 
 
+def _count_openings_and_closings(monkeypatch) -> tuple[list, list]:
+    """(opened, closed): the sequences ``open_sequence`` returns and ``close_sequence`` is given."""
+    opened, closed = [], []
+    open_sequence, close_sequence = adt.open_sequence, adt.close_sequence
+
+    def counted_open(*args):
+        opened.append(open_sequence(*args))
+        return opened[-1]
+
+    def counted_close(sequence):
+        closed.append(sequence)
+        close_sequence(sequence)
+
+    monkeypatch.setattr(adt, "open_sequence", counted_open)
+    monkeypatch.setattr(adt, "close_sequence", counted_close)
+    return opened, closed
+
+
 @needs_excerpt
 def test_a_group_opens_its_sequence_once_and_makes_each_chunks_own_clip(monkeypatch):
     config = with_overrides(RunConfig(), list(ONE_FRAME_CHUNKS))
     units = adt.list_units(str(SAMPLE), config)
     assert len(units) == 2 and len({adt.group_of(unit) for unit in units}) == 1
+    opened, closed = _count_openings_and_closings(monkeypatch)
     alone = [adt.annotate(str(SAMPLE), unit, config) for unit in units]
-    opened = []
-    open_sequence = adt.open_sequence
-
-    def counted(*args):
-        opened.append(args)
-        return open_sequence(*args)
-
-    monkeypatch.setattr(adt, "open_sequence", counted)
-    together = list(adt.annotate_chunks(str(SAMPLE), units, config))
-    assert len(opened) == 1
+    assert len(opened) == 2 and closed == opened  # a unit alone opens and closes its sequence
+    del opened[:], closed[:]
+    made = adt.annotate_chunks(str(SAMPLE), units, config)
+    together = [next(made)]
+    assert len(opened) == 1 and not closed  # still open for the group's next chunk
+    together += list(made)
+    assert len(opened) == 1 and closed == opened and opened[0].frames.reader.provider is None
     for (one,), (grouped,) in zip(alone, together, strict=True):
         assert grouped.name == one.name and grouped.images_jpeg == one.images_jpeg
         for field in ("tracks_xyz", "visibility", "queries_xyt", "extrinsics_w2c", "frame_ids"):
             np.testing.assert_array_equal(getattr(grouped, field), getattr(one, field))
+
+
+@needs_excerpt
+def test_a_group_stopped_early_still_closes_its_sequence(monkeypatch):
+    config = with_overrides(RunConfig(), list(ONE_FRAME_CHUNKS))
+    opened, closed = _count_openings_and_closings(monkeypatch)
+    made = adt.annotate_chunks(str(SAMPLE), adt.list_units(str(SAMPLE), config), config)
+    next(made)
+    made.close()  # the caller stops after the first chunk (a Ctrl-C, a failed write)
+    assert len(opened) == 1 and closed == opened
 
 
 def test_an_unreadable_sequence_fails_each_chunk_under_its_own_name(tmp_path):

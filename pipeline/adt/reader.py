@@ -309,6 +309,11 @@ class SequenceReader:
     def gt_window_ns(self) -> tuple[int, int]:
         return int(self.provider.get_start_time_ns()), int(self.provider.get_end_time_ns())
 
+    def close(self) -> None:
+        """Release projectaria-tools' provider (its open VRS files and loaded tables); the reader
+        reads nothing after this."""
+        self.provider = None
+
     def frame_timestamps(self) -> np.ndarray:
         """RGB capture timestamps strictly inside the ground-truth window [K] int64 (the release's rule)."""
         stamps = np.asarray(self.provider.get_aria_device_capture_timestamps_ns(self.stream), dtype=np.int64)
