@@ -4,9 +4,9 @@ chunk, run ``REPEAT`` times through ``pipeline.unit.run_group`` (each run opens 
 sequence, as a group does); a release unit (300 frames) is extrapolated: its share of its group's
 opening and closing (the sequence opened, its re-rendering tables built and the sequence closed once
 for ``CHUNKS_PER_GROUP`` chunks, measured apart by ``measure_fixed_cost`` with the source's own
-``open_sequence`` and ``close_sequence``), the filter, encode and
-write stage of a 300-frame clip (measured apart, once per unit), plus 300 x the measured per-frame
-cost of reading, re-rendering and annotating.
+``open_sequence`` and ``close_sequence``), the filter, encode and write stage of a 300-frame clip
+(measured apart, once per unit), plus 300 x the measured per-frame cost of reading, re-rendering
+and annotating.
 """
 
 from __future__ import annotations

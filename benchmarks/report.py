@@ -5,9 +5,9 @@ Figures of a release unit (``unit_frames`` frames): ms/frame = its time on one c
 frames; CPU-hours = that time x the release's units; unit/floor = that time / the same for the
 bare reading and decoding of its inputs (``benchmarks.floors``). Where the measured input is
 shorter than a release unit (ADT's 2-frame excerpt; DriveTrack and Panoptic Studio at the default
-size), the unit is extrapolated: fixed cost (ADT: opening and closing the sequence, measured apart) + frames x
-the measured per-frame cost, and its floor likewise; such figures carry ``*``. Peak memory (max
-RSS) is always the measured process's, at the size benched.
+size), the unit is extrapolated: fixed cost (ADT: opening and closing the sequence, measured
+apart) + frames x the measured per-frame cost, and its floor likewise; such figures carry ``*``.
+Peak memory (max RSS) is always the measured process's, at the size benched.
 
 "Time on one core" is the CPU time of the single-threaded process bound to one CPU: on an idle
 machine it equals its wall time; on a busy one the wall time also counts the waits for that CPU

@@ -11,8 +11,8 @@ making of each unit's clips, not the writing between). A source whose
 closing the sequence) has that cost measured apart, before the runs, for the extrapolation in
 ``report``; the functions it names in ``FIXED_IN_WORK`` ((module, name) pairs: ADT's
 ``open_sequence`` and ``close_sequence``, which each repeated run calls again) are timed inside the
-runs too, so that the report can take exactly
-what the runs paid for them out of the per-frame cost.
+runs too, so that the report can take exactly what the runs paid for them out of the per-frame
+cost.
 
 With ``spec["mode"] == "floor"`` the process measures the unit's read+decode floor instead
 (``benchmarks.floors``): the bare cost of reading and decoding the unit's inputs.
