@@ -91,10 +91,9 @@ def nearest_centres(
         cells = np.floor((points[finite] - low) / size).astype(np.int64)
         dims = int(cells.max()) + 2
         if dims <= MAX_AXIS_CELLS:
+            around = (cells[:, None, :] + NEIGHBOURS[None]).reshape(-1, 3)  # cells within one of a point's
             occupied = np.zeros((3, dims), np.bool_)
-            for shift in (-1, 0, 1):
-                occupied[np.arange(3), cells + shift] = True
-            around = (cells[:, None, :] + NEIGHBOURS[None]).reshape(-1, 3)
+            occupied[np.arange(3), around] = True  # their coordinates, axis by axis
             cell_keys = np.unique((around[:, 0] * dims + around[:, 1]) * dims + around[:, 2])
             near = _near_some_point(centres, candidates, size, low, occupied, cell_keys)
     found_distance, found = np.empty(int(finite.sum())), np.empty(int(finite.sum()), np.int64)
