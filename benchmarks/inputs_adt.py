@@ -97,12 +97,15 @@ def _release_size_write(spec: dict, config: RunConfig, runs: int = 3) -> tuple[f
     import dataclasses
     import shutil
     import tempfile
+    import time as clock
 
     from pipeline import sources
-    from pipeline.unit import UnitJob, filter_unit, write_unit
+    from pipeline.core.outcomes import UnitClips
+    from pipeline.unit import Annotated, UnitJob, filter_unit, write_unit
 
     source = sources.get("adt")
-    (clip,) = source.annotate(spec["input_root"], tuple(spec["unit"]), config)
+    (made,) = source.annotate_group(spec["input_root"], [tuple(spec["unit"])], config, [None])
+    (clip,) = made.clips
     take = np.arange(CHUNK_FRAMES) % clip.num_frames
     release = dataclasses.replace(
         clip,
@@ -117,7 +120,8 @@ def _release_size_write(spec: dict, config: RunConfig, runs: int = 3) -> tuple[f
         job = UnitJob(source, spec["input_root"], config, scratch, resume=False)
         wall, cpu = time.perf_counter(), time.process_time()
         for _ in range(runs):
-            write_unit(job, "release_size", filter_unit(job, "release_size", [release]))
+            annotated = Annotated("release_size", UnitClips((release,)), clock.time())
+            write_unit(job, filter_unit(job, annotated))
         return (time.perf_counter() - wall) / runs, (time.process_time() - cpu) / runs
     finally:
         shutil.rmtree(scratch, ignore_errors=True)

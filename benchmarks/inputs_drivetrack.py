@@ -176,10 +176,10 @@ def measure_fixed_cost(spec: dict, config) -> dict:
     with the types a unit calls it with. first_calls_s / first_calls_cpu_s."""
     from pipeline.drivetrack.annotate import unit_camera
     from pipeline.drivetrack.depth import camera_occluded_lidar, nearest_depth_max4
-    from pipeline.drivetrack.source import load_unit
+    from pipeline.drivetrack.source import load_units
 
     segment, camera = spec["unit"][0]
-    unit = load_unit(spec["input_root"], segment, camera)
+    (unit,) = load_units(spec["input_root"], segment, [camera])
     rng = np.random.default_rng(0)
     size = np.array([unit.calibration.width, unit.calibration.height], np.float64)
     world = unit.frames.world_from_vehicle_at_exposure[0][:3, 3] + rng.normal(0, 20.0, (64, 3))

@@ -31,13 +31,13 @@ import time
 from benchmarks.processes import peak_rss
 
 
-def unit_counts(reports: list[dict]) -> dict:
+def unit_counts(reports: list) -> dict:
     """Clips, clips written, tracks written and clip frames of one unit's clip reports."""
     return {
         "clips": len(reports),
-        "clips_written": sum(r["written_tracks"] > 0 for r in reports),
-        "tracks_written": sum(r["written_tracks"] for r in reports),
-        "clip_frames": sum(r["frames"] for r in reports),
+        "clips_written": sum(r.written for r in reports),
+        "tracks_written": sum(r.written_tracks for r in reports),
+        "clip_frames": sum(r.frames for r in reports),
     }
 
 
@@ -112,12 +112,10 @@ def run(spec: dict) -> dict:
             result = clocked(lambda: function(*args))
             return each_timed(result) if inspect.isgenerator(result) else result
 
-        return call if function else None
+        return call
 
     job = UnitJob(
-        dataclasses.replace(
-            source, annotate=timed(source.annotate), annotate_group=timed(source.annotate_group)
-        ),
+        dataclasses.replace(source, annotate_group=timed(source.annotate_group)),
         spec["input_root"],
         config,
         spec["output"],

@@ -1,16 +1,24 @@
 """Resume: a rerun skips every unit that a previous run with the same settings finished.
 
-When all clips of a unit are written, its record (``<out>/units/<source>/<unit>.json``) follows:
-the unit's name, the run's fingerprint (package version, source, whole config), its clips'
-reports and each clip file's SHA-256. A rerun skips the unit when the record carries the
-rerun's fingerprint and every clip it lists is on disk with exactly those bytes, validates, and
-has its audit table (and its depth, when exported). Anything else re-annotates the unit. The
-record is written last, so a run killed at any moment leaves each unit either finished or redone
-by the rerun, with the same bytes.
+Every unit ends with its record (``<out>/units/<source>/<unit>.json``): the unit's name, the
+fingerprint of the settings that decide its clips' bytes, the run that wrote (or resumed) it, the
+clips it was asked for on a release run (``wanted``), its clips' reports, each clip file's SHA-256,
+its failures and, for the wanted clips it did not make, why. A rerun skips the unit when the record
+has no failure, carries the rerun's fingerprint, accounts for every clip the rerun wants of it, and
+every clip it lists is on disk with exactly those bytes, validates, and has its audit table (and its
+depth, when exported). Anything else re-annotates the unit. The record is written last, so a run
+killed at any moment leaves each unit either finished or redone by the rerun, with the same bytes.
+
+The fingerprint covers exactly what changes a unit's clip bytes: the package version, the source,
+and every setting but those marked ``clip_bytes=False`` (the manifests', the scratch folder's,
+whether depth is exported: its files are checked on their own) and the other sources' sections. So
+a change of ``splits_file``, ``minival_per_source`` or ``--release`` membership resumes every unit
+and only rewrites the manifests and the run's records.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -19,7 +27,9 @@ import time
 from apache_beam.io.filesystems import FileSystems
 
 import pipeline
+from pipeline import sources
 from pipeline.core.config import RunConfig
+from pipeline.core.outcomes import ClipReport, Failure, UnitOutcome
 from pipeline.export.clip_reader import DEFAULT_LIMITS
 from pipeline.export.files import PARTIAL, is_abandoned, read_bytes, remove_quietly, write_atomic, writer_pid
 from pipeline.export.layout import (
@@ -31,65 +41,73 @@ from pipeline.export.layout import (
     unit_record_path,
 )
 from pipeline.export.validator import check_clip_bytes
-from pipeline.filters.select import FILTER_ORDER
 
 
 def sha256(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
+def clip_settings(config, source: str) -> dict:
+    """The settings that decide the bytes of ``source``'s clips: every field of ``config`` but those
+    marked ``not_in_clips`` and the sections named after other sources."""
+    others = set(sources.names()) - {source}
+    settings = {}
+    for field in dataclasses.fields(config):
+        value = getattr(config, field.name)
+        if field.metadata.get("clip_bytes", True) is False or field.name in others:
+            continue
+        settings[field.name] = clip_settings(value, source) if dataclasses.is_dataclass(value) else value
+    return settings
+
+
 def run_fingerprint(source: str, config: RunConfig) -> str:
-    """Digest of everything that decides a unit's output bytes."""
-    settings = {"version": pipeline.__version__, "source": source, "config": config.to_dict()}
+    """Digest of everything that decides a unit's clip bytes (``clip_settings``)."""
+    settings = {"version": pipeline.__version__, "source": source, "config": clip_settings(config, source)}
     return sha256(json.dumps(settings, sort_keys=True).encode())
 
 
-# A clip report's fields and their types, as write_clip makes them (pipeline/graph.py).
-REPORT_FIELDS = {
-    "clip": str,
-    "source": str,
-    "unit": str,
-    "frames": int,
-    "candidates": int,
-    "dropped": dict,
-    "passed": int,
-    "written_tracks": int,
-    "target_tracks": int,
-}
 # A record larger than this is not one of ours (a unit's record is a few KB per clip).
 MAX_RECORD_BYTES = 64 << 20
 
 
 def read_unit_record(output: str, source: str, unit: str) -> dict | None:
     """The unit's record, or None when there is none, it cannot be read, or it is not shaped as
-    ``write_unit_record`` writes it (every clip name plain, every report complete)."""
+    ``write_unit_record`` writes it (every clip name plain, every report and failure complete)."""
     try:
         record = json.loads(read_bytes(unit_record_path(output, source, unit), MAX_RECORD_BYTES))
+        outcome_of(record)
     except (OSError, ValueError):
         return None
-    return record if _well_formed(record, unit) else None
+    return record if record.get("unit") == unit else None
 
 
-def _well_formed(record, unit: str) -> bool:
-    if not isinstance(record, dict) or record.get("unit") != unit:
-        return False
-    reports, digests = record.get("reports"), record.get("clips")
-    if not isinstance(record.get("fingerprint"), str) or not isinstance(reports, list):
-        return False
-    if not isinstance(digests, dict) or not all(isinstance(v, str) for v in digests.values()):
-        return False
-    for report in reports:
-        if not isinstance(report, dict) or not all(
-            isinstance(report.get(key), kind) and not isinstance(report.get(key), bool)
-            for key, kind in REPORT_FIELDS.items()
-        ):
-            return False
-        dropped = report["dropped"]
-        if not is_clip_name(report["clip"]) or set(dropped) != set(FILTER_ORDER):
-            return False
-        if not all(isinstance(count, int) for count in dropped.values()):
-            return False
-    return True
+def outcome_of(record: object) -> UnitOutcome:
+    """The UnitOutcome a record holds; ValueError when it is not shaped as ``write_unit_record``
+    writes it."""
+    if not isinstance(record, dict) or not isinstance(record.get("unit"), str):
+        raise ValueError("not a unit record")
+    for key, kind in (("fingerprint", str), ("run", str), ("reports", list), ("failures", list)):
+        if not isinstance(record.get(key), kind):
+            raise ValueError(f"{key} must be a {kind.__name__}")
+    for key in ("clips", "not_made"):
+        value = record.get(key)
+        if not isinstance(value, dict) or not all(isinstance(v, str) for v in value.values()):
+            raise ValueError(f"{key} must map names to strings")
+    wanted = record.get("wanted")
+    if wanted is not None and not (isinstance(wanted, list) and all(isinstance(w, str) for w in wanted)):
+        raise ValueError("wanted must be a list of clip names or null")
+    reports = tuple(ClipReport.from_json(report) for report in record["reports"])
+    if not all(is_clip_name(report.clip) for report in reports):
+        raise ValueError("a report's clip is not a plain clip name")
+    seconds = record.get("seconds", 0.0)
+    return UnitOutcome(
+        record["unit"],
+        reports,
+        tuple(Failure.from_json(item) for item in record["failures"]),
+        dict(record["not_made"]),
+        resumed=bool(record.get("resumed")),
+        seconds=float(seconds) if isinstance(seconds, (int, float)) else 0.0,
+    )
 
 
 def _clip_is_intact(output: str, source: str, clip: str, digest: str, export_depth: bool) -> bool:
@@ -105,25 +123,49 @@ def _clip_is_intact(output: str, source: str, clip: str, digest: str, export_dep
     return sha256(data) == digest and not check_clip_bytes(data)
 
 
-def finished_reports(
-    record: dict | None, output: str, source: str, fingerprint: str, export_depth: bool
-) -> list[dict] | None:
-    """The clip reports of a unit a previous run finished with these settings, else None."""
-    if record is None or record.get("fingerprint") != fingerprint:
+def finished_outcome(
+    record: dict | None, output: str, source: str, fingerprint: str, export_depth: bool, wanted
+) -> UnitOutcome | None:
+    """The outcome of a unit a previous run finished with these settings, resumed; else None.
+
+    wanted: the clips this run wants of the unit (None: every clip it makes). A record made for
+    some clips only resumes a run that wants no others; every wanted clip must be made or have
+    its reason; on a release run only the wanted clips' reports are kept.
+    """
+    if record is None or record.get("fingerprint") != fingerprint or record["failures"]:
         return None
-    for report in record["reports"]:
-        if report["written_tracks"] and not _clip_is_intact(
-            output, source, report["clip"], record["clips"].get(report["clip"], ""), export_depth
+    outcome = outcome_of(record)
+    made = {report.clip for report in outcome.reports}
+    if wanted is None and record.get("wanted") is not None:
+        return None
+    if wanted is not None and not wanted <= made | set(outcome.not_made):
+        return None
+    for report in outcome.reports:
+        if report.written and not _clip_is_intact(
+            output, source, report.clip, record["clips"].get(report.clip, ""), export_depth
         ):
             return None
-    return record["reports"]
+    if wanted is None:
+        return dataclasses.replace(outcome, resumed=True, seconds=0.0)
+    return dataclasses.replace(
+        outcome,
+        reports=tuple(report for report in outcome.reports if report.clip in wanted),
+        not_made={name: why for name, why in outcome.not_made.items() if name in wanted},
+        resumed=True,
+        seconds=0.0,
+    )
 
 
-def remove_stale_clips(record: dict | None, output: str, source: str, current: set[str]) -> list[str]:
+def remove_stale_clips(
+    record: dict | None, output: str, source: str, current: set[str], wanted=None
+) -> list[str]:
     """Delete the files of clips a previous record lists that this run no longer produces (e.g. an
-    object that no longer qualifies under new settings); returns their names. A name that is not a
-    plain clip name (a forged record) is never turned into a path."""
+    object that no longer qualifies under new settings); returns their names. On a release run
+    (``wanted``, the clips it was asked for) only those clips are this run's to remove. A name that
+    is not a plain clip name (a forged record) is never turned into a path."""
     listed = {report["clip"] for report in record["reports"]} if record else set()
+    if wanted is not None:
+        listed &= wanted
     stale = sorted(name for name in listed - current if is_clip_name(name))
     remove_quietly(
         [path(output, source, clip) for clip in stale for path in (clip_path, audit_path, depth_path)]
@@ -131,12 +173,10 @@ def remove_stale_clips(record: dict | None, output: str, source: str, current: s
     return stale
 
 
-def write_unit_record(
-    output: str, source: str, unit: str, fingerprint: str, reports: list[dict], digests: dict[str, str]
-) -> None:
-    record = {"unit": unit, "fingerprint": fingerprint, "reports": reports, "clips": digests}
+def write_unit_record(output: str, source: str, record: dict) -> None:
+    """Write a unit's record (``outcome_of`` reads it back) atomically."""
     text = json.dumps(record, indent=1, sort_keys=True)
-    write_atomic(unit_record_path(output, source, unit), text.encode())
+    write_atomic(unit_record_path(output, source, record["unit"]), text.encode())
 
 
 def remove_partial_files(output: str, source: str, include_own: bool = False) -> int:

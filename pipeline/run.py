@@ -2,19 +2,20 @@
 
 Regenerates TAPVid-3D clips from a source dataset. Any option not listed here is passed to
 Beam (``--runner``, ``--direct_num_workers``, ``--direct_running_mode``, Dataflow/Flink/Spark
-options, ...). Without ``--input`` it runs on the embedded sample world.
+options, ...). Without ``--input`` it runs on the embedded sample world. With ``--release`` it
+regenerates the release's own clips and writes a verdict for each (``<out>/release_<source>.jsonl``).
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import logging
 import os
 import platform
 import sys
 import time
+import uuid
 
 import apache_beam as beam
 import numpy as np
@@ -25,18 +26,26 @@ import pipeline
 from pipeline import graph, sources, storage
 from pipeline.core.config import RunConfig, with_overrides
 from pipeline.core.errors import InputError, OutputError, root_cause
-from pipeline.export.files import is_local, read_bytes, remove_quietly, write_atomic
-from pipeline.export.layout import failures_path, run_record_path, sample_folder
-from pipeline.export.manifests import load_official_splits
-from pipeline.filters.select import FILTER_ORDER
+from pipeline.core.outcomes import FILTER_ORDER
+from pipeline.core.progress import quiet_worker_logs, set_verbose
+from pipeline.export.files import is_local, remove_quietly, write_atomic
+from pipeline.export.layout import failures_path, release_verdicts_path, run_record_path, sample_folder
+from pipeline.finish import FinishedRun, finish_run
+from pipeline.monitor import RunMonitor
+from pipeline.release import Release, read_release
 from pipeline.resume import remove_partial_files
-from pipeline.sources import NoSample
+from pipeline.sources import NoSample, Source, UnitPlan
 from pipeline.unit import UnitJob
 
-MAX_SPLITS_BYTES = 64 << 20
 DASK_RUNNER = "apache_beam.runners.dask.dask_runner.DaskRunner"
+PROBE_BYTES = 4 << 20
 
 log = logging.getLogger("pipeline")
+
+
+class CannotStart(Exception):
+    """The run cannot start (a bad option or setting, a missing input, an unwritable output); the
+    message is one line, printed as ``cannot start: <message>`` with exit status 2."""
 
 
 def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
@@ -48,6 +57,13 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
     parser.add_argument("--source", required=True, choices=sources.names())
     parser.add_argument("--input", help="source data (DriveTrack: a Waymo Open v2 split folder)")
     parser.add_argument("--output", default="tapvid3d_out", help="output folder (default %(default)s)")
+    parser.add_argument(
+        "--release",
+        metavar="SPLITS_JSON",
+        help="the release's splits JSON: annotate only the units its clips need, write only its clips "
+        "(under their release names), manifests exactly its splits, and a verdict for every clip it "
+        "names in <out>/release_<source>.jsonl",
+    )
     parser.add_argument(
         "--queries-from",
         metavar="DIR",
@@ -74,64 +90,31 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
         metavar="KEY=VALUE",
         help="override a config field, e.g. flicker.max_fraction=0.2 (repeatable)",
     )
+    parser.add_argument("--verbose", action="store_true", help="also print the workers' and Beam's log lines")
     return parser.parse_known_args(argv)
 
 
-def configure_logging() -> None:
+@dataclasses.dataclass(frozen=True)
+class PreparedRun:
+    """Everything checked before any work: the source, settings, paths, release and Beam options."""
+
+    source: Source
+    config: RunConfig
+    input_root: str | None
+    output: str
+    release: Release | None
+    restricted: bool
+    overwrite: bool
+    beam_args: list[str]
+    options: PipelineOptions
+
+
+def configure_logging(verbose: bool) -> None:
     logging.basicConfig(
         level=logging.INFO, force=True, format="%(asctime)s %(levelname)s %(message)s", datefmt="%H:%M:%S"
     )
-    for noisy in ("apache_beam", "root"):
-        logging.getLogger(noisy).setLevel(logging.WARNING)
-
-
-def record_metrics(result, output: str, source: str) -> dict[str, int] | None:
-    """The run's Beam counters (``graph.COUNTERS``), added to its run record as ``metrics``; None
-    when the runner reports none (then the record says so)."""
-    try:
-        found = result.metrics().query(MetricsFilter().with_namespace(graph.METRICS_NAMESPACE))["counters"]
-    except (NotImplementedError, AttributeError, KeyError):
-        found = None
-    counters = None
-    if found is not None:
-        totals = {name: 0 for name in graph.COUNTERS}
-        for item in found:
-            value = item.committed if item.committed is not None else item.attempted
-            totals[item.key.metric.name] = totals.get(item.key.metric.name, 0) + int(value or 0)
-        counters = totals
-    path = run_record_path(output, source)
-    record = json.loads(read_bytes(path))
-    record["metrics"] = counters if counters is not None else "not reported by this runner"
-    write_atomic(path, json.dumps(record, indent=2, sort_keys=True).encode())
-    return counters
-
-
-def print_summary(summary: dict, counters: dict[str, int] | None, output: str, source: str) -> None:
-    """The closing lines: what this run did (its Beam counters, when the runner reports them), then
-    the totals over every unit (finished-earlier ones included), the manifests, where things are."""
-    dropped = ", ".join(f"{name} {summary['dropped_by_filter'][name]}" for name in FILTER_ORDER)
-    if counters is not None:
-        print(
-            f"\nthis run (Beam counters): {counters['units_read']} unit(s) read, "
-            f"{counters['units_resumed']} skipped as finished, {counters['units_failed']} failed; "
-            f"{counters['clips_written']} of {counters['clips_annotated']} annotated clip(s) written, "
-            f"{counters['tracks_written']} tracks; dropped by filter: "
-            + ", ".join(f"{name} {counters[f'tracks_dropped_{name}']}" for name in FILTER_ORDER)
-        )
-    print(
-        f"\n{source}: {summary['units']} unit(s), {summary['units_resumed']} finished earlier, "
-        f"{summary['units_failed']} failed; "
-        f"{summary['clips_written']} clip(s) written ({summary['clips_below_target']} below "
-        f"their target track count)\n"
-        f"tracks: {summary['candidate_tracks']} candidates, dropped by filter: {dropped}; "
-        f"{summary['tracks_passing_filters']} passed, {summary['tracks_written']} written\n"
-        f"manifests: minival {summary['manifests']['minival']}, full_test "
-        f"{summary['manifests']['full_test']} clip(s)\n"
-        f"clips in {output}/{source}/, manifests in {output}/manifests/, "
-        f"provenance in {run_record_path(output, source)}"
-    )
-    if summary["failures"]:
-        print(f"{summary['failures']} failure(s): see {failures_path(output, source)}", file=sys.stderr)
+    set_verbose(verbose)
+    quiet_worker_logs()
 
 
 def runner_args(beam_args: list[str]) -> list[str]:
@@ -147,21 +130,26 @@ def runner_args(beam_args: list[str]) -> list[str]:
     return args
 
 
-PROBE_BYTES = 4 << 20
+def absolute(path: str) -> str:
+    """A local path made absolute (workers may run elsewhere); remote URLs unchanged."""
+    return os.path.abspath(path) if path and is_local(path) else path
 
 
 def check_writable(output: str) -> None:
-    """Raise OSError unless ``output`` takes a real write of PROBE_BYTES (a full disk fails here,
-    not after hours of work), which is then removed."""
+    """CannotStart unless ``output`` takes a real write of PROBE_BYTES (a full disk fails here, not
+    after hours of work), which is then removed."""
+    if is_local(output) and os.path.isfile(output):
+        raise CannotStart(f"--output {output} is a file, not a folder")
     probe = f"{output}/.write_probe-{os.getpid()}"
-    write_atomic(probe, os.urandom(PROBE_BYTES))
+    try:
+        write_atomic(probe, os.urandom(PROBE_BYTES))
+    except OSError as error:
+        raise CannotStart(f"output folder {output} is not writable ({error.strerror or error})") from None
     remove_quietly([probe])
 
 
-def check_inputs(input_root: str | None, config: RunConfig) -> tuple[dict, dict] | None:
-    """Fail before any work: every local path the run will read exists, and ``splits_file`` is read
-    and parsed. Returns the official (minival, full_eval) membership, or None without
-    ``splits_file``. Raises InputError."""
+def check_inputs(input_root: str | None, config: RunConfig) -> None:
+    """CannotStart unless every local path the run will read exists."""
     paths = {
         "--input": input_root,
         "--queries-from": config.queries_from,
@@ -173,19 +161,146 @@ def check_inputs(input_root: str | None, config: RunConfig) -> tuple[dict, dict]
         if path:
             storage.check_scheme(path)
         if path and is_local(path) and not os.path.exists(path):
-            raise InputError(f"{what} {path} does not exist")
-    if not config.splits_file:
-        return None
+            raise CannotStart(f"{what} {path} does not exist")
+
+
+def settings(args: argparse.Namespace) -> tuple[RunConfig, Release | None]:
+    """The run's config (defaults, ``--set``, the command's flags) and the release it follows."""
+    config = with_overrides(RunConfig(), args.overrides)
+    splits = absolute(args.release or "") or absolute(config.splits_file)
+    if args.release and config.splits_file and absolute(config.splits_file) != splits:
+        raise CannotStart("--release and --set splits_file name different files; give one")
+    config = dataclasses.replace(
+        config,
+        export_depth=config.export_depth or args.export_depth,
+        queries_from=absolute(args.queries_from or ""),
+        splits_file=splits,
+    )
+    check_inputs(args.input, config)
+    return config, read_release(splits, "--release" if args.release else "splits_file") if splits else None
+
+
+def prepare_run(args: argparse.Namespace, beam_args: list[str]) -> PreparedRun:
+    """Check everything before any work; CannotStart (or ValueError, InputError) says what is wrong."""
+    source = sources.get(args.source)
+    beam_args = runner_args(beam_args)
+    options = PipelineOptions(beam_args)
+    storage.use_options(options)
+    output = absolute(args.output)
+    storage.check_scheme(output)
+    config, release = settings(args)
+    check_writable(output)
+    if args.input is None and not is_local(output):
+        raise CannotStart(
+            f"the embedded sample world is written under a local --output; with {output} pass --input "
+            "(a copy of the sample uploaded there works)"
+        )
+    input_root = args.input if args.input is None or "://" in args.input else os.path.abspath(args.input)
+    return PreparedRun(
+        source, config, input_root, output, release, bool(args.release), args.overwrite, beam_args, options
+    )
+
+
+def sample_input(prepared: PreparedRun) -> str:
+    """The run's input root: ``--input``, or the embedded sample world (written once, announced)."""
+    if prepared.input_root is not None:
+        return prepared.input_root
+    folder = sample_folder(prepared.output, prepared.source.name)
+    print(f"no --input given: using the embedded sample world in {folder} (written once)", flush=True)
+    return prepared.source.sample_input(folder)
+
+
+def plan_units(prepared: PreparedRun, input_root: str) -> UnitPlan:
+    """The source's units (on a release run, those its clips need); CannotStart when unlistable."""
+    names = prepared.release.names(prepared.source.name) if prepared.restricted else None
     try:
-        return load_official_splits(read_bytes(config.splits_file, MAX_SPLITS_BYTES).decode())
-    except (OSError, UnicodeDecodeError, ValueError) as error:
-        what = f"splits_file {config.splits_file}"
-        raise InputError(f"{what}: not the release's splits JSON ({error})") from error
+        return prepared.source.list_units(input_root, prepared.config, names)
+    except (InputError, OSError) as error:
+        raise CannotStart(str(error)) from None
 
 
-def absolute(path: str) -> str:
-    """A local path made absolute (workers may run elsewhere); remote URLs unchanged."""
-    return os.path.abspath(path) if path and is_local(path) else path
+def provenance(prepared: PreparedRun, input_root: str, plan: UnitPlan) -> dict:
+    """The run record's account of where the run came from."""
+    return {
+        "package": "tapvid3d-pipeline",
+        "version": pipeline.__version__,
+        "source": prepared.source.name,
+        "input": input_root,
+        "output": prepared.output,
+        "config": prepared.config.to_dict(),
+        "release": prepared.release.path if prepared.restricted else None,
+        "units": [prepared.source.unit_name(unit) for unit in plan.units],
+        "beam_options": prepared.beam_args,
+        "environment": {
+            "python": platform.python_version(),
+            "numpy": np.__version__,
+            "apache_beam": beam.__version__,
+        },
+        "started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+    }
+
+
+def beam_counters(result) -> dict[str, int] | str:
+    """The run's Beam counters (``graph.COUNTERS``), or why there are none."""
+    try:
+        found = result.metrics().query(MetricsFilter().with_namespace(graph.METRICS_NAMESPACE))["counters"]
+    except (NotImplementedError, AttributeError, KeyError):
+        return "not reported by this runner"
+    totals = {name: 0 for name in graph.COUNTERS}
+    for item in found:
+        value = item.committed if item.committed is not None else item.attempted
+        totals[item.key.metric.name] = totals.get(item.key.metric.name, 0) + int(value or 0)
+    return totals
+
+
+def run_pipeline(prepared: PreparedRun, job: UnitJob, plan: UnitPlan):
+    """Run the Beam graph over the plan's units, reporting each unit as it finishes; the result."""
+    names = [prepared.source.unit_name(unit) for unit in plan.units]
+    with RunMonitor(job.output, job.source.name, names, job.run_id, time.monotonic()):
+        p = beam.Pipeline(options=prepared.options)
+        _ = p | "RegenerateClips" >> graph.RegenerateClips(job, plan.units, prepared.options)
+        result = p.run()
+        try:
+            result.wait_until_finish()
+        finally:
+            # Beam's Dask runner opens a distributed.Client for the run and never closes it: a
+            # caller that goes on (a notebook, the tests) would keep a client that tries to
+            # reconnect once the cluster is gone.
+            client = getattr(result, "client", None)
+            if client is not None:
+                client.close()
+    return result
+
+
+def print_summary(finished: FinishedRun, metrics, output: str, source: str) -> None:
+    """The closing lines: what this run did (its Beam counters, when the runner reports them), then
+    the totals over every unit (finished-earlier ones included), the manifests, where things are."""
+    summary = finished.summary
+    dropped = ", ".join(f"{name} {summary['dropped_by_filter'][name]}" for name in FILTER_ORDER)
+    if isinstance(metrics, dict):
+        print(
+            f"\nthis run (Beam counters): {metrics['units_read']} unit(s) read, "
+            f"{metrics['units_resumed']} skipped as finished, {metrics['units_failed']} failed; "
+            f"{metrics['clips_written']} of {metrics['clips_annotated']} annotated clip(s) written, "
+            f"{metrics['tracks_written']} tracks; dropped by filter: "
+            + ", ".join(f"{name} {metrics[f'tracks_dropped_{name}']}" for name in FILTER_ORDER)
+        )
+    print(
+        f"\n{source}: {summary['units']} unit(s), {summary['units_resumed']} finished earlier, "
+        f"{summary['units_failed']} failed; "
+        f"{summary['clips_written']} clip(s) written ({summary['clips_below_target']} below "
+        f"their target track count)\n"
+        f"tracks: {summary['candidate_tracks']} candidates, dropped by filter: {dropped}; "
+        f"{summary['tracks_passing_filters']} passed, {summary['tracks_written']} written\n"
+        f"manifests: minival {summary['manifests']['minival']}, full_test "
+        f"{summary['manifests']['full_test']} clip(s)\n"
+        f"clips in {output}/{source}/, manifests in {output}/manifests/, "
+        f"provenance in {run_record_path(output, source)}"
+    )
+    if finished.release is not None:
+        print(f"{summary['release']['line']} (one row each in {release_verdicts_path(output, source)})")
+    if summary["failures"]:
+        print(f"{summary['failures']} failure(s): see {failures_path(output, source)}", file=sys.stderr)
 
 
 class _ReportedByUs(logging.Filter):
@@ -199,13 +314,18 @@ class _ReportedByUs(logging.Filter):
 def main(argv: list[str] | None = None) -> int:
     """The command; exit 0 when every unit succeeded, 1 when some failed, 2 when the run could not
     start or finish, 130 when interrupted (Ctrl-C)."""
+    started = time.monotonic()
     args, beam_args = parse_args(sys.argv[1:] if argv is None else argv)
-    configure_logging()
-    output = absolute(args.output)
+    configure_logging(args.verbose)
     try:
-        return run(args, beam_args, output)
+        prepared = prepare_run(args, beam_args)
+    except (CannotStart, ValueError, InputError) as problem:
+        print(f"cannot start: {problem}", file=sys.stderr)
+        return 2
+    try:
+        return run(prepared, started)
     except KeyboardInterrupt:
-        removed = remove_partial_files(output, args.source, include_own=True)
+        removed = remove_partial_files(prepared.output, prepared.source.name, include_own=True)
         note = f"; removed {removed} partial file(s)" if removed else ""
         print(
             f"interrupted: stopped{note}; finished units are kept, rerun the same command to resume",
@@ -214,89 +334,42 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
-def run(args: argparse.Namespace, beam_args: list[str], output: str) -> int:
-    """``main`` without the Ctrl-C handling."""
-    source = sources.get(args.source)
-    beam_args = runner_args(beam_args)
-    options = PipelineOptions(beam_args)
-    storage.use_options(options)
+def run(prepared: PreparedRun, started: float) -> int:
+    """``main`` after the checks, without the Ctrl-C handling."""
+    source, output = prepared.source, prepared.output
     try:
-        storage.check_scheme(output)
-        config = with_overrides(RunConfig(), args.overrides)
-        if args.export_depth:
-            config = dataclasses.replace(config, export_depth=True)
-        config = dataclasses.replace(
-            config, queries_from=absolute(args.queries_from or ""), splits_file=absolute(config.splits_file)
-        )
-        official = check_inputs(args.input, config)
-    except (ValueError, InputError) as error:
-        print(f"cannot start: {error}", file=sys.stderr)
+        input_root = sample_input(prepared)
+        plan = plan_units(prepared, input_root)
+    except NoSample as message:
+        print(message, file=sys.stderr)
         return 2
-    try:
-        check_writable(output)
-    except OSError as error:
-        print(f"cannot start: output folder {output} is not writable ({error})", file=sys.stderr)
+    except CannotStart as problem:
+        print(f"cannot start: {problem}", file=sys.stderr)
         return 2
-    input_root = args.input
-    if input_root is None:
-        if not is_local(output):
-            print(
-                f"cannot start: the embedded sample world is written under a local --output; with {output} "
-                "pass --input (a copy of the sample uploaded there works)",
-                file=sys.stderr,
-            )
-            return 2
-        try:
-            input_root = source.sample_input(sample_folder(output, source.name))
-        except NoSample as message:
-            print(message, file=sys.stderr)
-            return 2
-        print(f"no --input given: running on the embedded sample world in {input_root}")
-    elif "://" not in input_root:
-        input_root = os.path.abspath(input_root)
-    try:
-        units = source.list_units(input_root, config)
-    except (InputError, OSError) as error:
-        print(f"cannot start: {error}", file=sys.stderr)
-        return 2
-    provenance = {
-        "package": "tapvid3d-pipeline",
-        "version": pipeline.__version__,
-        "source": args.source,
-        "input": input_root,
-        "output": output,
-        "config": config.to_dict(),
-        "units": [source.unit_name(unit) for unit in units],
-        "beam_options": beam_args,
-        "environment": {
-            "python": platform.python_version(),
-            "numpy": np.__version__,
-            "apache_beam": beam.__version__,
-        },
-        "started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-    }
-    print(f"{args.source}: {len(units)} unit(s) to annotate from {input_root}")
-    removed = remove_partial_files(output, args.source)
+    print(f"{source.name}: {len(plan.units)} unit(s) to annotate from {input_root}", flush=True)
+    for note in plan.notes:
+        print(note, flush=True)
+    removed = remove_partial_files(output, source.name)
     if removed:
         print(f"removed {removed} partial file(s) an interrupted run left in {output}")
-    started = time.monotonic()
-    job = UnitJob(source, input_root, config, output, resume=not args.overwrite)
+    job = UnitJob(
+        source,
+        input_root,
+        prepared.config,
+        output,
+        resume=not prepared.overwrite,
+        run_id=uuid.uuid4().hex,
+        expected=plan.expected if prepared.restricted else None,
+    )
     quiet = _ReportedByUs()
     logging.getLogger("apache_beam").addFilter(quiet)
     logging.getLogger("apache_beam.runners.common").addFilter(quiet)
     try:
-        p = beam.Pipeline(options=options)
-        _ = p | "RegenerateClips" >> graph.RegenerateClips(job, units, provenance, official, options)
-        result = p.run()
-        try:
-            result.wait_until_finish()
-        finally:
-            # Beam's Dask runner opens a distributed.Client for the run and never closes it: a
-            # caller that goes on (a notebook, the tests) would keep a client that tries to
-            # reconnect once the cluster is gone.
-            client = getattr(result, "client", None)
-            if client is not None:
-                client.close()
+        result = run_pipeline(prepared, job, plan)
+        metrics = beam_counters(result)
+        finished = finish_run(
+            job, plan, provenance(prepared, input_root, plan), prepared.release, prepared.restricted, metrics
+        )
     except Exception as error:  # noqa: BLE001 - Beam wraps a step's error; say the cause in one line
         cause = root_cause(error)
         if isinstance(cause, KeyboardInterrupt):
@@ -305,11 +378,9 @@ def run(args: argparse.Namespace, beam_args: list[str], output: str) -> int:
             raise
         print(f"cannot finish: {cause}", file=sys.stderr)
         return 2
-    counters = record_metrics(result, output, source.name)
-    summary = json.loads(read_bytes(run_record_path(output, source.name)))["summary"]
-    print_summary(summary, counters, output, source.name)
+    print_summary(finished, metrics, output, source.name)
     print(f"finished in {time.monotonic() - started:.1f} s")
-    return 1 if summary["failures"] else 0
+    return 1 if finished.summary["failures"] else 0
 
 
 if __name__ == "__main__":

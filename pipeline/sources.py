@@ -10,10 +10,11 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator, Mapping
 
 from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
+from pipeline.core.outcomes import UnitClips
 
 
 class NoSample(Exception):
@@ -21,14 +22,42 @@ class NoSample(Exception):
 
 
 @dataclasses.dataclass(frozen=True)
+class UnitPlan:
+    """The units of a run, listed from its input (on a release run, only those its clips need).
+
+    units: the units of work (small picklable values), sorted.
+    expected: on a release run, unit name -> the release's clips that unit is to make.
+    absent: on a release run, release clip -> why no unit of the input makes it (the segment,
+      sequence or camera is not in ``--input``).
+    not_made: on a release run, release clip -> why the input, as the settings read it, makes no
+      clip of that name (a chunk past a sequence's end, a camera the settings leave out).
+    notes: lines to print before the run starts (what the run will need, e.g. scratch space).
+    """
+
+    units: list
+    expected: Mapping[str, tuple[str, ...]] = dataclasses.field(default_factory=dict)
+    absent: Mapping[str, str] = dataclasses.field(default_factory=dict)
+    not_made: Mapping[str, str] = dataclasses.field(default_factory=dict)
+    notes: tuple[str, ...] = ()
+
+
+# One unit's wanted clip names (a release run's), or None for every clip it can make.
+Wanted = frozenset[str] | None
+
+
+@dataclasses.dataclass(frozen=True)
 class Source:
     """One dataset, as the pipeline sees it.
 
     name: the ``--source`` value and the folder of its clips (``<out>/<name>/<clip>.npz``).
-    list_units: (input root, config) -> the units of work (small picklable values), sorted.
+    list_units: (input root, config, release clip names or None) -> its UnitPlan; InputError when
+      the input cannot be listed.
     unit_name: unit -> a readable, unique name (``segment/camera_1``) for progress and records.
-    annotate: (input root, unit, config) -> the unit's candidate clips (plain Python, no Beam);
-      InputError naming the file and the cause on bad input.
+    annotate_group: (input root, units of one group, config, per unit its Wanted) -> per unit, in
+      order, its ``UnitClips`` or the exception that failed it (one unit's bad input fails that unit
+      only, unless the input is shared); a list, or a generator that hands each unit on as soon as
+      it is made (it is written before the next is annotated). A source that works unit by unit
+      wraps its per-unit function with ``one_by_one``.
     sample_input: folder -> input root of the embedded sample world written (once) there;
       raises NoSample when the source has none.
     mask_min_agreement: config -> the mask filter's threshold for this source's clips.
@@ -36,25 +65,37 @@ class Source:
     group_of: unit -> the key of the units annotated together, in one worker, when inputs they
       share are cheaper read once (DriveTrack: a segment's cameras share its lidar); None: each
       unit alone.
-    annotate_group: (input root, units of one group, config) -> per unit, in order, its candidate
-      clips or the exception that failed it (one unit's bad input fails that unit only, unless
-      the input is shared); a list, or a generator that hands each unit on as soon as it is made
-      (it is written before the next is annotated). Required with ``group_of``.
     """
 
     name: str
-    list_units: Callable[[str, RunConfig], list]
+    list_units: Callable[[str, RunConfig, frozenset[str] | None], UnitPlan]
     unit_name: Callable[[object], str]
-    annotate: Callable[[str, object, RunConfig], list[ClipRecord]]
+    annotate_group: Callable[[str, list, RunConfig, list[Wanted]], Iterable[UnitClips | Exception]]
     sample_input: Callable[[str], str]
     mask_min_agreement: Callable[[RunConfig], float]
     sweepable: tuple[str, ...] = ()
     group_of: Callable[[object], object] | None = None
-    annotate_group: Callable[[str, list, RunConfig], Iterable[list[ClipRecord] | Exception]] | None = None
 
     def group_key(self, unit) -> str:
         """The key ``pipeline.graph`` groups ``unit`` under: its group's, else its own name."""
         return str(self.group_of(unit)) if self.group_of else self.unit_name(unit)
+
+
+def one_by_one(
+    annotate: Callable[[str, object, RunConfig], list[ClipRecord]],
+) -> Callable[[str, list, RunConfig, list[Wanted]], Iterator[UnitClips | Exception]]:
+    """The ``annotate_group`` of a source that annotates each unit alone with ``annotate(input root,
+    unit, config) -> its candidate clips``: per unit its clips, or the exception that failed it."""
+
+    def annotate_each(input_root: str, units: list, config: RunConfig, wanted: list[Wanted]):
+        for unit in units:
+            try:
+                result = UnitClips(tuple(annotate(input_root, unit, config)))
+            except Exception as error:  # noqa: BLE001 - every failure becomes data
+                result = error
+            yield result
+
+    return annotate_each
 
 
 # name -> module defining ``SOURCE``: adding a source is one folder and one line here.

@@ -2,9 +2,10 @@
 
 The Beam graph (``pipeline.graph``) runs these stages as its named steps, the benchmarks call
 ``run_group`` for the same work without Beam, and resume is the first stage. Units of one group
-(``Source.group_of``) are annotated together, each keeping its own outcome. A unit's record is
-written only when every one of its clips was written, so a unit with a failed clip is redone by
-a rerun. Failures never escape a stage: they become ``failure`` records (the run goes on).
+(``Source.group_of``) are annotated together, each keeping its own outcome. Every unit ends with its
+record (``pipeline/resume.py``): written after all its clips, also when it failed, so the main process
+finishes the run (``pipeline.finish``) from the records alone. A unit with a failure is redone by the
+next run. Failures never escape a stage: they become ``Failure`` records (the run goes on).
 """
 
 from __future__ import annotations
@@ -12,11 +13,12 @@ from __future__ import annotations
 import dataclasses
 import time
 import traceback
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 
 from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
 from pipeline.core.errors import InputError, OutputError, root_cause
+from pipeline.core.outcomes import ClipReport, Failure, UnitClips, UnitOutcome
 from pipeline.core.progress import progress
 from pipeline.export.audit_table import encode_parquet, outcome_table
 from pipeline.export.depth_export import encode_depth
@@ -25,105 +27,103 @@ from pipeline.export.layout import audit_path, check_clip_name, clip_path, depth
 from pipeline.export.npz_writer import clip_members, encode_npz
 from pipeline.filters.select import FilterOutcome, apply_filters
 from pipeline.resume import (
-    finished_reports,
+    finished_outcome,
     read_unit_record,
     remove_stale_clips,
     run_fingerprint,
     sha256,
     write_unit_record,
 )
-from pipeline.sources import Source
-
-# What ``annotate_units`` says of a unit.
-CLIPS, FAILURE, RESUMED = "clips", "failure", "resumed"
+from pipeline.sources import Source, Wanted
 
 
 @dataclasses.dataclass(frozen=True)
 class UnitJob:
     """What every stage of one run needs besides the unit: the source, where its input and output
-    are, the settings, and whether finished units are skipped."""
+    are, the settings, whether finished units are skipped, the run's id (in each record it writes)
+    and, on a release run, the clips each unit is to make (unit name -> clip names)."""
 
     source: Source
     input_root: str
     config: RunConfig
     output: str
     resume: bool = True
+    run_id: str = ""
+    expected: Mapping[str, tuple[str, ...]] | None = None
 
     @property
     def fingerprint(self) -> str:
         return run_fingerprint(self.source.name, self.config)
 
+    def wanted(self, name: str) -> Wanted:
+        """The clips unit ``name`` is to make on a release run; None: every clip it can make."""
+        return None if self.expected is None else frozenset(self.expected.get(name, ()))
 
-@dataclasses.dataclass
-class UnitOutcome:
-    """What became of one unit: its clips' reports, its failures, and whether an earlier run had
-    finished it (then nothing was redone)."""
+
+@dataclasses.dataclass(frozen=True)
+class Annotated:
+    """A unit's candidate clips on their way to the filter and write stages (``started``: when its
+    annotation began, ``time.time()``)."""
 
     name: str
-    reports: list[dict] = dataclasses.field(default_factory=list)
-    failures: list[dict] = dataclasses.field(default_factory=list)
-    resumed: bool = False
+    made: UnitClips
+    started: float
 
 
-def failure(unit: str, stage: str, error: BaseException) -> dict:
-    """A failures_<source>.jsonl record; unexpected errors keep their innermost frame for debugging.
+@dataclasses.dataclass(frozen=True)
+class Filtered:
+    """A unit's clips after the filter stage: per clip, (kept clip, its verdicts) or its Failure."""
+
+    name: str
+    items: tuple[tuple[ClipRecord, FilterOutcome] | Failure, ...]
+    not_made: Mapping[str, str]
+    started: float
+
+
+def failure(unit: str, stage: str, error: BaseException, clip: str = "") -> Failure:
+    """The Failure of an error; unexpected errors keep their innermost frame for debugging.
     An error whose innermost cause is a Ctrl-C raises that KeyboardInterrupt: the run stops, the
     unit has not failed (numba has reported a Ctrl-C taken during a kernel's call as a
     SystemError, "returned a result with an exception set", caused by the KeyboardInterrupt)."""
     if isinstance(cause := root_cause(error), KeyboardInterrupt):
         raise cause
-    record = {"unit": unit, "stage": stage, "error": f"{type(error).__name__}: {error}"}
+    where = ""
     if not isinstance(error, (InputError, OutputError)):
         frame = traceback.extract_tb(error.__traceback__)[-1]
-        record["where"] = f"{frame.filename}:{frame.lineno}"
-    return record
+        where = f"{frame.filename}:{frame.lineno}"
+    return Failure(unit, stage, f"{type(error).__name__}: {error}", clip, where)
 
 
-def finished_earlier(job: UnitJob, name: str) -> list[dict] | None:
-    """The clip reports of the unit when an earlier run with these settings finished it (its clips
-    intact on disk), else None."""
+def finished_earlier(job: UnitJob, name: str) -> UnitOutcome | None:
+    """The outcome of the unit when an earlier run with these settings finished it (its clips intact
+    on disk, every wanted clip accounted for), else None. Its record is stamped with this run."""
     if not job.resume:
         return None
     record = read_unit_record(job.output, job.source.name, name)
-    reports = finished_reports(record, job.output, job.source.name, job.fingerprint, job.config.export_depth)
-    if reports is not None:
+    outcome = finished_outcome(
+        record, job.output, job.source.name, job.fingerprint, job.config.export_depth, job.wanted(name)
+    )
+    if outcome is not None:
+        write_unit_record(job.output, job.source.name, dict(record, run=job.run_id, resumed=True))
         progress(f"unit {name}: finished by an earlier run with these settings; skipped")
-    return reports
+    return outcome
 
 
-def annotate(job: UnitJob, unit) -> list[ClipRecord]:
-    """The unit's candidate clips (raises on bad input; ``run_unit`` and the graph record it)."""
-    started = time.monotonic()
-    clips = job.source.annotate(job.input_root, unit, job.config)
-    progress(f"unit {job.source.unit_name(unit)}: {len(clips)} clip(s) in {time.monotonic() - started:.1f} s")
-    return clips
-
-
-def annotate_group(job: UnitJob, units: list) -> Iterator[list[ClipRecord] | Exception]:
+def annotate_group(job: UnitJob, units: list) -> Iterator[UnitClips | Exception]:
     """The candidate clips of units annotated together (``Source.annotate_group``), or per unit the
     exception that failed it, handed on unit by unit as the source makes them (so a unit is written
-    while its group's next is annotated); a source without groups annotates each through
-    ``annotate``."""
+    while its group's next is annotated)."""
     if not units:
         return  # every unit of the group finished earlier
-    if job.source.annotate_group is None:
-        for item in units:
-            try:
-                result = annotate(job, item)
-            except Exception as error:  # noqa: BLE001 - every failure becomes data
-                result = error
-            yield result
-        return
-    started = time.monotonic()
-    made = job.source.annotate_group(job.input_root, units, job.config)
-    for item, result in zip(units, made, strict=True):
-        if not isinstance(result, Exception):
-            progress(
-                f"unit {job.source.unit_name(item)}: {len(result)} clip(s) in "
-                f"{time.monotonic() - started:.1f} s (annotated with its group of {len(units)})"
+    wanted = [job.wanted(job.source.unit_name(unit)) for unit in units]
+    made = job.source.annotate_group(job.input_root, units, job.config, wanted)
+    for result, keep in zip(made, wanted, strict=True):
+        if isinstance(result, UnitClips) and keep is not None:
+            result = UnitClips(
+                tuple(clip for clip in result.clips if clip.name in keep),
+                {name: why for name, why in result.not_made.items() if name in keep},
             )
         yield result
-        started = time.monotonic()
 
 
 def filter_clip(job: UnitJob, clip: ClipRecord) -> tuple[ClipRecord, FilterOutcome]:
@@ -138,10 +138,10 @@ def _write(path: str, data: bytes) -> None:
         raise OutputError(f"cannot write {path}: {error}") from error
 
 
-def write_clip(output: str, kept: ClipRecord, outcome: FilterOutcome) -> tuple[dict, str | None]:
+def write_clip(output: str, kept: ClipRecord, outcome: FilterOutcome) -> tuple[ClipReport, str | None]:
     """Write a filtered clip's audit table, its exported depth if any, then its .npz (each
     atomically, in that order, so an existing .npz always has its companions). Returns the clip's
-    report and the SHA-256 of its .npz (None when no track survived: then no .npz of that name
+    report and the SHA-256 of its .npz (None when no track was kept: then no .npz of that name
     is left in the folder)."""
     source, name = kept.source, check_clip_name(kept.name)
     _write(audit_path(output, source, name), encode_parquet(outcome_table(outcome)))
@@ -152,108 +152,128 @@ def write_clip(output: str, kept: ClipRecord, outcome: FilterOutcome) -> tuple[d
         data = encode_npz(clip_members(kept))
         _write(clip_path(output, source, name), data)
         digest = sha256(data)
-        progress(f"clip {name}: {kept.num_tracks} of {outcome.candidates} candidate tracks written")
     else:
         # an earlier run's clip of this name, under other settings
         remove_quietly([clip_path(output, source, name), depth_path(output, source, name)])
-        progress(f"clip {name}: no track survived the filters; not written")
-    report = {
-        "clip": name,
-        "source": source,
-        "unit": kept.unit,
-        "frames": kept.num_frames,
-        "candidates": outcome.candidates,
-        "dropped": outcome.dropped_by(),
-        "passed": outcome.passed,
-        "written_tracks": kept.num_tracks,
-        "target_tracks": kept.target_tracks,
-    }
+    report = ClipReport(
+        clip=name,
+        source=source,
+        unit=kept.unit,
+        frames=kept.num_frames,
+        candidates=outcome.candidates,
+        dropped=outcome.dropped_by(),
+        passed=outcome.passed,
+        written_tracks=kept.num_tracks,
+        target_tracks=kept.target_tracks,
+    )
     return report, digest
 
 
-def record_unit(job: UnitJob, name: str, reports: list[dict], digests: dict[str, str]) -> list[dict]:
-    """After all of a unit's clips were written: remove the files of clips an earlier record listed
-    that this run no longer makes, then write the unit's record. Returns failures (none, or one
-    when the record cannot be written)."""
+def record(job: UnitJob, outcome: UnitOutcome, digests: Mapping[str, str]) -> UnitOutcome:
+    """Write the unit's record (after all its clips; a finished unit first removes the files of
+    clips an earlier record listed that this run no longer makes). Returns the outcome, with a
+    ``record`` Failure when the record cannot be written."""
+    source = job.source.name
     try:
-        previous = read_unit_record(job.output, job.source.name, name)
-        remove_stale_clips(previous, job.output, job.source.name, {r["clip"] for r in reports})
-        write_unit_record(job.output, job.source.name, name, job.fingerprint, reports, digests)
+        if not outcome.failed:
+            previous = read_unit_record(job.output, source, outcome.name)
+            made = {report.clip for report in outcome.reports}
+            remove_stale_clips(previous, job.output, source, made, job.wanted(outcome.name))
+        write_unit_record(
+            job.output,
+            source,
+            {
+                "unit": outcome.name,
+                "fingerprint": job.fingerprint,
+                "run": job.run_id,
+                "resumed": False,
+                "seconds": round(outcome.seconds, 3),
+                "wanted": None if job.expected is None else sorted(job.wanted(outcome.name)),
+                "reports": [report.to_json() for report in outcome.reports],
+                "clips": dict(digests),
+                "failures": [item.to_json() for item in outcome.failures],
+                "not_made": dict(outcome.not_made),
+            },
+        )
     except OSError as error:
-        return [failure(name, "record", OutputError(f"cannot record the finished unit: {error}"))]
-    return []
+        problem = failure(outcome.name, "record", OutputError(f"cannot record the unit: {error}"))
+        progress(f"unit {outcome.name} FAILED: {problem.error}")
+        return dataclasses.replace(outcome, failures=(*outcome.failures, problem))
+    return outcome
 
 
-def filter_unit(job: UnitJob, name: str, clips: list[ClipRecord]) -> list:
-    """Each clip filtered: (kept clip, outcome), or a failure record when its filter stage fails."""
-    filtered = []
-    for clip in clips:
+def filter_unit(job: UnitJob, annotated: Annotated) -> Filtered:
+    """Each clip filtered: (kept clip, outcome), or a Failure when its filter stage fails."""
+    items = []
+    for clip in annotated.made.clips:
         try:
-            filtered.append(filter_clip(job, clip))
+            items.append(filter_clip(job, clip))
         except Exception as error:  # noqa: BLE001 - every failure becomes data
-            filtered.append(failure(f"{name} ({clip.name})", "clip", error))
+            items.append(failure(annotated.name, "clip", error, clip.name))
             progress(f"clip {clip.name} FAILED: {error}")
-    return filtered
+    return Filtered(annotated.name, tuple(items), annotated.made.not_made, annotated.started)
 
 
-def write_unit(job: UnitJob, name: str, filtered: list, on_written=None) -> UnitOutcome:
-    """Write a unit's filtered clips (``filter_unit``), then its record when every clip was written
-    (the unit's commit point). ``on_written(kept, outcome, digest)`` is called per written clip."""
-    outcome, digests = UnitOutcome(name), {}
-    outcome.failures = [item for item in filtered if isinstance(item, dict)]
-    for kept, verdicts in (item for item in filtered if not isinstance(item, dict)):
+def write_unit(job: UnitJob, filtered: Filtered, on_written=None) -> UnitOutcome:
+    """Write a unit's filtered clips, then its record (the unit's commit point). ``on_written(kept,
+    outcome, digest)`` is called per clip written."""
+    failures = [item for item in filtered.items if isinstance(item, Failure)]
+    reports, digests = [], {}
+    for item in filtered.items:
+        if isinstance(item, Failure):
+            continue
+        kept, verdicts = item
         try:
             report, digest = write_clip(job.output, kept, verdicts)
         except Exception as error:  # noqa: BLE001
-            outcome.failures.append(failure(f"{name} ({kept.name})", "clip", error))
+            failures.append(failure(filtered.name, "clip", error, kept.name))
             progress(f"clip {kept.name} FAILED: {error}")
             continue
         if on_written is not None:
             on_written(kept, verdicts, digest)
-        outcome.reports.append(report)
+        reports.append(report)
         if digest:
-            digests[report["clip"]] = digest
-    outcome.reports.sort(key=lambda report: report["clip"])
-    if not outcome.failures:
-        outcome.failures = record_unit(job, name, outcome.reports, digests)
-    return outcome
+            digests[report.clip] = digest
+    outcome = UnitOutcome(
+        filtered.name,
+        tuple(sorted(reports, key=lambda report: report.clip)),
+        tuple(failures),
+        dict(filtered.not_made),
+        seconds=time.time() - filtered.started,
+    )
+    return record(job, outcome, digests)
 
 
-def annotate_units(job: UnitJob, units: list) -> Iterator[tuple[str, str, object]]:
-    """The resume check and the annotate stage of units of one group: per unit, (name, RESUMED,
-    its reports) when an earlier run finished it, then, as the others are annotated together,
-    (name, CLIPS, its candidate clips) or (name, FAILURE, its failure record)."""
+def annotate_units(job: UnitJob, units: list) -> Iterator[UnitOutcome | Annotated]:
+    """The resume check and the annotate stage of units of one group: per unit, its UnitOutcome
+    when an earlier run finished it, then, as the others are annotated together, their candidate
+    clips (``Annotated``) or, for a unit that failed, its recorded UnitOutcome."""
     todo = []
     for item in units:
         name = job.source.unit_name(item)
-        reports = finished_earlier(job, name)
-        if reports is not None:
-            yield name, RESUMED, reports
+        outcome = finished_earlier(job, name)
+        if outcome is not None:
+            yield outcome
         else:
             todo.append(item)
+    started = time.time()
     for item, result in zip(todo, annotate_group(job, todo), strict=True):
         name = job.source.unit_name(item)
         if isinstance(result, Exception):
-            record = failure(name, "annotate", result)
+            problem = failure(name, "annotate", result)
             progress(f"unit {name} FAILED: {result}")
-            yield name, FAILURE, record
+            yield record(job, UnitOutcome(name, failures=(problem,), seconds=time.time() - started), {})
         else:
-            yield name, CLIPS, result
+            yield Annotated(name, result, started)
+        started = time.time()
 
 
 def run_group(job: UnitJob, units: list) -> list[UnitOutcome]:
     """Every stage of units of one group in this process, as the graph's steps run them."""
     outcomes: dict[str, UnitOutcome] = {}
-    for name, kind, value in annotate_units(job, units):
-        if kind == RESUMED:
-            outcomes[name] = UnitOutcome(name, value, resumed=True)
-        elif kind == FAILURE:
-            outcomes[name] = UnitOutcome(name, failures=[value])
+    for item in annotate_units(job, units):
+        if isinstance(item, Annotated):
+            outcomes[item.name] = write_unit(job, filter_unit(job, item))
         else:
-            outcomes[name] = write_unit(job, name, filter_unit(job, name, value))
-    return [outcomes[job.source.unit_name(item)] for item in units]
-
-
-def run_unit(job: UnitJob, unit) -> UnitOutcome:
-    """Every stage of one unit in this process (``run_group`` of that unit alone)."""
-    return run_group(job, [unit])[0]
+            outcomes[item.name] = item
+    return [outcomes[job.source.unit_name(unit)] for unit in units]

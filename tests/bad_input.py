@@ -11,12 +11,14 @@ from pipeline.validate import main as validate_main
 
 
 def failures_by_unit(out: str, source: str) -> dict[str, str]:
-    """unit name -> error text, from ``failures_<source>.jsonl`` (one line per unit and stage)."""
+    """unit name (``unit (clip)`` for one clip's failure) -> error text, from
+    ``failures_<source>.jsonl`` (one line per unit, stage and clip)."""
     with open(os.path.join(out, f"failures_{source}.jsonl")) as handle:
         records = [json.loads(line) for line in handle]
     errors: dict[str, str] = {}
     for record in records:
-        errors[record["unit"]] = " | ".join(filter(None, (errors.get(record["unit"]), record["error"])))
+        key = f"{record['unit']} ({record['clip']})" if record.get("clip") else record["unit"]
+        errors[key] = " | ".join(filter(None, (errors.get(key), record["error"])))
     return errors
 
 

@@ -13,9 +13,10 @@ from PIL import Image
 
 from pipeline.adt.reader import SequenceReader
 from pipeline.adt.rectify import Rectifier
-from pipeline.adt.source import EXCERPT_SETTINGS, annotate_unit
+from pipeline.adt.source import EXCERPT_SETTINGS
 from pipeline.core.config import RunConfig, with_overrides
 from tests.adt_excerpt import SAMPLE, needs_excerpt
+from tests.support.units import adt_clips
 
 W = H = 512
 F = 280
@@ -116,7 +117,7 @@ def generator_pixels(points_stored, generator):
 
 def test_queries_are_where_their_points_appear_in_the_frames(generator):
     config = with_overrides(RunConfig(), [*EXCERPT_SETTINGS, "adt.tracks_per_clip=256"])
-    (clip,) = annotate_unit(str(SAMPLE), 0, config)
+    (clip,) = adt_clips(str(SAMPLE), (str(SAMPLE), 0), config)
     t_q = clip.queries_xyt[:, 2].astype(int)
     at_query = clip.tracks_xyz[t_q, np.arange(clip.num_tracks)]
     assert set(t_q.tolist()) == {0, 1}

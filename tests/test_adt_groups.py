@@ -36,10 +36,10 @@ def _count_openings_and_closings(monkeypatch) -> tuple[list, list]:
 @needs_excerpt
 def test_a_group_opens_its_sequence_once_and_makes_each_chunks_own_clip(monkeypatch):
     config = with_overrides(RunConfig(), list(ONE_FRAME_CHUNKS))
-    units = adt.list_units(str(SAMPLE), config)
+    units = adt.list_units(str(SAMPLE), config).units
     assert len(units) == 2 and len({adt.group_of(unit) for unit in units}) == 1
     opened, closed = _count_openings_and_closings(monkeypatch)
-    alone = [adt.annotate(str(SAMPLE), unit, config) for unit in units]
+    alone = [list(adt.annotate_chunks(str(SAMPLE), [unit], config))[0].clips for unit in units]
     assert len(opened) == 2 and closed == opened  # a unit alone opens and closes its sequence
     del opened[:], closed[:]
     made = adt.annotate_chunks(str(SAMPLE), units, config)
@@ -47,7 +47,7 @@ def test_a_group_opens_its_sequence_once_and_makes_each_chunks_own_clip(monkeypa
     assert len(opened) == 1 and not closed  # still open for the group's next chunk
     together += list(made)
     assert len(opened) == 1 and closed == opened and opened[0].frames.reader.provider is None
-    for (one,), (grouped,) in zip(alone, together, strict=True):
+    for (one,), (grouped,) in zip(alone, [made.clips for made in together], strict=True):
         assert grouped.name == one.name and grouped.images_jpeg == one.images_jpeg
         for field in ("tracks_xyz", "visibility", "queries_xyt", "extrinsics_w2c", "frame_ids"):
             np.testing.assert_array_equal(getattr(grouped, field), getattr(one, field))
@@ -57,7 +57,7 @@ def test_a_group_opens_its_sequence_once_and_makes_each_chunks_own_clip(monkeypa
 def test_a_group_stopped_early_still_closes_its_sequence(monkeypatch):
     config = with_overrides(RunConfig(), list(ONE_FRAME_CHUNKS))
     opened, closed = _count_openings_and_closings(monkeypatch)
-    made = adt.annotate_chunks(str(SAMPLE), adt.list_units(str(SAMPLE), config), config)
+    made = adt.annotate_chunks(str(SAMPLE), adt.list_units(str(SAMPLE), config).units, config)
     next(made)
     made.close()  # the caller stops after the first chunk (a Ctrl-C, a failed write)
     assert len(opened) == 1 and closed == opened

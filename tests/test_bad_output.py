@@ -159,9 +159,9 @@ def blocked_run(source: str, source_input: str, out: str, *args: str) -> dict[st
     assert summary["clips_written"] == 0 and summary["failures"] == len(errors)
     # A unit with a failed clip is not recorded as finished, so a rerun once the folder is fixed
     # redoes it (a unit with no clip at all is finished).
-    records = os.path.join(out, "units", source)
-    names = os.listdir(records) if os.path.isdir(records) else []
-    finished = {json.load(open(os.path.join(records, name)))["unit"] for name in names}
+    folder = os.path.join(out, "units", source)
+    records = [json.load(open(os.path.join(folder, name))) for name in os.listdir(folder)]
+    finished = {record["unit"] for record in records if not record["failures"]}  # failed: redone
     assert not finished & {unit.split(" (")[0] for unit in errors}
     assert partial_files(out) == []
     return errors

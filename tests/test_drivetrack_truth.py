@@ -8,9 +8,9 @@ from pipeline.drivetrack import annotate as A
 from pipeline.drivetrack.evidence import gather_lidar
 from pipeline.drivetrack.objects import select_objects
 from pipeline.drivetrack.poses import frame_poses
-from pipeline.drivetrack.source import load_unit
 from pipeline.filters.select import apply_filters, decide
 from pipeline.samples.waymo_world import SEGMENT
+from tests.support.units import drivetrack_clips, drivetrack_input
 from tests.waymo_truth import true_tracks, world_points
 
 
@@ -18,7 +18,8 @@ from tests.waymo_truth import true_tracks, world_points
 def clips(sample_split):
     config = RunConfig()
     return {
-        camera: A.annotate_unit(load_unit(sample_split[0], SEGMENT, camera), config) for camera in (1, 2, 3)
+        camera: drivetrack_clips(drivetrack_input(sample_split[0], SEGMENT, camera), config)
+        for camera in (1, 2, 3)
     }
 
 
@@ -70,11 +71,11 @@ def test_visibility_agrees_with_ray_cast_truth(clips, world):
 
 def test_mask_filter_drops_planted_off_object_tracks(sample_split, world):
     config = with_overrides(RunConfig(), ["drivetrack.oversample=1000"])
-    unit = load_unit(sample_split[0], SEGMENT, 1)
+    unit = drivetrack_input(sample_split[0], SEGMENT, 1)
     world_from_frame = frame_poses(unit)
     camera = A.unit_camera(unit, config)
     run = next(
-        r for r in select_objects(unit, camera, world_from_frame, config) if r.object_id.startswith("lead")
+        r for r in select_objects(unit, camera, world_from_frame, config)[0] if r.object_id.startswith("lead")
     )
     evidence = gather_lidar(unit, [run], camera, world_from_frame, 0.1, 0.05)
     # Plant ground points 2 m beside the car, as a mislabelled box would capture them.
@@ -120,7 +121,7 @@ def test_a_segments_cameras_share_one_lidar_read_and_make_the_same_clips(clips, 
     assert len(streamed) == 1 and len(set(streamed[0])) == len(streamed[0])
     needed = {int(t) for camera_clips in clips.values() for clip in camera_clips for t in clip.frame_ids}
     assert set(streamed[0]) == needed  # the frames of cameras 1 and 3's clips, in one pass
-    for camera, alone in zip((1, 2, 3), grouped, strict=True):
+    for camera, alone in zip((1, 2, 3), [made.clips for made in grouped], strict=True):
         assert [clip.name for clip in alone] == [clip.name for clip in clips[camera]]
         for together, single in zip(alone, clips[camera], strict=True):
             for field in ("tracks_xyz", "visibility", "queries_xyt", "extrinsics_w2c", "track_keys"):

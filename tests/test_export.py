@@ -11,9 +11,10 @@ import pytest
 from pipeline.core.config import RunConfig, with_overrides
 from pipeline.export.clip_reader import read_clip_bytes
 from pipeline.export.files import write_atomic
-from pipeline.export.manifests import load_official_splits, split_clips
+from pipeline.export.manifests import split_clips
 from pipeline.export.npz_writer import FixedWidthBytes, encode_npz
 from pipeline.export.validator import check_arrays, check_clip_bytes
+from pipeline.release import parse_release
 
 INTRINSICS = np.array([100.0, 100.0, 50.0, 50.0])
 
@@ -184,10 +185,10 @@ def test_atomic_write_replaces_and_leaves_no_partial(tmp_path):
 
 
 def test_manifests_follow_official_membership_when_names_match():
-    official = load_official_splits(
+    official = parse_release(
         json.dumps({"minival": {"drivetrack": ["b.npz"]}, "full_eval": {"drivetrack": ["a.npz", "c.npz"]}})
     )
-    minival, full_test = split_clips({"drivetrack": ["a.npz", "b.npz", "c.npz"]}, 50, 0, official)
+    minival, full_test = split_clips({"drivetrack": ["a.npz", "b.npz", "c.npz"]}, 50, 0, official.clips)
     assert minival == ["drivetrack/b.npz"] and full_test == ["drivetrack/a.npz", "drivetrack/c.npz"]
 
 

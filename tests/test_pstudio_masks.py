@@ -14,7 +14,8 @@ from pipeline.core.config import RunConfig
 from pipeline.core.errors import InputError
 from pipeline.pstudio import masks, reader
 from pipeline.pstudio.annotate import annotate_unit
-from pipeline.pstudio.source import list_units, load_unit
+from pipeline.pstudio.source import list_units
+from tests.support.units import pstudio_input
 
 
 @pytest.fixture
@@ -39,14 +40,14 @@ def png(mask: np.ndarray) -> bytes:
 def test_each_mask_is_decoded_once_per_sequence(pstudio_sample, decoded):
     root, _ = pstudio_sample
     config = RunConfig()
-    first, second = list_units(root, config)[:2]
-    unit = load_unit(root, *first, config)
+    first, second = list_units(root, config).units[:2]
+    unit = pstudio_input(root, *first, config)
     (clip,) = annotate_unit(unit, config)
     assert clip.num_tracks > 0
     cameras, frames = len(unit.views.camera_ids), unit.gaussians.num_frames
     assert set(decoded.values()) == {1} and 0 < len(decoded) <= cameras * frames
     decoded.clear()
-    annotate_unit(load_unit(root, *second, config), config)
+    annotate_unit(pstudio_input(root, *second, config), config)
     assert not decoded
 
 

@@ -11,8 +11,9 @@ from pipeline.export.npz_writer import clip_arrays
 from pipeline.export.validator import check_arrays
 from pipeline.filters.select import apply_filters
 from pipeline.pstudio.annotate import annotate_unit, multiview_mask_fraction
-from pipeline.pstudio.source import list_units, load_unit
+from pipeline.pstudio.source import list_units
 from pipeline.samples.studio_world import FRAMES
+from tests.support.units import pstudio_input
 
 
 @pytest.fixture(scope="module")
@@ -21,8 +22,8 @@ def clips(pstudio_sample):
     root, studio = pstudio_sample
     config = RunConfig()
     result = []
-    for unit in list_units(root, config):
-        unit_input = load_unit(root, *unit, config)
+    for unit in list_units(root, config).units:
+        unit_input = pstudio_input(root, *unit, config)
         (clip,) = annotate_unit(unit_input, config)
         kept, outcome = apply_filters(clip, config, config.pstudio.mask_min_agreement)
         camera = next(c for c in studio.cameras if c.camera_id == unit[1])
@@ -143,10 +144,10 @@ def test_a_sequences_cameras_share_one_read_and_make_the_same_clips(clips, pstud
     monkeypatch.setattr(source, "read_gaussians", counted_read)
     monkeypatch.setattr(masks, "decode_image", counted_decode)
     monkeypatch.setattr(reader, "MASKS", masks.MaskCache())  # cold, as in a fresh worker
-    units = list_units(root, RunConfig())
+    units = list_units(root, RunConfig()).units
     grouped = list(source.annotate_sequence(root, units, RunConfig()))
     assert len(reads) == 1 and len(decodes) == len(set(decodes)) > 0
-    for (_, alone, _, _, _), (together,) in zip(clips, grouped, strict=True):
+    for (_, alone, _, _, _), (together,) in zip(clips, [made.clips for made in grouped], strict=True):
         assert together.name == alone.name and together.images_jpeg == alone.images_jpeg
         for field in ("tracks_xyz", "visibility", "queries_xyt", "extrinsics_w2c"):
             np.testing.assert_array_equal(getattr(together, field), getattr(alone, field))

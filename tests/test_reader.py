@@ -12,8 +12,8 @@ from pipeline.core.errors import InputError
 from pipeline.drivetrack import columns as C
 from pipeline.drivetrack.annotate import unit_camera
 from pipeline.drivetrack.reader import SegmentReader, list_segments, transforms_from_column
-from pipeline.drivetrack.source import load_unit
 from pipeline.samples.waymo_world import SEGMENT, camera_to_vehicle
+from tests.support.units import drivetrack_input
 
 
 @pytest.mark.parametrize(
@@ -106,7 +106,7 @@ def test_bad_rolling_shutter_values_are_named(split_copy):
     with pytest.raises(
         InputError, match=rf"camera_image/{SEGMENT} camera {camera} frame {stamp}: rolling shutter"
     ):
-        unit_camera(load_unit(split_copy, SEGMENT, camera), RunConfig())
+        unit_camera(drivetrack_input(split_copy, SEGMENT, camera), RunConfig())
     nan = np.asarray(table.column(done)).copy()
     nan[3] = np.nan
     pq.write_table(table.set_column(index, done, pa.array(nan)), path)

@@ -14,6 +14,7 @@ import pytest
 from pipeline import sources
 from pipeline.core.config import RunConfig
 from pipeline.core.errors import InputError
+from pipeline.core.outcomes import Failure, UnitClips
 from pipeline.export.layout import clip_path, failures_path
 from pipeline.run import main as run_main
 from pipeline.unit import UnitJob, run_group
@@ -22,11 +23,15 @@ from tests.toy_source import TOY, annotate, write_sample
 CALLS: list[list[str]] = []
 
 
-def annotate_group(input_root: str, units: list[str], config: RunConfig) -> list:
+def made(input_root: str, unit: str, config: RunConfig) -> UnitClips:
+    return UnitClips(tuple(annotate(input_root, unit, config)))
+
+
+def annotate_group(input_root: str, units: list[str], config: RunConfig, wanted: list) -> list:
     """The toy's clips per unit; a unit named ``*_bad`` fails with an InputError."""
     CALLS.append(list(units))
     return [
-        InputError(f"{unit}: bad on purpose") if unit.endswith("_bad") else annotate(input_root, unit, config)
+        InputError(f"{unit}: bad on purpose") if unit.endswith("_bad") else made(input_root, unit, config)
         for unit in units
     ]
 
@@ -84,9 +89,7 @@ def test_a_failed_unit_leaves_its_groups_other_units_finished(grouped, tmp_path)
     job = UnitJob(GROUPED, grouped, RunConfig(), str(tmp_path / "out"))
     good, bad = run_group(job, ["b_1", "b_bad"])
     assert good.reports and not good.failures
-    assert bad.failures == [
-        {"unit": "b_bad", "stage": "annotate", "error": "InputError: b_bad: bad on purpose"}
-    ]
+    assert bad.failures == (Failure("b_bad", "annotate", "InputError: b_bad: bad on purpose"),)
     again = run_group(job, ["b_1", "b_bad"])  # the failed unit is redone, its finished neighbour not
     assert CALLS[-1] == ["b_bad"] and again[0].resumed and again[1].failures == bad.failures
 
@@ -104,8 +107,8 @@ def interrupted_in_a_kernel() -> SystemError:
 
 
 def test_ctrl_c_inside_a_kernel_stops_the_run_instead_of_failing_the_unit(grouped, tmp_path, capsys):
-    def interrupted(input_root, units, config):
-        return [interrupted_in_a_kernel() if u == "b_1" else annotate(input_root, u, config) for u in units]
+    def interrupted(input_root, units, config, wanted):
+        return [interrupted_in_a_kernel() if u == "b_1" else made(input_root, u, config) for u in units]
 
     sources.register(dataclasses.replace(GROUPED, annotate_group=interrupted))
     out = tmp_path / "out"
@@ -128,10 +131,10 @@ def test_a_generator_groups_units_are_written_one_by_one(grouped, tmp_path):
     output = str(tmp_path / "out")
     seen_on_disk = []
 
-    def one_by_one(input_root, units, config):
+    def one_by_one(input_root, units, config, wanted):
         for unit in units:
             seen_on_disk.append([os.path.exists(clip_path(output, "toy", f"toy_{u}")) for u in units])
-            yield annotate(input_root, unit, config)
+            yield made(input_root, unit, config)
 
     job = UnitJob(dataclasses.replace(GROUPED, annotate_group=one_by_one), grouped, RunConfig(), output)
     outcomes = run_group(job, ["a_1", "a_2", "b_1"])

@@ -12,12 +12,12 @@ import pytest
 
 from pipeline.core.config import RunConfig, with_overrides
 from pipeline.drivetrack import columns as C
-from pipeline.drivetrack.annotate import annotate_unit, unit_camera
-from pipeline.drivetrack.source import load_unit
+from pipeline.drivetrack.annotate import unit_camera
 from pipeline.drivetrack.undistort import JPEG_QUALITY, undistort_image, undistortion_maps
 from pipeline.export.npz_writer import clip_arrays
 from pipeline.export.validator import check_arrays, quality_findings
 from pipeline.samples.waymo_world import POSE_DELAY_S, SEGMENT, frame_time
+from tests.support.units import drivetrack_clips, drivetrack_input
 from tests.waymo_truth import inside, pinhole_pixels, seen, sensor_pixels, true_tracks, world_from_cv
 
 FRAMES = (0, 20, 39)
@@ -42,7 +42,7 @@ def test_lidar_points_appear_where_the_truth_says(sample_split, world, undistort
     folder, generated = sample_split
     worst_pixel = worst_point = 0.0
     for camera in (1, 2, 3):
-        model = unit_camera(load_unit(folder, SEGMENT, camera), settings(undistorted))
+        model = unit_camera(drivetrack_input(folder, SEGMENT, camera), settings(undistorted))
         for frame in FRAMES:
             points = lidar_points(generated, frame)
             ours = model.project(frame, points)
@@ -68,7 +68,8 @@ def test_pinhole_at_the_pose_misses_by_pixels(sample_split, world):
     folder, generated = sample_split
     old, lens = [], []
     for camera in (1, 2, 3):
-        cam_from_world = unit_camera(load_unit(folder, SEGMENT, camera), settings(False)).cam_from_world
+        unit = drivetrack_input(folder, SEGMENT, camera)
+        cam_from_world = unit_camera(unit, settings(False)).cam_from_world
         for frame in FRAMES:
             points = lidar_points(generated, frame)
             truth, sensor, _ = seen(world, camera, frame, points)
@@ -85,7 +86,7 @@ def test_pinhole_at_the_pose_misses_by_pixels(sample_split, world):
 def test_without_rolling_shutter_columns_frames_are_seen_from_their_pose(split_copy, world, sample_split):
     path = os.path.join(split_copy, C.CAMERA_IMAGE, f"{SEGMENT}.parquet")
     pq.write_table(pq.read_table(path).drop_columns(list(C.ROLLING_SHUTTER)), path)
-    unit = load_unit(split_copy, SEGMENT, 2)
+    unit = drivetrack_input(split_copy, SEGMENT, 2)
     assert unit.frames.motion is None
     model = unit_camera(unit, settings(False))
     frame = 20
@@ -104,7 +105,7 @@ def test_frames_projected_together_are_each_as_projected_alone(sample_split, und
     frame has a rolling shutter record, none, or a camera that does not turn; a frame may hold
     no point, or appear twice."""
     folder, generated = sample_split
-    model = unit_camera(load_unit(folder, SEGMENT, 1), settings(undistorted))
+    model = unit_camera(drivetrack_input(folder, SEGMENT, 1), settings(undistorted))
     model.readouts[5] = None
     model.readouts[7] = dataclasses.replace(model.readouts[7], omega=np.zeros(3))
     frames = [0, 5, 7, 20, 39, 20, 3]
@@ -123,7 +124,7 @@ def test_frames_projected_together_are_each_as_projected_alone(sample_split, und
 
 
 def test_undistortion_maps_read_the_sensor_pixel_of_each_stored_pixel(sample_split):
-    calibration = load_unit(sample_split[0], SEGMENT, 3).calibration
+    calibration = drivetrack_input(sample_split[0], SEGMENT, 3).calibration
     map_x, map_y = undistortion_maps(calibration)
     rows, cols = np.mgrid[0 : calibration.height : 7, 0 : calibration.width : 11]
     fx, fy, cx, cy = calibration.fx_fy_cx_cy
@@ -138,7 +139,7 @@ def test_undistortion_maps_read_the_sensor_pixel_of_each_stored_pixel(sample_spl
 def test_undistorted_frame_has_the_bytes_of_the_three_channel_remap(sample_split):
     """``undistort_image`` remaps with a fourth channel (OpenCV's fast path): the JPEG is the one
     a plain 3-channel remap and encode give, on a textured frame with saturated edges."""
-    calibration = load_unit(sample_split[0], SEGMENT, 2).calibration
+    calibration = drivetrack_input(sample_split[0], SEGMENT, 2).calibration
     maps = undistortion_maps(calibration)
     rng = np.random.default_rng(5)
     image = rng.integers(0, 256, (calibration.height, calibration.width, 3), np.uint8)
@@ -152,8 +153,8 @@ def test_undistorted_frame_has_the_bytes_of_the_three_channel_remap(sample_split
 @pytest.fixture(scope="module")
 def lead_clips(sample_split):
     """Camera 1's clips with Waymo's frames kept and with frames undistorted."""
-    unit = load_unit(sample_split[0], SEGMENT, 1)
-    return {undistorted: annotate_unit(unit, settings(undistorted)) for undistorted in (False, True)}
+    unit = drivetrack_input(sample_split[0], SEGMENT, 1)
+    return {undistorted: drivetrack_clips(unit, settings(undistorted)) for undistorted in (False, True)}
 
 
 def test_kept_frames_put_queries_where_the_sensor_saw_them_and_the_validator_reports_it(lead_clips, world):

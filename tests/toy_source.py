@@ -18,18 +18,18 @@ import numpy as np
 from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
 from pipeline.core.errors import InputError
-from pipeline.sources import Source
+from pipeline.sources import Source, UnitPlan, one_by_one
 
 WIDTH, HEIGHT = 64, 48
 INTRINSICS = np.array([40.0, 40.0, 32.0, 24.0])
 MASK_THRESHOLD = 0.5
 
 
-def list_units(input_root: str, config: RunConfig) -> list[str]:
+def list_units(input_root: str, config: RunConfig, release: frozenset[str] | None = None) -> UnitPlan:
     names = sorted(name[: -len(".json")] for name in os.listdir(input_root) if name.endswith(".json"))
     if not names:
         raise InputError(f"{input_root}: no <unit>.json files")
-    return names
+    return UnitPlan(names)
 
 
 def truth(spec: dict) -> np.ndarray:
@@ -88,7 +88,7 @@ TOY = Source(
     name="toy",
     list_units=list_units,
     unit_name=str,
-    annotate=annotate,
+    annotate_group=one_by_one(annotate),
     sample_input=write_sample,
     mask_min_agreement=lambda config: MASK_THRESHOLD,
 )

@@ -17,9 +17,10 @@ from pipeline.adt.rectify import Rectifier, stored_cam_from_world
 from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
 from pipeline.core.errors import InputError
+from pipeline.core.outcomes import UnitClips
 from pipeline.core.progress import progress
 from pipeline.export.given_queries import given_queries
-from pipeline.sources import NoSample, Source
+from pipeline.sources import NoSample, Source, UnitPlan, Wanted
 
 JPEG_QUALITY = 95
 # The real ADT excerpt shared beside the repository (relative to its root; read in place) and the
@@ -52,29 +53,79 @@ def chunk_count(frames: int, config: RunConfig) -> int:
     return full + (1 if rest and rest >= config.adt.min_frames else 0)
 
 
-def list_units(input_root: str, config: RunConfig) -> list[tuple[str, int]]:
-    """(sequence folder, chunk index) for every chunk of every sequence under ``input_root``.
+def list_units(input_root: str, config: RunConfig, release: frozenset[str] | None = None) -> UnitPlan:
+    """(sequence folder, chunk index) for every chunk of every sequence under ``input_root``; on a
+    release run, only the chunks the release names.
 
-    A sequence that cannot be read yields one unit (chunk 0), which fails at annotate with the
-    reason, so the other sequences still run and the failure is recorded.
+    A sequence that cannot be read yields one unit (chunk 0; on a release run, each chunk named),
+    which fails at annotate with the reason, so the other sequences still run and the failure is
+    recorded.
     """
     if config.adt.chunk_frames < 1 or config.adt.min_frames < 1:
         raise InputError("adt.chunk_frames and adt.min_frames must be at least 1")
-    units = []
+    named = release_chunks(release) if release is not None else {}
+    units, not_made, found = [], {}, set()
     for sequence in list_sequences(input_root):
+        v1 = v1_name(sequence)
+        found.add(v1)
+        if release is not None and v1 not in named:
+            continue
         try:
             frames = len(open_reader(sequence, config).frame_timestamps())
         except InputError:
-            units.append((sequence, 0))
+            units += [(sequence, k) for k in sorted(named.get(v1, {0}))]
             continue
         chunks = chunk_count(frames, config)
-        if not chunks:
-            progress(
-                f"{os.path.basename(sequence)}: {frames} frame(s) in the ground-truth window, fewer "
-                f"than adt.min_frames={config.adt.min_frames}; skipped"
-            )
-        units += [(sequence, k) for k in range(chunks)]
-    return units
+        if release is None:
+            if not chunks:
+                progress(
+                    f"{os.path.basename(sequence)}: {frames} frame(s) in the ground-truth window, fewer "
+                    f"than adt.min_frames={config.adt.min_frames}; skipped"
+                )
+            units += [(sequence, k) for k in range(chunks)]
+            continue
+        for k in sorted(named[v1]):
+            if k < chunks:
+                units.append((sequence, k))
+            else:
+                not_made[clip_name(sequence, k)] = chunk_beyond(k, frames, config)
+    if release is None:
+        return UnitPlan(units)
+    absent = {
+        f"{v1}_{k}": f"sequence {v1} is not in --input"
+        for v1, chunks in named.items()
+        if v1 not in found
+        for k in chunks
+    }
+    absent.update(
+        (name, "not an ADT clip name (<sequence>_<chunk index>)") for name in release if not _chunk_of(name)
+    )
+    expected = {unit_name(unit): (clip_name(*unit),) for unit in units}
+    return UnitPlan(sorted(units), expected=expected, absent=absent, not_made=not_made)
+
+
+def _chunk_of(name: str) -> tuple[str, int] | None:
+    """(v1 sequence name, chunk index) of an ADT clip name, or None when it is not one."""
+    sequence, sep, chunk = name.rpartition("_")
+    return (sequence, int(chunk)) if sep and sequence and chunk.isdigit() else None
+
+
+def release_chunks(release: frozenset[str]) -> dict[str, set[int]]:
+    """v1 sequence name -> the chunk indices the release names of it."""
+    named: dict[str, set[int]] = {}
+    for name in release:
+        parsed = _chunk_of(name)
+        if parsed:
+            named.setdefault(parsed[0], set()).add(parsed[1])
+    return named
+
+
+def chunk_beyond(chunk: int, frames: int, config: RunConfig) -> str:
+    """Why chunk ``chunk`` of a sequence of ``frames`` annotated frames makes no clip."""
+    start = chunk * config.adt.chunk_frames
+    if start >= frames:
+        return f"chunk {chunk} starts past the sequence's {frames:,} annotated frames"
+    return f"chunk {chunk} has {frames - start} frame(s), fewer than adt.min_frames={config.adt.min_frames}"
 
 
 def unit_name(unit: tuple[str, int]) -> str:
@@ -161,7 +212,7 @@ def close_sequence(opened: OpenedSequence) -> None:
     opened.frames.reader.close()
 
 
-def wanted(sequence: str, chunk: int, config: RunConfig) -> bool:
+def in_queries_from(sequence: str, chunk: int, config: RunConfig) -> bool:
     """False when ``--queries-from`` holds no clip of this chunk's name (then it makes no clip)."""
     return (
         not config.queries_from
@@ -185,23 +236,9 @@ def annotate_opened(opened: OpenedSequence, chunk: int, config: RunConfig) -> li
         raise _named(error, sequence, name) from error
 
 
-def annotate_unit(sequence: str, chunk: int, config: RunConfig) -> list[ClipRecord]:
-    """One (sequence, chunk) unit -> its clip; InputError messages start with the unit's name."""
-    if not wanted(sequence, chunk, config):
-        return []  # --queries-from re-annotates only the clips it holds
-    try:
-        opened = open_sequence(sequence, config)
-    except InputError as error:
-        raise _named(error, sequence, unit_name((sequence, chunk))) from error
-    try:
-        return annotate_opened(opened, chunk, config)
-    finally:
-        close_sequence(opened)
-
-
 def annotate_chunks(
-    input_root: str, units: list[tuple[str, int]], config: RunConfig
-) -> Iterator[list[ClipRecord] | Exception]:
+    input_root: str, units: list[tuple[str, int]], config: RunConfig, wanted: list[Wanted] | None = None
+) -> Iterator[UnitClips | Exception]:
     """Chunks of one sequence annotated together: the sequence opened once (on the first chunk
     that makes a clip) and closed after the last (or when the caller stops early); per unit, as
     soon as it is made, its clip or the exception that failed it (an unreadable sequence fails them
@@ -212,8 +249,8 @@ def annotate_chunks(
     opened: OpenedSequence | Exception | None = None
     try:
         for sequence, chunk in units:
-            if not wanted(sequence, chunk, config):
-                yield []
+            if not in_queries_from(sequence, chunk, config):
+                yield UnitClips(())
                 continue
             if opened is None:
                 try:
@@ -227,7 +264,7 @@ def annotate_chunks(
                 yield opened
                 continue
             try:
-                result = annotate_opened(opened, chunk, config)
+                result = UnitClips(tuple(annotate_opened(opened, chunk, config)))
             except Exception as error:  # noqa: BLE001 - this chunk's failure only
                 result = error
             yield result
@@ -262,11 +299,6 @@ def no_sample_message() -> str:
     )
 
 
-def annotate(input_root: str, unit: tuple[str, int], config: RunConfig) -> list[ClipRecord]:
-    """(sequence folder, chunk) -> one candidate clip ``<v1 sequence name>_<chunk>``."""
-    return annotate_unit(unit[0], unit[1], config)
-
-
 def sample_input(folder: str) -> str:
     """There is no embedded ADT sample: NoSample says how to get ADT and run the shared excerpt."""
     raise NoSample(no_sample_message())
@@ -276,10 +308,9 @@ SOURCE = Source(
     name="adt",
     list_units=list_units,
     unit_name=unit_name,
-    annotate=annotate,
+    annotate_group=annotate_chunks,
     sample_input=sample_input,
     mask_min_agreement=operator.attrgetter("adt.mask_min_agreement"),
     sweepable=("adt.mask_min_agreement",),
     group_of=group_of,
-    annotate_group=annotate_chunks,
 )

@@ -23,9 +23,10 @@ import pyarrow.parquet as pq
 
 from pipeline import sources
 from pipeline.core.config import RunConfig, config_from_dict, with_overrides
+from pipeline.core.outcomes import FILTER_ORDER
 from pipeline.export.files import list_files, read_bytes, write_atomic
 from pipeline.export.layout import audit_path, run_record_path, sweep_folder
-from pipeline.filters.select import FILTER_ORDER, count_dropped, verdicts_from_stats
+from pipeline.filters.select import count_dropped, verdicts_from_stats
 from pipeline.sources import Source
 
 

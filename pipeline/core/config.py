@@ -74,6 +74,13 @@ def ranged(default, interval: str, *, even: bool = False, nonempty: bool = False
     return dataclasses.field(default=default, metadata={"range": rule})
 
 
+def not_in_clips(default, interval: str | None = None):
+    """A field that never changes a clip's bytes (where manifests or scratch files go, ...): the
+    resume fingerprint leaves it out, so changing it redoes no unit (``clip_settings``)."""
+    field = ranged(default, interval) if interval else dataclasses.field(default=default)
+    return dataclasses.field(default=default, metadata={**field.metadata, "clip_bytes": False})
+
+
 @dataclasses.dataclass(frozen=True)
 class FlickerConfig:
     """Drop a track whose visibility changes state more than ``max_fraction`` x T times."""
@@ -147,6 +154,8 @@ class AdtConfig:
     mask_min_agreement: keep a track when (visible frames on its own object's id) /
       (visible frames) >= this.
     tracks_per_clip, oversample: tracks written per clip; candidates drawn = oversample x that.
+    scratch_dir: where sequences fetched from a download-URLs JSON (``--input``) are unpacked, one
+      at a time per worker, and deleted after; empty = a folder under the system's temporary folder.
     """
 
     chunk_frames: int = ranged(300, "[1, 100000]")
@@ -160,6 +169,7 @@ class AdtConfig:
     mask_min_agreement: float = ranged(0.5, "[0, 1]")
     tracks_per_clip: int = ranged(1024, "[1, 100000]")
     oversample: int = ranged(4, "[1, 10000]")
+    scratch_dir: str = not_in_clips("")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -197,16 +207,23 @@ class PstudioConfig:
 class RunConfig:
     """Everything that decides a run's output besides its input.
 
+    seed: every random choice is seeded from it and the clip's name.
+    splits_file: the release's splits JSON: the manifests follow its membership where clip names
+      match (``--release`` also restricts the run to its clips).
     queries_from: a folder of existing clips whose queries are re-annotated instead of sampling
       new ones (``--queries-from``); only clips found there are made.
     export_depth: also write the depth each visibility test read (``--export-depth``).
+    minival_per_source: without a splits file, minival is a seeded draw of this many clips per
+      source; full_test holds every other clip.
+    min_tracks: a clip is written only when at least this many tracks pass the filters.
     """
 
     seed: int = ranged(0, "[0, 4294967295]")
-    splits_file: str = ""
+    splits_file: str = not_in_clips("")
     queries_from: str = ""
-    export_depth: bool = False
-    minival_per_source: int = ranged(50, "[0, 1000000]")
+    export_depth: bool = not_in_clips(False)
+    minival_per_source: int = not_in_clips(50, "[0, 1000000]")
+    min_tracks: int = ranged(1, "[1, 100000]")
     flicker: FlickerConfig = dataclasses.field(default_factory=FlickerConfig)
     adt: AdtConfig = dataclasses.field(default_factory=AdtConfig)
     drivetrack: DriveTrackConfig = dataclasses.field(default_factory=DriveTrackConfig)

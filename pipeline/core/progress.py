@@ -1,12 +1,39 @@
-"""Progress lines on stderr, from whichever process runs a step."""
+"""What a worker says while it runs: nothing, unless the run asked for ``--verbose``.
+
+The main process reports every unit as its record appears (``pipeline/monitor.py``), on every runner;
+a worker's own lines (``progress``) and Beam's log records are for ``--verbose`` runs only. The
+setting travels to worker processes in the environment (``VERBOSE_ENV``).
+"""
 
 from __future__ import annotations
 
+import logging
+import os
 import sys
 import time
 
+VERBOSE_ENV = "TAPVID3D_VERBOSE"
+# Loggers that speak on a worker: Beam's own, and the GCP client's import warning.
+NOISY_LOGGERS = ("apache_beam", "root", "apitools", "google", "urllib3", "distributed", "numba")
+
+
+def verbose() -> bool:
+    return os.environ.get(VERBOSE_ENV) == "1"
+
+
+def set_verbose(on: bool) -> None:
+    """Make this process, and the worker processes it starts, verbose or quiet."""
+    os.environ[VERBOSE_ENV] = "1" if on else "0"
+
 
 def progress(message: str) -> None:
-    """One timestamped line on stderr (Beam's worker log forwarding would hide logging records on
-    some runners)."""
-    print(f"{time.strftime('%H:%M:%S')} {message}", file=sys.stderr, flush=True)
+    """One timestamped line on stderr, in a ``--verbose`` run only."""
+    if verbose():
+        print(f"{time.strftime('%H:%M:%S')} {message}", file=sys.stderr, flush=True)
+
+
+def quiet_worker_logs() -> None:
+    """Beam's and its clients' loggers at WARNING (INFO with ``--verbose``) in this process."""
+    level = logging.INFO if verbose() else logging.WARNING
+    for name in NOISY_LOGGERS:
+        logging.getLogger(name).setLevel(level)

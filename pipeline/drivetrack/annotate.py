@@ -19,6 +19,7 @@ from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
 from pipeline.core.geometry import transform_directions_batch, transform_points_batch
 from pipeline.core.images import check_jpeg
+from pipeline.core.outcomes import UnitClips
 from pipeline.drivetrack.camera_model import UnitCamera
 from pipeline.drivetrack.draws import point_keys, query_draws
 from pipeline.drivetrack.evidence import CameraPass, LidarEvidence, gather_lidar_cameras
@@ -33,6 +34,7 @@ from pipeline.drivetrack.visibility import track_visibility
 from pipeline.export.depth_export import sparse_record
 from pipeline.export.given_queries import given_queries
 from pipeline.filters.mask import agreement, on_mask
+from pipeline.sources import Wanted
 
 log = logging.getLogger(__name__)
 
@@ -49,9 +51,9 @@ def track_object(
     camera: UnitCamera,
     stored_jpegs: dict[int, bytes],
     config: RunConfig,
-) -> ClipRecord | None:
-    """Candidate tracks on one vehicle, with visibility, queries and filter statistics; None when
-    its box holds no lidar point, or when ``--queries-from`` holds no clip of its name.
+) -> ClipRecord | str:
+    """Candidate tracks on one vehicle, with visibility, queries and filter statistics; or why there
+    are none: its box holds no lidar point, or ``--queries-from`` holds no clip of its name.
 
     stored_jpegs: the stored frame per unit frame index, for the run's frames.
     """
@@ -60,12 +62,12 @@ def track_object(
     pool = point_pool(evidence, run, unit.frames.timestamps)
     if pool is None:
         log.info("%s: object %s has no lidar points in its box; no clip", unit.name, run.object_id)
-        return None
+        return f"object {run.object_id}'s box holds no lidar point on its frames"
     keys = point_keys(config.seed, name, pool.timestamps, pool.pixels)
     frames = range(run.start, run.stop)
     given = given_queries(config.queries_from, "drivetrack", name) if config.queries_from else None
     if config.queries_from and given is None:
-        return None  # --queries-from re-annotates only the clips it holds
+        return "--queries-from holds no clip of this name"  # it re-annotates only the clips it holds
     count = rules.oversample * rules.tracks_per_clip
     chosen = choose_points(pool.points, keys, given, run, camera, name, count)
     world = transform_points_batch(run.world_from_box, pool.points[chosen])
@@ -148,21 +150,29 @@ def unit_camera(unit: UnitInput, config: RunConfig) -> UnitCamera:
     )
 
 
-def annotate_cameras(units: list[UnitInput], config: RunConfig) -> list[list[ClipRecord] | Exception]:
+def annotate_cameras(
+    units: list[UnitInput], config: RunConfig, wanted: list[Wanted] | None = None
+) -> list[UnitClips | Exception]:
     """The candidate clips of cameras of one segment (in object-id order), or per camera the
     exception that failed it. The TOP lidar is decoded and placed in the world once for all the
     cameras with clips (``gather_lidar_cameras``): a bad lidar frame fails each of them; any other
-    bad input only its own camera."""
+    bad input only its own camera.
+
+    wanted: per camera, the clip names to make (a release run's; the others' objects are not
+      tracked, and each wanted name not made says why), or None for every vehicle.
+    """
     rules = config.drivetrack
-    results: list[list[ClipRecord] | Exception | None] = [None] * len(units)
-    passes, stored, index = [], [], []
+    wanted = wanted or [None] * len(units)
+    results: list[UnitClips | Exception | None] = [None] * len(units)
+    passes, stored, index, skipped = [], [], [], []
     for i, unit in enumerate(units):
         try:
             world_from_frame = frame_poses(unit)
             camera = unit_camera(unit, config)
-            runs = select_objects(unit, camera, world_from_frame, config)
+            runs, why = select_objects(unit, camera, world_from_frame, config, object_ids(unit, wanted[i]))
+            why = {clip_name(unit.segment, unit.camera, object_id): text for object_id, text in why.items()}
             if not runs:
-                results[i] = []
+                results[i] = UnitClips((), why)
                 continue
             item = CameraPass(unit, runs, camera, world_from_frame)
             stored.append(stored_frames(unit, item.needed, camera.undistorted))
@@ -171,25 +181,40 @@ def annotate_cameras(units: list[UnitInput], config: RunConfig) -> list[list[Cli
             continue
         passes.append(item)
         index.append(i)
+        skipped.append(why)
     try:
         evidence = gather_lidar_cameras(passes, rules.box_shrink_m, rules.occlusion_margin)
     except Exception as error:  # noqa: BLE001 - the lidar is shared: every camera reading it fails
         evidence = [error] * len(passes)
-    for i, item, frames, found in zip(index, passes, stored, evidence, strict=True):
+    for i, item, frames, found, why in zip(index, passes, stored, evidence, skipped, strict=True):
         if isinstance(found, Exception):
             results[i] = found
             continue
         try:
-            clips = [track_object(item.unit, run, found, item.camera, frames, config) for run in item.runs]
-            results[i] = [clip for clip in clips if clip is not None]
+            results[i] = camera_clips(item, found, frames, config, why)
         except Exception as error:  # noqa: BLE001
             results[i] = error
     return results
 
 
-def annotate_unit(unit: UnitInput, config: RunConfig) -> list[ClipRecord]:
-    """All candidate clips of one (segment, camera) unit, in object-id order (raises on bad input)."""
-    (result,) = annotate_cameras([unit], config)
-    if isinstance(result, Exception):
-        raise result
-    return result
+def camera_clips(
+    item: CameraPass, evidence: LidarEvidence, frames: dict[int, bytes], config: RunConfig, why: dict
+) -> UnitClips:
+    """One camera's clips, one per object run; ``why`` (clip name -> reason) gains the objects that
+    made none."""
+    clips, not_made = [], dict(why)
+    for run in item.runs:
+        made = track_object(item.unit, run, evidence, item.camera, frames, config)
+        if isinstance(made, str):
+            not_made[clip_name(item.unit.segment, item.unit.camera, run.object_id)] = made
+        else:
+            clips.append(made)
+    return UnitClips(tuple(clips), not_made)
+
+
+def object_ids(unit: UnitInput, wanted: Wanted) -> frozenset[str] | None:
+    """The object ids of the clip names ``wanted`` of this unit (None: every object)."""
+    if wanted is None:
+        return None
+    prefix = clip_name(unit.segment, unit.camera, "")
+    return frozenset(name[len(prefix) :] for name in wanted if name.startswith(prefix))

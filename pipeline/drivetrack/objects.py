@@ -76,23 +76,48 @@ def box_in_view(corners: Projection, width: int, height: int) -> bool:
     )
 
 
+OBJECT_TYPES = {1: "vehicle", 2: "pedestrian", 3: "sign", 4: "cyclist"}
+
+
 def select_objects(
-    unit: UnitInput, camera: UnitCamera, world_from_frame: np.ndarray, config: RunConfig
-) -> list[ObjectRun]:
+    unit: UnitInput,
+    camera: UnitCamera,
+    world_from_frame: np.ndarray,
+    config: RunConfig,
+    wanted: frozenset[str] | None = None,
+) -> tuple[list[ObjectRun], dict[str, str]]:
     """Vehicles assigned to this camera whose box projects on enough contiguous frames, each on its
     longest such run, with a box corner within reach on one of its frames; in object-id order.
 
     world_from_frame: [T, 4, 4] vehicle pose per camera frame (``poses.py``).
+    wanted: object ids to consider (a release run's); None: every object of the segment.
+    Returns the runs and, for each wanted object left out, why.
     """
     rules = config.drivetrack
     boxes = unit.boxes
     size = (unit.calibration.width, unit.calibration.height)
+    known = set(boxes.object_ids.tolist())
+    skipped = {
+        object_id: f"object id {object_id} is not among the segment's boxes"
+        for object_id in sorted((wanted or set()) - known)
+    }
     runs = []
-    for object_id in sorted(set(boxes.object_ids.tolist())):
+    for object_id in sorted(known if wanted is None else known & wanted):
         rows = np.nonzero(boxes.object_ids == object_id)[0]
-        if boxes.types[rows[0]] not in rules.object_types:
+        kind = int(boxes.types[rows[0]])
+        if kind not in rules.object_types:
+            types = ",".join(str(t) for t in rules.object_types)
+            skipped[object_id] = (
+                f"object {object_id} is of type {kind} ({OBJECT_TYPES.get(kind, 'unknown')}), not in "
+                f"drivetrack.object_types={types}"
+            )
             continue
-        if assigned_camera(boxes.most_visible_camera[rows]) != unit.camera:
+        assigned = assigned_camera(boxes.most_visible_camera[rows])
+        if assigned != unit.camera:
+            skipped[object_id] = (
+                f"object {object_id} belongs to camera {assigned} (the one that sees it most), "
+                f"not {unit.camera}"
+            )
             continue
         synced, lidar = boxes_per_frame(unit, object_id, rows)
         labelled = np.isfinite(synced[:, 0])
@@ -106,8 +131,16 @@ def select_objects(
             nearest[t] = np.linalg.norm(corners.points, axis=1).min()
         start, stop = longest_run(in_view_flags)
         if stop - start < rules.min_contiguous_frames:
+            skipped[object_id] = (
+                f"object {object_id}'s box is in view on at most {stop - start} contiguous frame(s), fewer "
+                f"than drivetrack.min_contiguous_frames={rules.min_contiguous_frames}"
+            )
             continue
         if nearest[start:stop].min() > rules.max_corner_distance_m:
+            skipped[object_id] = (
+                f"object {object_id}'s box comes no nearer than {nearest[start:stop].min():.1f} m, beyond "
+                f"drivetrack.max_corner_distance_m={rules.max_corner_distance_m:g}"
+            )
             continue
         runs.append(ObjectRun(object_id, start, stop, world_from_box[start:stop], lidar[start:stop]))
-    return runs
+    return runs, skipped if wanted is not None else {}

@@ -4,26 +4,45 @@ cameras of a segment are annotated together (one read of its lidar)."""
 from __future__ import annotations
 
 import operator
+import re
 
-from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
-from pipeline.drivetrack.annotate import annotate_cameras, annotate_unit
+from pipeline.core.outcomes import UnitClips
+from pipeline.drivetrack.annotate import annotate_cameras, clip_name
 from pipeline.drivetrack.reader import SegmentReader, list_segments
 from pipeline.drivetrack.unit_input import UnitInput
-from pipeline.sources import Source
+from pipeline.sources import Source, UnitPlan, Wanted
+
+# A release clip name: tapvid3d_<segment>_<camera>_<object id>, the segment named as Waymo names
+# them (<context>_<start>_<ms>_<end>_<ms>); the object id may itself hold '_'.
+RELEASE_NAME = re.compile(r"tapvid3d_([^_]+_\d+_\d+_\d+_\d+)_(\d+)_(.+)")
 
 
-def list_units(input_root: str, config: RunConfig) -> list[tuple[str, int]]:
-    """Every (segment, camera) pair of the split folder, sorted."""
-    return [(s, c) for s in list_segments(input_root) for c in config.drivetrack.cameras]
-
-
-def load_unit(input_root: str, segment: str, camera: int) -> UnitInput:
-    """Read what one unit needs; the TOP lidar is read once, when annotate asks for it."""
-    (loaded,) = load_units(input_root, segment, [camera])
-    if isinstance(loaded, Exception):
-        raise loaded
-    return loaded
+def list_units(input_root: str, config: RunConfig, release: frozenset[str] | None = None) -> UnitPlan:
+    """Every (segment, camera) pair of the split folder, sorted; on a release run, the pairs the
+    release names a clip of, each to make only those clips."""
+    segments = list_segments(input_root)
+    units = [(s, c) for s in segments for c in config.drivetrack.cameras]
+    if release is None:
+        return UnitPlan(units)
+    expected = {
+        unit_name(unit): names
+        for unit in units
+        if (names := tuple(sorted(n for n in release if n.startswith(clip_name(*unit, "")))))
+    }
+    kept = [unit for unit in units if unit_name(unit) in expected]
+    made = {name for names in expected.values() for name in names}
+    absent, not_made = {}, {}
+    cameras = ",".join(str(c) for c in config.drivetrack.cameras)
+    for name in sorted(release - made):
+        parsed = RELEASE_NAME.fullmatch(name)
+        if parsed is None:
+            absent[name] = "not a DriveTrack clip name (tapvid3d_<segment>_<camera>_<object id>)"
+        elif parsed[1] not in segments:
+            absent[name] = f"segment {parsed[1]} is not in --input"
+        else:
+            not_made[name] = f"camera {parsed[2]} is not in drivetrack.cameras={cameras}"
+    return UnitPlan(kept, expected=expected, absent=absent, not_made=not_made)
 
 
 def load_units(input_root: str, segment: str, cameras: list[int]) -> list[UnitInput | Exception]:
@@ -73,22 +92,19 @@ def sample_input(folder: str) -> str:
     return write_sample_split(folder)
 
 
-def annotate(input_root: str, unit: tuple[str, int], config: RunConfig) -> list[ClipRecord]:
-    """(segment, camera) -> one candidate clip per vehicle assigned to that camera."""
-    return annotate_unit(load_unit(input_root, *unit), config)
-
-
 def annotate_segment(
-    input_root: str, units: list[tuple[str, int]], config: RunConfig
-) -> list[list[ClipRecord] | Exception]:
+    input_root: str, units: list[tuple[str, int]], config: RunConfig, wanted: list[Wanted] | None = None
+) -> list[UnitClips | Exception]:
     """The units of one segment annotated together (its lidar decoded once): per unit, its clips
-    or the exception that failed it."""
+    or the exception that failed it; ``wanted``: per unit, the clips to make (None: every one)."""
     segments = {segment for segment, _ in units}
     if len(segments) != 1:
         raise ValueError(f"annotate_segment takes the units of one segment, got {sorted(segments)}")
     loaded = load_units(input_root, units[0][0], [camera for _, camera in units])
+    wanted = wanted or [None] * len(units)
     readable = [item for item in loaded if not isinstance(item, Exception)]
-    annotated = iter(annotate_cameras(readable, config))
+    readable_wanted = [w for item, w in zip(loaded, wanted, strict=True) if not isinstance(item, Exception)]
+    annotated = iter(annotate_cameras(readable, config, readable_wanted))
     return [item if isinstance(item, Exception) else next(annotated) for item in loaded]
 
 
@@ -96,10 +112,9 @@ SOURCE = Source(
     name="drivetrack",
     list_units=list_units,
     unit_name=unit_name,
-    annotate=annotate,
+    annotate_group=annotate_segment,
     sample_input=sample_input,
     mask_min_agreement=operator.attrgetter("drivetrack.mask_min_agreement"),
     sweepable=("drivetrack.mask_min_agreement",),
     group_of=operator.itemgetter(0),
-    annotate_group=annotate_segment,
 )

@@ -6,6 +6,7 @@
 <out>/units/<source>/<unit>.json      a finished unit's record, which lets a rerun skip it
 <out>/manifests/{minival,full_test}.txt
 <out>/run_<source>.json, <out>/failures_<source>.jsonl
+<out>/release_<source>.jsonl          a release run's verdict on every release clip of the source
 <out>/sweep_<source>/                 ``pipeline.audit sweep``'s report
 <out>/sample_input/<source>/          the embedded sample world, when a run has no --input
 """
@@ -80,6 +81,10 @@ def failures_path(output: str, source: str) -> str:
     return f"{output}/failures_{source}.jsonl"
 
 
+def release_verdicts_path(output: str, source: str) -> str:
+    return f"{output}/release_{source}.jsonl"
+
+
 def sweep_folder(output: str, source: str) -> str:
     return f"{output}/sweep_{source}"
 
@@ -95,7 +100,11 @@ def temporary_patterns(output: str, source: str, partial: str) -> list[str]:
         *(f"{output}/{kind}/{source}" for kind in ("audit", "depth", "units")),
     ]
     patterns = [f"{folder}/.*{partial}*" for folder in [*folders, f"{output}/manifests"]]
-    for path in (run_record_path(output, source), failures_path(output, source)):
+    for path in (
+        run_record_path(output, source),
+        failures_path(output, source),
+        release_verdicts_path(output, source),
+    ):
         folder, _, name = path.rpartition("/")
         patterns.append(f"{folder}/.{name}{partial}*")
     return patterns

@@ -12,10 +12,9 @@ import numpy as np
 
 from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
+from pipeline.core.outcomes import FILTER_ORDER
 from pipeline.core.sampling import choose_subset, rng_for
 from pipeline.filters.flicker import passes_flicker, visibility_flips
-
-FILTER_ORDER = ("never_visible", "flicker", "mask")
 
 
 @dataclasses.dataclass
@@ -93,8 +92,9 @@ def apply_filters(
     clip: ClipRecord, config: RunConfig, mask_min_agreement: float
 ) -> tuple[ClipRecord, FilterOutcome]:
     """Keep the tracks every filter passes, then the clip's target count of them: those with the
-    lowest ``track_keys`` when the clip has keys, else a seeded draw; a clip of given queries keeps
-    every track, in order (the verdicts are still recorded)."""
+    lowest ``track_keys`` when the clip has keys, else a seeded draw; none when fewer than
+    ``min_tracks`` pass. A clip of given queries keeps every track, in order (the verdicts are still
+    recorded)."""
     verdicts, stats = decide(clip, config, mask_min_agreement)
     survivors = np.nonzero(np.logical_and.reduce([verdicts[name] for name in FILTER_ORDER]))[0]
     if clip.track_keys is not None:
@@ -103,6 +103,8 @@ def apply_filters(
     else:
         rng = rng_for(config.seed, f"{clip.name}/subsample")
         selected = survivors[choose_subset(len(survivors), clip.target_tracks, rng)]
+    if len(survivors) < config.min_tracks:
+        selected = survivors[:0]
     if clip.given_queries:
         selected = np.arange(clip.num_tracks)
     outcome = FilterOutcome(

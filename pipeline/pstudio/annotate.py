@@ -70,6 +70,11 @@ class Gaussians:
         return gaussian_constants(self.scales, self.opacities)
 
 
+def clip_name(sequence: str, camera: int) -> str:
+    """The release's Panoptic Studio clip name."""
+    return f"{sequence}_{camera}"
+
+
 @dataclasses.dataclass
 class UnitInput:
     """Everything one unit reads. ``mask(view, t)`` returns camera ``view``'s foreground mask
@@ -84,7 +89,7 @@ class UnitInput:
 
     @property
     def clip_name(self) -> str:
-        return f"{self.sequence}_{self.camera_id}"
+        return clip_name(self.sequence, self.camera_id)
 
 
 def splats_in_view(

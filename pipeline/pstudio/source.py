@@ -8,12 +8,12 @@ import dataclasses
 import operator
 from collections.abc import Iterator
 
-from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
 from pipeline.core.errors import InputError
-from pipeline.pstudio.annotate import Gaussians, UnitInput, Views, annotate_unit
+from pipeline.core.outcomes import UnitClips
+from pipeline.pstudio.annotate import Gaussians, UnitInput, Views, annotate_unit, clip_name
 from pipeline.pstudio.reader import SequenceFiles, list_sequences, params_path, read_gaussians, read_views
-from pipeline.sources import Source
+from pipeline.sources import Source, UnitPlan, Wanted
 
 # The camera of the one unit listed for a sequence whose train_meta.json cannot be read: that
 # unit fails with the reason, and the other sequences still run.
@@ -24,21 +24,79 @@ ALL_CAMERAS = -1
 # sequences: a whole sequence per group left one worker of two idle (0.88x from 1 to 2 workers on
 # one sequence's units through the DirectRunner), groups of 3 keep ~9 per sequence to share out.
 CAMERAS_PER_GROUP = 3
+# The cameras Dynamic 3D Gaussians holds out for testing (its test_meta.json): no training masks.
+HELD_OUT_CAMERAS = (0, 10, 15, 30)
 
 
-def list_units(input_root: str, config: RunConfig) -> list[tuple[str, int]]:
-    """Every (sequence, camera) pair: the cameras of train_meta.json, or ``pstudio.cameras``."""
-    units = []
+def list_units(input_root: str, config: RunConfig, release: frozenset[str] | None = None) -> UnitPlan:
+    """Every (sequence, camera) pair: the cameras of train_meta.json, or ``pstudio.cameras``; on a
+    release run, only the pairs the release names (``<sequence>_<camera>``)."""
+    units, listed = [], {}
     for sequence in list_sequences(input_root):
-        if config.pstudio.cameras:
-            cameras = config.pstudio.cameras
-        else:
-            try:
-                cameras = [int(c) for c in read_views(input_root, sequence)[0].camera_ids]
-            except InputError:
-                cameras = [ALL_CAMERAS]
+        try:
+            listed[sequence] = [int(c) for c in read_views(input_root, sequence)[0].camera_ids]
+        except InputError:
+            listed[sequence] = None
+        cameras = config.pstudio.cameras or listed[sequence] or [ALL_CAMERAS]
         units += [(sequence, camera) for camera in sorted(cameras)]
-    return units
+    if release is None:
+        return UnitPlan(units)
+    return release_plan(units, listed, release, config)
+
+
+def _pair(name: str) -> tuple[str, int] | None:
+    """(sequence, camera id) of a Panoptic Studio clip name ``<sequence>_<camera>``, or None."""
+    sequence, sep, camera = name.rpartition("_")
+    return (sequence, int(camera)) if sep and sequence and camera.isdigit() else None
+
+
+def release_plan(
+    units: list[tuple[str, int]], listed: dict[str, list[int] | None], release: frozenset[str], config
+) -> UnitPlan:
+    """The units of ``units`` whose clip the release names, and why the other names make no clip.
+
+    listed: sequence of --input -> its train_meta.json cameras (None when it cannot be read: then
+    each named camera is a unit, which fails with the reason).
+    """
+    kept, absent, not_made = [], {}, {}
+    for name in sorted(release):
+        pair = _pair(name)
+        if pair is None:
+            absent[name] = "not a Panoptic Studio clip name (<sequence>_<camera id>)"
+            continue
+        sequence, camera = pair
+        if sequence not in listed:
+            absent[name] = f"sequence {sequence} is not in --input"
+        elif listed[sequence] is None:
+            kept.append((sequence, camera))
+        elif camera not in listed[sequence]:
+            held_out = " (a held-out test camera: no training masks)" if camera in HELD_OUT_CAMERAS else ""
+            absent[name] = (
+                f"camera {camera} is not among {sequence}'s train_meta.json cameras "
+                f"({_ranges(listed[sequence])}){held_out}"
+            )
+        elif (sequence, camera) not in units:
+            cameras = ",".join(str(c) for c in config.pstudio.cameras)
+            not_made[name] = f"camera {camera} is not in pstudio.cameras={cameras}"
+        else:
+            kept.append((sequence, camera))
+    kept.sort()
+    expected = {unit_name(unit): (clip_name(*unit),) for unit in kept}
+    return UnitPlan(kept, expected=expected, absent=absent, not_made=not_made)
+
+
+def _ranges(values: list[int]) -> str:
+    """``[0, 1, 2, 5]`` as ``0-2, 5``."""
+    parts, ordered = [], sorted(values)
+    start = previous = ordered[0]
+    for value in [*ordered[1:], None]:
+        if value is not None and value == previous + 1:
+            previous = value
+            continue
+        parts.append(f"{start}-{previous}" if previous > start else f"{start}")
+        if value is not None:
+            start = previous = value
+    return ", ".join(parts)
 
 
 def group_of(unit: tuple[str, int]) -> str:
@@ -84,11 +142,6 @@ def camera_input(opened: OpenedSequence, camera: int) -> UnitInput:
     return UnitInput(opened.name, camera, views, opened.gaussians, frames, opened.files.mask)
 
 
-def load_unit(input_root: str, sequence: str, camera: int, config: RunConfig) -> UnitInput:
-    """Read the unit's cameras, frames and Gaussians; masks are read when annotate asks."""
-    return camera_input(open_sequence(input_root, sequence, config), camera)
-
-
 def sample_input(folder: str) -> str:
     """Write (once) the embedded sample world in Dynamic 3D Gaussians' layout; returns its path."""
     from pipeline.samples.dynamic3dgs_files import write_sample
@@ -96,14 +149,9 @@ def sample_input(folder: str) -> str:
     return write_sample(folder)
 
 
-def annotate(input_root: str, unit: tuple[str, int], config: RunConfig) -> list[ClipRecord]:
-    """(sequence, camera) -> one candidate clip ``<sequence>_<camera>``."""
-    return annotate_unit(load_unit(input_root, *unit, config), config)
-
-
 def annotate_sequence(
-    input_root: str, units: list[tuple[str, int]], config: RunConfig
-) -> Iterator[list[ClipRecord] | Exception]:
+    input_root: str, units: list[tuple[str, int]], config: RunConfig, wanted: list[Wanted] | None = None
+) -> Iterator[UnitClips | Exception]:
     """The cameras of one sequence annotated together: its Gaussians read once, each mask decoded
     once (the multi-view mask statistic reads every camera's); per unit, as soon as it is made, its
     clip or the exception that failed it (a bad train_meta.json or params.npz fails them all)."""
@@ -117,7 +165,7 @@ def annotate_sequence(
         return
     for _, camera in units:
         try:
-            result = annotate_unit(camera_input(opened, camera), config)
+            result = UnitClips(tuple(annotate_unit(camera_input(opened, camera), config)))
         except Exception as error:  # noqa: BLE001 - this camera's failure only
             result = error
         yield result
@@ -127,10 +175,9 @@ SOURCE = Source(
     name="pstudio",
     list_units=list_units,
     unit_name=unit_name,
-    annotate=annotate,
+    annotate_group=annotate_sequence,
     sample_input=sample_input,
     mask_min_agreement=operator.attrgetter("pstudio.mask_min_agreement"),
     sweepable=("pstudio.mask_min_agreement",),
     group_of=group_of,
-    annotate_group=annotate_sequence,
 )

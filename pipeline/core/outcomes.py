@@ -1,0 +1,133 @@
+"""What the stages of a run hand each other about a unit: typed, frozen records.
+
+A unit's annotation is ``UnitClips`` (its candidate clips and, for clips it was asked for but did not
+make, why); once written, a unit's ``UnitOutcome`` holds a ``ClipReport`` per clip and a ``Failure`` per
+error. The unit's record on disk (``pipeline/resume.py``) is its outcome as JSON (``to_json`` /
+``from_json``), so the main process finishes a run from the records alone, on any runner.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+
+from pipeline.core.clip import ClipRecord
+
+FILTER_ORDER = ("never_visible", "flicker", "mask")
+
+
+@dataclasses.dataclass(frozen=True)
+class UnitClips:
+    """What annotating one unit made.
+
+    clips: its candidate clips.
+    not_made: clip name -> why the unit made no clip of that name, for the names it was asked for
+      (a release run's clips); empty otherwise.
+    """
+
+    clips: tuple[ClipRecord, ...]
+    not_made: Mapping[str, str] = dataclasses.field(default_factory=dict)
+
+
+@dataclasses.dataclass(frozen=True)
+class ClipReport:
+    """One clip after the filter and write stages: its track counts (``dropped`` per filter, in
+    FILTER_ORDER, each track counted against the first filter that rejects it)."""
+
+    clip: str
+    source: str
+    unit: str
+    frames: int
+    candidates: int
+    dropped: Mapping[str, int]
+    passed: int
+    written_tracks: int
+    target_tracks: int
+
+    @property
+    def written(self) -> bool:
+        return self.written_tracks > 0
+
+    def to_json(self) -> dict:
+        return dataclasses.asdict(self) | {"dropped": dict(self.dropped)}
+
+    @classmethod
+    def from_json(cls, value: object) -> ClipReport:
+        """The report ``to_json`` wrote; ValueError when ``value`` is not shaped like one."""
+        fields = _fields(cls, value)
+        dropped = fields["dropped"]
+        if set(dropped) != set(FILTER_ORDER) or not all(_is_int(n) for n in dropped.values()):
+            raise ValueError(f"dropped must count {', '.join(FILTER_ORDER)}")
+        return cls(**fields)
+
+
+@dataclasses.dataclass(frozen=True)
+class Failure:
+    """One error of a unit (``stage`` annotate: the whole unit; clip: one clip, named in ``clip``;
+    record: its record could not be written). ``where`` is the innermost frame of an unexpected
+    error (not an InputError or OutputError), for debugging."""
+
+    unit: str
+    stage: str
+    error: str
+    clip: str = ""
+    where: str = ""
+
+    def to_json(self) -> dict:
+        return {key: value for key, value in dataclasses.asdict(self).items() if value}
+
+    @classmethod
+    def from_json(cls, value: object) -> Failure:
+        if not isinstance(value, dict):
+            raise ValueError("a failure must be an object")
+        return cls(**_fields(cls, {"clip": "", "where": ""} | value))
+
+
+@dataclasses.dataclass(frozen=True)
+class UnitOutcome:
+    """What became of one unit in a run.
+
+    reports: one per clip it made (written or not), sorted by clip name.
+    failures: its errors; a unit with any is redone by the next run.
+    not_made: clip name -> why no clip, for the names it was asked for (``UnitClips.not_made``).
+    resumed: an earlier run had finished it with the same settings; nothing was redone.
+    seconds: wall time of its annotation, filtering and writing (0 when resumed).
+    """
+
+    name: str
+    reports: tuple[ClipReport, ...] = ()
+    failures: tuple[Failure, ...] = ()
+    not_made: Mapping[str, str] = dataclasses.field(default_factory=dict)
+    resumed: bool = False
+    seconds: float = 0.0
+
+    @property
+    def failed(self) -> bool:
+        return bool(self.failures)
+
+    @property
+    def tracks_written(self) -> int:
+        return sum(report.written_tracks for report in self.reports)
+
+    @property
+    def clips_written(self) -> int:
+        return sum(report.written for report in self.reports)
+
+
+def _is_int(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _fields(kind: type, value: object) -> dict:
+    """``value``'s entries for the fields of dataclass ``kind``, each of the declared type."""
+    if not isinstance(value, dict):
+        raise ValueError(f"a {kind.__name__} must be an object")
+    expected = {"str": str, "int": int, "float": (int, float), "Mapping[str, int]": dict}
+    fields = {}
+    for field in dataclasses.fields(kind):
+        item = value.get(field.name)
+        want = expected[str(field.type)]
+        if not isinstance(item, want) or isinstance(item, bool):
+            raise ValueError(f"{kind.__name__}.{field.name} must be {str(field.type)}")
+        fields[field.name] = item
+    return fields

@@ -1,0 +1,136 @@
+"""Finishing a run, in the main process, once: from the records its units left (``pipeline/resume.py``),
+the failures file, the release verdicts, the manifests and the run record.
+
+Every unit of a run ends with its record, written or stamped by this run (a resumed unit's record
+is stamped with the run's id), on whatever runner and workers did the work; ``finish_run`` reads the
+records of the run's planned units, so it works alike on the DirectRunner, a Dask cluster or
+Dataflow. A planned unit without a record of this run (the record could not be written) counts as
+failed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+from pipeline import sources
+from pipeline.core.outcomes import FILTER_ORDER, Failure, UnitOutcome
+from pipeline.export.files import list_files, write_atomic
+from pipeline.export.layout import (
+    clip_folder,
+    failures_path,
+    manifest_path,
+    release_verdicts_path,
+    run_record_path,
+)
+from pipeline.export.manifests import split_clips
+from pipeline.release import Release, summary_line, tally, verdict_lines, verdicts
+from pipeline.resume import outcome_of, read_unit_record
+from pipeline.sources import UnitPlan
+from pipeline.unit import UnitJob
+
+
+@dataclasses.dataclass(frozen=True)
+class FinishedRun:
+    """What ``finish_run`` wrote: the run record's summary and, on a release run, the verdict
+    counts (``release.tally``)."""
+
+    summary: dict
+    release: dict | None
+
+
+def unit_outcomes(job: UnitJob, names: list[str]) -> dict[str, UnitOutcome | None]:
+    """Each planned unit's outcome in this run (from its record), None when it left none."""
+    outcomes = {}
+    for name in names:
+        record = read_unit_record(job.output, job.source.name, name)
+        outcomes[name] = outcome_of(record) if record and record["run"] == job.run_id else None
+    return outcomes
+
+
+def all_failures(outcomes: dict[str, UnitOutcome | None]) -> list[Failure]:
+    """Every failure of the run, sorted; a unit without a record of this run is one."""
+    found = []
+    for name, outcome in outcomes.items():
+        if outcome is None:
+            found.append(
+                Failure(name, "record", "OutputError: the unit's record was not written by this run")
+            )
+        else:
+            found += outcome.failures
+    return sorted(found, key=lambda f: (f.unit, f.stage, f.clip, f.error))
+
+
+def summarize(outcomes: dict[str, UnitOutcome | None], failures: list[Failure]) -> dict:
+    """Run totals: units, clips, tracks kept and dropped by each filter, failures."""
+    done = [outcome for outcome in outcomes.values() if outcome is not None]
+    reports = [report for outcome in done for report in outcome.reports]
+    written = [r for r in reports if r.written]
+    return {
+        "units": len(outcomes),
+        "units_resumed": sum(outcome.resumed for outcome in done),
+        "units_failed": sum(outcome is None or outcome.failed for outcome in outcomes.values()),
+        "clips_annotated": len(reports),
+        "clips_written": len(written),
+        "clips_below_target": sum(r.written_tracks < r.target_tracks for r in written),
+        "candidate_tracks": sum(r.candidates for r in reports),
+        "dropped_by_filter": {name: sum(r.dropped[name] for r in reports) for name in FILTER_ORDER},
+        "tracks_passing_filters": sum(r.passed for r in reports),
+        "tracks_written": sum(r.written_tracks for r in reports),
+        "failures": len(failures),
+    }
+
+
+def write_manifests(output: str, config, release: Release | None, restricted: bool) -> dict[str, int]:
+    """The manifests over every source's clips in the output folder; entries per split."""
+    clips = {
+        name: [p.rsplit("/", 1)[-1] for p in list_files(f"{clip_folder(output, name)}/*.npz")]
+        for name in sources.names()
+    }
+    clips = {name: files for name, files in clips.items() if files}
+    membership = release.clips if release is not None else None
+    minival, full_test = split_clips(clips, config.minival_per_source, config.seed, membership, restricted)
+    for split, entries in (("minival", minival), ("full_test", full_test)):
+        write_atomic(manifest_path(output, split), "".join(entry + "\n" for entry in entries).encode())
+    return {"minival": len(minival), "full_test": len(full_test)}
+
+
+def finish_run(
+    job: UnitJob,
+    plan: UnitPlan,
+    provenance: dict,
+    release: Release | None,
+    restricted: bool,
+    metrics: dict[str, int] | str,
+) -> FinishedRun:
+    """Write the failures, the release verdicts (a release run), the manifests and the run record.
+
+    release: the release's clips (``--release``, or ``splits_file`` for the manifests alone).
+    restricted: the run was restricted to the release's clips (``--release``).
+    metrics: the run's Beam counters, or why there are none.
+    """
+    source, output = job.source.name, job.output
+    outcomes = unit_outcomes(job, [job.source.unit_name(unit) for unit in plan.units])
+    failures = all_failures(outcomes)
+    write_atomic(
+        failures_path(output, source),
+        "".join(json.dumps(f.to_json(), sort_keys=True) + "\n" for f in failures).encode(),
+    )
+    summary = summarize(outcomes, failures)
+    counts = None
+    if restricted and release is not None:
+        rows = verdicts(
+            release.clips.get(source, {}),
+            plan.absent,
+            plan.not_made,
+            plan.expected,
+            outcomes,
+            job.config.min_tracks,
+        )
+        write_atomic(release_verdicts_path(output, source), verdict_lines(rows))
+        counts = tally(rows)
+        summary["release"] = counts | {"line": summary_line(counts)}
+    summary["manifests"] = write_manifests(output, job.config, release, restricted)
+    record = dict(provenance, summary=summary, metrics=metrics)
+    write_atomic(run_record_path(output, source), json.dumps(record, indent=2, sort_keys=True).encode())
+    return FinishedRun(summary, counts)

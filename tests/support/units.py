@@ -1,0 +1,39 @@
+"""One unit's input or clips, for tests that look inside a source's stages (a source's own entry is
+its group form, ``Source.annotate_group``; these call it for one unit)."""
+
+from __future__ import annotations
+
+from pipeline.adt.source import annotate_chunks
+from pipeline.core.clip import ClipRecord
+from pipeline.core.config import RunConfig
+from pipeline.drivetrack.annotate import annotate_cameras
+from pipeline.drivetrack.source import load_units
+from pipeline.drivetrack.unit_input import UnitInput as DriveTrackInput
+from pipeline.pstudio.annotate import UnitInput as StudioInput
+from pipeline.pstudio.source import camera_input, open_sequence
+
+
+def _ok(result):
+    if isinstance(result, Exception):
+        raise result
+    return result
+
+
+def drivetrack_input(input_root: str, segment: str, camera: int) -> DriveTrackInput:
+    """What the (segment, camera) unit reads."""
+    return _ok(load_units(input_root, segment, [camera])[0])
+
+
+def drivetrack_clips(unit: DriveTrackInput, config: RunConfig) -> list[ClipRecord]:
+    """The candidate clips of one DriveTrack unit (raises its failure)."""
+    return list(_ok(annotate_cameras([unit], config)[0]).clips)
+
+
+def pstudio_input(input_root: str, sequence: str, camera: int, config: RunConfig) -> StudioInput:
+    """What the (sequence, camera) unit reads."""
+    return camera_input(open_sequence(input_root, sequence, config), camera)
+
+
+def adt_clips(input_root: str, unit: tuple[str, int], config: RunConfig) -> list[ClipRecord]:
+    """The candidate clips of one ADT (sequence, chunk) unit (raises its failure)."""
+    return list(_ok(next(iter(annotate_chunks(input_root, [unit], config)))).clips)
