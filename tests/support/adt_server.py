@@ -6,8 +6,10 @@ pointing at ``base_url`` with their real SHA-1s and sizes. ``serve(folder)`` run
 on 127.0.0.1 (any free port) in a daemon thread for the ``with`` block; ``server.fail(filename,
 *actions)`` queues faults for one file, each used by one request: an HTTP status (``"500"``,
 ``"429"``, ...), ``"truncate"`` (the full Content-Length, half the body, then the connection is
-closed) or ``"drop"`` (the connection closed without an answer); ``server.stop()`` takes the server
-away (connections are then refused); ``server.requests(filename)`` counts the requests for a file.
+closed), ``"short"`` / ``"long"`` (no Content-Length; half the body, or the body and 10 more
+bytes, then the connection is closed) or ``"drop"`` (the connection closed without an answer);
+``server.stop()`` takes the server away (connections are then refused);
+``server.requests(filename)`` counts the requests for a file, ``server.reset()`` forgets them.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import hashlib
 import http.server
 import json
 import pathlib
+import sys
 import threading
 import urllib.parse
 import zipfile
@@ -140,6 +143,11 @@ class _Server(http.server.ThreadingHTTPServer):
         self.faults: dict[str, collections.deque[str]] = collections.defaultdict(collections.deque)
         self.counts: collections.Counter[str] = collections.Counter()
 
+    def handle_error(self, request, client_address):
+        """A client that hangs up early (it refused a body) is no error of the server's."""
+        if not isinstance(sys.exc_info()[1], ConnectionError):
+            super().handle_error(request, client_address)
+
 
 class _Handler(http.server.BaseHTTPRequestHandler):
     server: _Server
@@ -162,15 +170,19 @@ class _Handler(http.server.BaseHTTPRequestHandler):
         elif "/" in name or not path.is_file():
             self.send_error(404)
         else:
-            self._send(path.read_bytes(), action == "truncate")
+            self._send(path.read_bytes(), action)
 
-    def _send(self, data: bytes, truncate: bool) -> None:
+    def _send(self, data: bytes, action: str | None) -> None:
         self.send_response(200)
         self.send_header("Content-Type", "application/octet-stream")
-        self.send_header("Content-Length", str(len(data)))
+        if action in ("short", "long"):  # the body ends where the connection does
+            self.send_header("Connection", "close")
+        else:
+            self.send_header("Content-Length", str(len(data)))
         self.end_headers()
-        self.wfile.write(data[: len(data) // 2] if truncate else data)
-        self.close_connection = truncate
+        body = {"truncate": data[: len(data) // 2], "short": data[: len(data) // 2], "long": data + bytes(10)}
+        self.wfile.write(body.get(action, data))
+        self.close_connection = action in body
 
 
 class AdtServer:
