@@ -207,13 +207,26 @@ def test_dropped_connections_are_retried(layout, server, scratch):
     assert server.requests(layout.filename("main_groundtruth")) == 3
 
 
-def test_a_truncated_body_is_an_error(layout, server, scratch):
-    server.fail(layout.filename("depth"), "truncate")
+@pytest.mark.parametrize("fault, tail", [("truncate", " (connection broken)"), ("short", "")])
+def test_a_truncated_body_is_an_error(layout, server, scratch, fault, tail):
+    """Cut short under a full Content-Length (the connection breaks) or with none (a quiet end)."""
+    server.fail(layout.filename("depth"), fault)
     size = layout.entry("depth")["file_size_bytes"]
     message = fetch_error(layout.url_file, scratch)
     assert message.startswith(f"{SEQUENCE}: data group depth: truncated: got ")
     got = int(message.split("got ")[1].split(" of ")[0])
-    assert got < size and f" of {size} bytes" in message
+    assert 0 < got < size and message.endswith(f" of {size} bytes{tail}")
+    assert server.requests(layout.filename("depth")) == 1
+
+
+def test_a_body_longer_than_the_url_files_size_is_an_error(layout, server, scratch):
+    server.fail(layout.filename("segmentation"), "long")
+    size = layout.entry("segmentation")["file_size_bytes"]
+    message = fetch_error(layout.url_file, scratch)
+    assert (
+        message
+        == f"{SEQUENCE}: data group segmentation: too long: more than the {size} bytes file_size_bytes gives"
+    )
 
 
 def test_a_wrong_sha1_is_an_error(layout, server, scratch):
