@@ -1,0 +1,485 @@
+"""Fetching one ADT sequence from the download-URLs JSON into a scratch folder, and removing it after.
+
+ADT is about 1.7 TB, so a run fetches one sequence at a time: ``read_url_file`` reads the JSON the
+ADT website hands each user (the ``cdn_file`` of projectaria-tools' ``aria_dataset_downloader``),
+``plan_download`` picks the data groups of one sequence that hold the files the pipeline reads, and
+``fetch_sequence`` downloads, checks and unpacks them into a folder of its own inside a scratch
+folder, yields that sequence folder, and deletes it on the way out (normally, on an error or on
+Ctrl-C). Nothing is written outside the scratch folder given.
+
+The JSON: ``{"sequences": {name: {group: {"download_url", "filename", "sha1sum",
+"file_size_bytes"}}}, "sequence_config": {"main": {"recording", "mps"}, "data_groups": {group:
+[files]}}}``. The group ``main_vrs`` is the recording, one plain file saved under the
+name ``main.recording``; every other group is a zip unpacked into the sequence folder, the library's MPS
+groups into ``<main.mps>/<eye_gaze|slam|hand_tracking>/``. Which group holds which file is read
+with projectaria-tools' own ``load_data_groups_from_cdn`` (and its MPS folders).
+
+projectaria-tools' ``DatasetDownloader`` is not used to fetch: it downloads into the system's
+temporary folder (outside any scratch folder), checks free space on ``/`` instead of its target,
+retries 429 and 5xx answers only for ``https://`` URLs, reports failures as a printed line and a
+boolean, and draws progress bars. Here one ``requests`` session retries both schemes with a
+bounded, configurable back-off, every failure is an ``InputError`` of one line
+``<sequence>: data group <group>: <cause>``, the SHA-1 is taken while the body streams (no second
+read of a multi-GB file), and only the needed members of a zip are written. Download URLs are
+never put in messages (they may carry access tokens).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import hashlib
+import json
+import os
+import posixpath
+import re
+import shutil
+import tempfile
+import zipfile
+from collections.abc import Iterable, Iterator, Mapping
+
+import requests
+import urllib3
+from projectaria_tools.tools.dataset_downloader.dataset_downloader import MPS_DATA_TYPE_TO_SAVE_PATH
+from projectaria_tools.tools.dataset_downloader.dataset_downloader_utils import load_data_groups_from_cdn
+from requests.adapters import HTTPAdapter
+from urllib3.util.retry import Retry
+
+from pipeline.core.errors import InputError
+
+RECORDING_GROUP = "main_vrs"
+MAX_URL_FILE_BYTES = 64 << 20
+# A zip whose members declare more than this many times its own size (and more than the floor),
+# or more than the cap in all, is refused before anything is unpacked.
+MAX_UNPACK_RATIO = 64
+UNPACK_FLOOR_BYTES = 64 << 20
+MAX_UNPACK_BYTES = 1 << 40
+RETRY_STATUSES = (429, 500, 502, 503, 504)
+CHUNK_BYTES = 1 << 20
+_SHA1 = re.compile(r"[0-9a-fA-F]{40}")
+
+
+@dataclasses.dataclass(frozen=True)
+class GroupEntry:
+    """One data group of one sequence in the URLs JSON (``url`` is '' when none is given)."""
+
+    url: str
+    filename: str
+    sha1: str
+    size: int
+
+
+@dataclasses.dataclass(frozen=True)
+class UrlFile:
+    """A read URLs JSON: its sequences, their groups' entries, and each group's files as paths
+    relative to the sequence folder (the library's MPS groups' under ``<main.mps>/<kind>/``)."""
+
+    path: str
+    sequences: tuple[str, ...]
+    entries: Mapping[str, Mapping[str, GroupEntry]]
+    groups: Mapping[str, tuple[str, ...]]
+    recording: str
+    mps_folder: str
+
+
+@dataclasses.dataclass(frozen=True)
+class GroupDownload:
+    """One group to fetch: ``files`` are the needed files it holds (the only ones unpacked), as
+    paths in the sequence folder; a zip's members are those paths relative to ``folder``."""
+
+    name: str
+    url: str
+    filename: str
+    sha1: str
+    size: int
+    files: tuple[str, ...]
+    folder: str
+    is_recording: bool
+
+
+@dataclasses.dataclass(frozen=True)
+class SequenceDownload:
+    """The groups of one sequence to fetch, in fetch order: zips largest first, the recording last.
+
+    ``peak_bytes`` is the most the scratch folder holds meanwhile, assuming a zip's needed content
+    is as large as the zip (VRS barely compresses) and each zip is deleted once unpacked: the
+    largest over the zips of (bytes kept from earlier groups + 2 x the zip), and the total.
+    """
+
+    sequence: str
+    groups: tuple[GroupDownload, ...]
+    download_bytes: int
+    peak_bytes: int
+
+
+class _GroupError(Exception):
+    """The cause of a group's failure, turned into an ``InputError`` naming sequence and group."""
+
+
+def format_bytes(count: int) -> str:
+    """``count`` bytes for messages: ``512 B``, ``12.3 MB``, ``1.7 TB`` (powers of 1000)."""
+    units, power = ("B", "kB", "MB", "GB", "TB"), 0
+    while power < len(units) - 1 and abs(count) >= 1000 ** (power + 1):
+        power += 1
+    return f"{count} B" if power == 0 else f"{count / 1000**power:.1f} {units[power]}"
+
+
+def _one_line(text: object) -> str:
+    return " ".join(str(text).split())
+
+
+def is_url_file(path: str) -> bool:
+    """A local ``.json`` file whose top level holds ``sequences`` and ``sequence_config``."""
+    if "://" in path or not path.lower().endswith(".json") or not os.path.isfile(path):
+        return False
+    try:
+        data = _load_json(path)
+    except InputError:
+        return False
+    return "sequences" in data and "sequence_config" in data
+
+
+def _load_json(path: str) -> dict:
+    try:
+        with open(path, "rb") as handle:
+            raw = handle.read(MAX_URL_FILE_BYTES + 1)
+    except OSError as error:
+        raise InputError(f"{path}: cannot read the ADT URL file: {error.strerror}") from error
+    if len(raw) > MAX_URL_FILE_BYTES:
+        raise InputError(f"{path}: larger than {format_bytes(MAX_URL_FILE_BYTES)}, not an ADT URL file")
+    try:
+        data = json.loads(raw)
+    except (ValueError, RecursionError) as error:
+        raise InputError(f"{path}: not JSON ({_one_line(error)})") from error
+    if not isinstance(data, dict):
+        raise InputError(f"{path}: the top level is a {type(data).__name__}, not an object")
+    return data
+
+
+def _need(path: str, where: str, value: object, kind: type) -> None:
+    if not isinstance(value, kind) or isinstance(value, bool):
+        raise InputError(f"{path}: {where} must be a {kind.__name__}, not {type(value).__name__}")
+
+
+def _safe_relative(path: str, where: str, name: object) -> str:
+    """A relative path with no '..', no empty part and no backslash (file names of a sequence)."""
+    _need(path, where, name, str)
+    parts = name.split("/")
+    if name.startswith("/") or "\\" in name or "\0" in name or any(p in ("", ".", "..") for p in parts):
+        raise InputError(f"{path}: {where}: {name!r} is not a plain relative file name")
+    return name
+
+
+def read_url_file(path: str) -> UrlFile:
+    """Read and check an ADT URLs JSON (at most ``MAX_URL_FILE_BYTES``); problems raise one line."""
+    data = _load_json(path)
+    for key in ("sequences", "sequence_config"):
+        if key not in data:
+            raise InputError(f"{path}: no '{key}' key, not an ADT URL file")
+    sequences, config = data["sequences"], data["sequence_config"]
+    _need(path, "'sequences'", sequences, dict)
+    _need(path, "'sequence_config'", config, dict)
+    _need(path, "'sequence_config/main'", config.get("main"), dict)
+    _need(path, "'sequence_config/data_groups'", config.get("data_groups"), dict)
+    main = config["main"]
+    recording = _safe_relative(path, "'sequence_config/main/recording'", main.get("recording"))
+    _need(path, "'sequence_config/main/mps'", main.get("mps"), str)
+    entries = {
+        str(name): _read_entries(path, f"'sequences/{name}'", groups) for name, groups in sequences.items()
+    }
+    groups = _data_groups(path, main["mps"])
+    return UrlFile(path, tuple(entries), entries, groups, recording, main["mps"])
+
+
+def _read_entries(path: str, where: str, groups: object) -> dict[str, GroupEntry]:
+    _need(path, where, groups, dict)
+    return {str(group): _read_entry(path, f"{where[:-1]}/{group}'", entry) for group, entry in groups.items()}
+
+
+def _read_entry(path: str, where: str, entry: object) -> GroupEntry:
+    _need(path, where, entry, dict)
+    if "download_url" not in entry:
+        raise InputError(f"{path}: {where} has no 'download_url'")
+    url = entry["download_url"]
+    if not url:  # the library skips such a group: it is not available
+        return GroupEntry("", "", "", 0)
+    _need(path, f"{where[:-1]}/download_url'", url, str)
+    if not url.startswith(("http://", "https://")):
+        raise InputError(f"{path}: {where}: the download URL is not http:// or https://")
+    sha1, size = entry.get("sha1sum"), entry.get("file_size_bytes")
+    if not isinstance(sha1, str) or not _SHA1.fullmatch(sha1):
+        raise InputError(f"{path}: {where}: 'sha1sum' must be 40 hex digits, not {sha1!r}")
+    if isinstance(size, str) and size.isdigit():
+        size = int(size)
+    if not isinstance(size, int) or isinstance(size, bool) or size < 0:
+        raise InputError(f"{path}: {where}: 'file_size_bytes' must be a byte count, not {size!r}")
+    filename = entry.get("filename", "")
+    _need(path, f"{where[:-1]}/filename'", filename, str)
+    return GroupEntry(url, filename, sha1.lower(), size)
+
+
+def _data_groups(path: str, mps_folder: str) -> dict[str, tuple[str, ...]]:
+    """Group -> files from projectaria-tools' parsing (the recording a str there), MPS files under
+    the folder the library moves them to."""
+    try:
+        groups = load_data_groups_from_cdn(path)
+    except Exception as error:  # the library raises bare Exceptions and KeyErrors
+        raise InputError(f"{path}: {_one_line(error) or type(error).__name__}") from error
+    out = {}
+    for group, files in groups.items():
+        files = [files] if isinstance(files, str) else files
+        _need(path, f"'sequence_config/data_groups/{group}'", files, list)
+        folder, where = _group_folder(mps_folder, group), f"'sequence_config/data_groups/{group}'"
+        out[str(group)] = tuple(
+            _safe_relative(path, where, posixpath.join(folder, name) if folder else name) for name in files
+        )
+    return out
+
+
+def _group_folder(mps_folder: str, group: str) -> str:
+    """Where a group's zip is unpacked in the sequence folder: '' (the folder itself), or for the
+    library's MPS groups its ``mps/<kind>`` with ``mps`` renamed to ``main.mps`` as it does."""
+    save = MPS_DATA_TYPE_TO_SAVE_PATH.get(group)
+    return posixpath.join(mps_folder, posixpath.relpath(save, "mps")) if save else ""
+
+
+def _check_sequence_name(sequence: str) -> None:
+    """A sequence's name becomes its folder's name (clip names derive from it): one plain name."""
+    if sequence in ("", ".", "..") or any(c in sequence for c in "/\\\0"):
+        raise InputError(f"{sequence!r}: not a plain folder name, cannot be a sequence folder")
+
+
+def plan_download(url_file: UrlFile, sequence: str, needed_files: Iterable[str]) -> SequenceDownload:
+    """The groups of ``sequence`` holding at least one of ``needed_files`` (paths in the sequence
+    folder), and only those; each file comes from the first group listing it that the sequence
+    has. A needed file in no group, or only in groups the sequence lacks, raises ``InputError``."""
+    _check_sequence_name(sequence)
+    if sequence not in url_file.entries:
+        raise InputError(f"{url_file.path}: no sequence {sequence!r} in it")
+    chosen: dict[str, list[str]] = {}
+    for name in dict.fromkeys(needed_files):
+        chosen.setdefault(_holder(url_file, sequence, name), []).append(name)
+    groups = [_group_download(url_file, sequence, group, files) for group, files in chosen.items()]
+    groups.sort(key=lambda g: (g.is_recording, -g.size))
+    return SequenceDownload(sequence, tuple(groups), sum(g.size for g in groups), _peak_bytes(groups))
+
+
+def _holder(url_file: UrlFile, sequence: str, name: str) -> str:
+    holders = [group for group, files in url_file.groups.items() if name in files]
+    if not holders:
+        raise InputError(f"{sequence}: {name} is in no data group of {url_file.path}")
+    for group in holders:
+        entry = url_file.entries[sequence].get(group)
+        if entry is not None and entry.url:
+            return group
+    raise InputError(
+        f"{sequence}: data group {' or '.join(holders)} (holding {name}) has no download URL "
+        f"for this sequence in {url_file.path}"
+    )
+
+
+def _group_download(url_file: UrlFile, sequence: str, group: str, files: list[str]) -> GroupDownload:
+    entry = url_file.entries[sequence][group]
+    folder, recording = _group_folder(url_file.mps_folder, group), group == RECORDING_GROUP
+    return GroupDownload(
+        group, entry.url, entry.filename, entry.sha1, entry.size, tuple(files), folder, recording
+    )
+
+
+def _peak_bytes(groups: Iterable[GroupDownload]) -> int:
+    kept = peak = 0
+    for group in groups:
+        peak = max(peak, kept + (group.size if group.is_recording else 2 * group.size))
+        kept += group.size
+    return max(peak, kept)
+
+
+@contextlib.contextmanager
+def fetch_sequence(
+    download: SequenceDownload,
+    scratch_dir: str,
+    *,
+    retries: int = 5,
+    backoff: float = 2.0,
+    timeout: float = 60.0,
+) -> Iterator[str]:
+    """Fetch ``download`` into ``<scratch_dir>/<unique folder>/<sequence>`` and yield that folder.
+
+    Each group's body is streamed to a file in the unique folder and checked (HTTP status,
+    Content-Length, ``file_size_bytes``, SHA-1); a zip's needed members are unpacked (a zip with an
+    absolute or '..' member, or declaring absurd unpacked sizes, is refused) and the zip deleted;
+    the recording is renamed to ``main.recording``. Requests retry ``retries`` times on connection
+    errors and on 429/500/502/503/504, sleeping ``backoff`` x 2^(n-1) s before the n-th retry after
+    the first; ``timeout`` bounds each connect and read. Failures raise ``InputError``
+    ``<sequence>: data group <group>: <cause>``. On the way out, however it ends, the unique
+    folder is deleted, leaving ``scratch_dir`` as it was (created when missing).
+    """
+    _check_sequence_name(download.sequence)
+    os.makedirs(scratch_dir, exist_ok=True)
+    _check_free_space(download, scratch_dir)
+    workdir = tempfile.mkdtemp(prefix=".adt-fetch-", dir=scratch_dir)
+    try:
+        folder = os.path.join(workdir, download.sequence)
+        os.mkdir(folder)
+        with _session(retries, backoff) as session:
+            for index, group in enumerate(download.groups):
+                try:
+                    _fetch_group(session, group, f"{folder}.download-{index}", folder, timeout)
+                except _GroupError as error:
+                    raise InputError(f"{download.sequence}: data group {group.name}: {error}") from error
+        yield folder
+    finally:
+        shutil.rmtree(workdir, ignore_errors=True)
+
+
+def _check_free_space(download: SequenceDownload, scratch_dir: str) -> None:
+    free = shutil.disk_usage(scratch_dir).free
+    if free < download.peak_bytes:
+        raise InputError(
+            f"{download.sequence}: fetching it needs up to {format_bytes(download.peak_bytes)} in "
+            f"{scratch_dir}, which has {format_bytes(free)} free"
+        )
+
+
+def _session(retries: int, backoff: float) -> requests.Session:
+    """A session retrying both schemes; Retry-After is not honoured, so waits stay bounded."""
+    retry = Retry(
+        total=retries,
+        connect=retries,
+        read=retries,
+        status=retries,
+        other=0,
+        backoff_factor=backoff,
+        status_forcelist=RETRY_STATUSES,
+        allowed_methods=frozenset({"GET"}),
+        raise_on_status=False,
+        respect_retry_after_header=False,
+    )
+    session = requests.Session()
+    for scheme in ("http://", "https://"):
+        session.mount(scheme, HTTPAdapter(max_retries=retry))
+    return session
+
+
+def _fetch_group(session: requests.Session, group: GroupDownload, path: str, folder: str, timeout: float):
+    try:
+        _download(session, group, path, timeout)
+        if group.is_recording:
+            os.replace(path, os.path.join(folder, group.files[0]))
+        else:
+            _unpack(path, group, folder)
+            os.remove(path)
+    except OSError as error:
+        raise _GroupError(f"cannot write {error.filename or path}: {error.strerror}") from error
+
+
+def _download(session: requests.Session, group: GroupDownload, path: str, timeout: float) -> None:
+    try:
+        response = session.get(
+            group.url, stream=True, timeout=timeout, headers={"Accept-Encoding": "identity"}
+        )
+    except requests.RequestException as error:
+        tries = session.get_adapter(group.url).max_retries.total + 1
+        raise _GroupError(_request_failure(error, tries)) from error
+    with response:
+        tries = len(getattr(response.raw.retries, "history", ())) + 1
+        if response.status_code != 200:
+            after = f" after {tries} tries" if tries > 1 else ""
+            raise _GroupError(f"HTTP {response.status_code}{after}")
+        digest = _stream(response, group, path)
+    if digest != group.sha1:
+        raise _GroupError(f"sha1 mismatch (expected {group.sha1}, got {digest})")
+
+
+def _stream(response: requests.Response, group: GroupDownload, path: str) -> str:
+    """Write the body to ``path``; its SHA-1. A body shorter or longer than promised raises."""
+    declared = response.headers.get("Content-Length")
+    if declared is not None and declared.strip() != str(group.size):
+        raise _GroupError(f"size mismatch: Content-Length {declared}, file_size_bytes {group.size}")
+    digest, got = hashlib.sha1(), 0
+    with open(path, "wb") as out:
+        try:
+            for chunk in response.iter_content(CHUNK_BYTES):
+                got += len(chunk)
+                if got > group.size:
+                    raise _GroupError(f"too long: more than the {group.size} bytes file_size_bytes gives")
+                digest.update(chunk)
+                out.write(chunk)
+        except requests.RequestException as error:
+            raise _GroupError(f"truncated: got {got} of {group.size} bytes ({_reason(error)})") from error
+    if got != group.size:
+        raise _GroupError(f"truncated: got {got} of {group.size} bytes")
+    return digest.hexdigest()
+
+
+def _request_failure(error: requests.RequestException, tries: int) -> str:
+    """``connection refused after 6 tries`` and the like, for a request that got no answer."""
+    retried = any(isinstance(seen, urllib3.exceptions.MaxRetryError) for seen in _chain(error))
+    return f"{_reason(error)} after {tries} tries" if retried else _reason(error)
+
+
+# Short causes of a failed request, the first whose exception is in its chain (most specific first).
+_CAUSES = (
+    (ConnectionRefusedError, "connection refused"),
+    (urllib3.exceptions.NameResolutionError, "host not found"),
+    (urllib3.exceptions.NewConnectionError, "cannot connect"),
+    ((urllib3.exceptions.ConnectTimeoutError, requests.ConnectTimeout), "connection timed out"),
+    ((urllib3.exceptions.ReadTimeoutError, requests.ReadTimeout, TimeoutError), "read timed out"),
+    (urllib3.exceptions.ProtocolError, "connection broken"),
+)
+
+
+def _reason(error: BaseException) -> str:
+    """A short cause for a failed request, else the exception's own text on one line."""
+    chain = _chain(error)
+    for kinds, text in _CAUSES:
+        if any(isinstance(seen, kinds) for seen in chain):
+            return text
+    return _one_line(error) or type(error).__name__
+
+
+def _chain(error: BaseException) -> list[BaseException]:
+    """The exceptions wrapped by ``error``: its arguments, cause, context, ``reason`` (bounded)."""
+    found, queue = [], [error]
+    while queue and len(found) < 32:
+        seen = queue.pop(0)
+        if any(seen is other for other in found):
+            continue
+        found.append(seen)
+        inner = [*getattr(seen, "args", ()), seen.__cause__, seen.__context__, getattr(seen, "reason", None)]
+        queue.extend(e for e in inner if isinstance(e, BaseException))
+    return found
+
+
+def _unpack(path: str, group: GroupDownload, folder: str) -> None:
+    """Write the zip's members for ``group.files`` into ``folder`` after checking all members."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            _check_members(archive.infolist(), group.size)
+            members = {info.filename: info for info in archive.infolist()}
+            for name in group.files:
+                member = posixpath.relpath(name, group.folder) if group.folder else name
+                if member not in members or members[member].is_dir():
+                    raise _GroupError(f"the zip holds no {member}")
+                target = os.path.join(folder, *name.split("/"))
+                os.makedirs(os.path.dirname(target), exist_ok=True)
+                with archive.open(members[member]) as source, open(target, "wb") as out:
+                    shutil.copyfileobj(source, out, CHUNK_BYTES)
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, NotImplementedError, RuntimeError, EOFError) as error:
+        raise _GroupError(f"cannot unpack the zip: {_one_line(error) or type(error).__name__}") from error
+
+
+def _check_members(members: Iterable[zipfile.ZipInfo], zip_size: int) -> None:
+    """Refuse a member named by an absolute path or with '..', and absurd declared sizes."""
+    total = 0
+    for info in members:
+        name = info.filename
+        if name.startswith(("/", "\\")) or re.match(r"[A-Za-z]:", name) or ".." in re.split(r"[/\\]", name):
+            raise _GroupError(f"unsafe member {name!r} in the zip (absolute or with '..'), refused")
+        total += info.file_size
+    limit = min(MAX_UNPACK_BYTES, max(MAX_UNPACK_RATIO * zip_size, UNPACK_FLOOR_BYTES))
+    if total > limit:
+        raise _GroupError(
+            f"the zip's members declare {format_bytes(total)} unpacked, more than the "
+            f"{format_bytes(limit)} allowed for a {format_bytes(zip_size)} zip, refused"
+        )
