@@ -65,23 +65,40 @@ def clip_path(tmp_path):
     return str(path)
 
 
-def test_png_marks_visible_filled_and_occluded_hollow(clip_path, tmp_path):
+def test_png_marks_visible_large_and_occluded_small_and_grey(clip_path, tmp_path):
     out = str(tmp_path / "frame.png")
     assert main([clip_path, "--out", out]) == 0
     image = np.asarray(Image.open(out).convert("RGB")).astype(int)
     colors = track_colors(3).astype(int)
     assert image.shape[1] > WIDTH and image.shape[0] >= HEIGHT  # frame plus the 3D panel
     assert (image[:, WIDTH:] != 255).any()
+    radius = marker_radius(HEIGHT, WIDTH)
     col, row = VISIBLE_PIXEL
     assert np.abs(image[row, col] - colors[0]).max() <= 8
+    assert np.abs(image[row, col + radius - 1] - colors[0]).max() <= 8  # a full-radius disc
     col, row = OCCLUDED_PIXEL
-    assert np.abs(image[row, col] - GREY).max() <= 3  # hollow: the centre keeps the frame
-    radius = marker_radius(HEIGHT, WIDTH)
+    assert np.abs(image[row, col] - (colors[1] + GREY) // 2).max() <= 8  # its colour halfway to grey
+    assert np.abs(image[row, col + radius // 2] - 64).max() <= 12  # a dark grey rim
     for d_row, d_col in ((0, radius), (0, -radius), (radius, 0), (-radius, 0)):
-        assert np.abs(image[row + d_row, col + d_col] - colors[1]).max() <= 40
+        assert np.abs(image[row + d_row, col + d_col] - GREY).max() <= 3  # smaller than a visible one
     col, row = STATIC_PIXEL
     assert np.abs(image[row, col] - colors[2]).max() <= 8
     assert np.abs(image[5, 5] - GREY).max() <= 3  # untouched background
+
+
+def test_visible_points_are_drawn_over_occluded_ones(tmp_path):
+    """Two pixels each under a visible and an occluded point, the occluded one first by index at
+    one, last at the other: the visible colour shows at both."""
+    first, second = unproject(*VISIBLE_PIXEL), unproject(*STATIC_PIXEL)
+    tracks = np.array([[first, first, second, second]] * FRAMES)
+    visibility = np.tile([False, True, True, False], (FRAMES, 1))
+    path, out = tmp_path / "stacked.npz", str(tmp_path / "stacked.png")
+    write_clip(path, tracks, visibility)
+    assert main([str(path), "--out", out]) == 0
+    image = np.asarray(Image.open(out).convert("RGB")).astype(int)
+    colors = track_colors(4).astype(int)
+    for (col, row), k in ((VISIBLE_PIXEL, 1), (STATIC_PIXEL, 2)):
+        assert np.abs(image[row, col] - colors[k]).max() <= 8
 
 
 def test_png_other_frame_and_determinism(clip_path, tmp_path):
