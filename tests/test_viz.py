@@ -8,7 +8,14 @@ import pytest
 from PIL import Image
 
 from pipeline.viz.__main__ import main
-from pipeline.viz.clip_figure import load_clip, marker_radius, select_tracks, track_colors
+from pipeline.viz.clip_figure import (
+    TrajectoryView,
+    load_clip,
+    marker_radius,
+    select_tracks,
+    track_colors,
+    wrap_title,
+)
 from pipeline.viz.stats_figure import dataset_stats
 
 GREY = 128
@@ -99,6 +106,22 @@ def test_visible_points_are_drawn_over_occluded_ones(tmp_path):
     colors = track_colors(4).astype(int)
     for (col, row), k in ((VISIBLE_PIXEL, 1), (STATIC_PIXEL, 2)):
         assert np.abs(image[row, col] - colors[k]).max() <= 8
+
+
+def test_title_wraps_after_underscores():
+    title = "tapvid3d_sample0000000000000001_0_000_4_000_1_obj-3: 5 of 9 tracks"
+    assert wrap_title(title, 24) == "tapvid3d_\nsample0000000000000001_\n0_000_4_000_1_obj-3: 5\nof 9 tracks"
+    assert wrap_title(title, 60) == "tapvid3d_sample0000000000000001_0_000_4_000_1_obj-3: 5 of 9\ntracks"
+    assert wrap_title("a_bb_ccccccccc", 3) == "a_\nbb_\nccccccccc"  # an unbroken piece keeps its length
+
+
+def test_panel_counts_frames_from_one():
+    points = np.array([[[0.0, 0.0, 1.0]], [[0.1, 0.0, 1.0]]])
+    view = TrajectoryView(points, np.ones((2, 1), bool), track_colors(1), 200, "clip", "camera coordinates")
+    view.render(0)
+    assert view.axes.get_title().endswith("\nframe 1 of 2")
+    view.render(1)
+    assert view.axes.get_title().endswith("\nframe 2 of 2")
 
 
 def test_png_other_frame_and_determinism(clip_path, tmp_path):

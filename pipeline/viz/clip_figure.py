@@ -7,7 +7,7 @@ Layout of every output image: the frame at its stored resolution at the top-left
 from __future__ import annotations
 
 import os
-import textwrap
+import re
 from collections.abc import Iterator
 
 import cv2
@@ -30,6 +30,7 @@ SUBPIXEL_BITS = 4  # cv2 drawing precision: 1/16 pixel
 BACKGROUND = (255, 255, 255)
 GREY = 128  # occluded points take their track's colour halfway to this grey
 OCCLUDED_EDGE = (64, 64, 64)  # dark grey rim of an occluded point on the frame
+TITLE_WIDTH = 60  # characters per line of the 3D panel's title
 OUTPUT_KINDS = (".png", ".gif", ".mp4")
 
 
@@ -74,6 +75,18 @@ def track_colors(count: int) -> np.ndarray:
 def occluded_colors(colors: np.ndarray) -> np.ndarray:
     """RGB uint8 [K, 3]: the track colours [K, 3] taken halfway to grey, for occluded points."""
     return ((colors.astype(np.int64) + GREY) // 2).astype(np.uint8)
+
+
+def wrap_title(text: str, width: int) -> str:
+    """``text`` on lines of at most ``width`` characters, broken only after an underscore (kept at
+    the end of its line) or at a space (dropped); a longer unbroken piece keeps a line to itself."""
+    lines = [""]
+    for piece in filter(None, re.findall(r"[^_ ]*(?:_| +|$)", text)):
+        if lines[-1] and len((lines[-1] + piece).rstrip()) > width:
+            lines[-1] = lines[-1].rstrip()
+            lines.append("")
+        lines[-1] += piece
+    return "\n".join(line.rstrip() for line in lines)
 
 
 def marker_radius(height: int, width: int) -> int:
@@ -151,7 +164,7 @@ class TrajectoryView:
         self.visibility = visibility
         self.colors = colors / 255.0
         self.greyed = occluded_colors(colors) / 255.0
-        self.title = textwrap.fill(title, 60)
+        self.title = wrap_title(title, TITLE_WIDTH)
         self.figure = Figure(figsize=(PANEL_INCHES, PANEL_INCHES), dpi=size_px / PANEL_INCHES)
         FigureCanvasAgg(self.figure)
         self.axes = self.figure.add_subplot(projection="3d", computed_zorder=False)  # drawn by zorder
@@ -195,7 +208,7 @@ class TrajectoryView:
                         zorder=zorder,
                     )
                 )
-        self.axes.set_title(f"{self.title}\nframe {t} / {len(self.points) - 1}", fontsize=9)
+        self.axes.set_title(f"{self.title}\nframe {t + 1} of {len(self.points)}", fontsize=9)
         self.figure.canvas.draw()
         return np.asarray(self.figure.canvas.buffer_rgba())[..., :3].copy()
 
