@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from pipeline.samples.driving_world import ACTORS
 from pipeline.viz.__main__ import main
 from pipeline.viz.clip_figure import (
     TrajectoryView,
@@ -16,7 +17,7 @@ from pipeline.viz.clip_figure import (
     track_colors,
     wrap_title,
 )
-from pipeline.viz.stats_figure import dataset_stats
+from pipeline.viz.stats_figure import dataset_stats, track_motion
 
 GREY = 128
 WIDTH, HEIGHT = 160, 120
@@ -211,6 +212,39 @@ def test_stats_counts_frames_static_tracks_and_speed(tmp_path, capsys):
     row = next(line for line in printed.splitlines() if line.startswith("adt"))
     assert row.split() == ["adt", "2", "4/5/6", "2/2.5/3", "0.167", "0.0200", "world"]
     assert (tmp_path / "stats.png").stat().st_size > 0
+
+
+def test_static_bound_is_one_percent_of_the_distance(tmp_path):
+    """Tracks wobbling along x about their median position (0, +a, 0, -a, 0) at 10 m and 1 m from a
+    camera moving 0.1 m/frame: static below 1% of the distance (10 cm, about 1.02 cm), moving above."""
+    wobble = np.array([0.0, 1.0, 0.0, -1.0, 0.0])[:, None] * [0.08, 0.12, 0.008, 0.012]
+    world = np.zeros((5, 4, 3))
+    world[..., 0] = wobble
+    world[..., 2] = [10.0, 10.0, 1.0, 1.0]
+    w2c = np.tile(np.eye(4), (5, 1, 1))
+    w2c[:, 0, 3] = -0.1 * np.arange(5)  # camera at x = 0.1 t
+    path = tmp_path / "clip.npz"
+    write_clip(path, world + w2c[:, None, :3, 3], np.ones((5, 4), bool), w2c)
+    static, _, frame = track_motion(load_clip(str(path)))
+    assert static.tolist() == [True, False, True, False]
+    assert frame == "world"
+
+
+def test_stats_parked_car_is_static_and_moving_cars_are_not(reference_run):
+    """The DriveTrack sample: the parked car's clip (static in the world, seen through the rolling
+    shutter from a moving camera) counts as static, the moving cars' clips as moving."""
+    entry = dataset_stats(reference_run("drivetrack"))["drivetrack"]
+    speeds = {actor.object_id: actor.speed for actor in ACTORS}
+    parked = moving = 0
+    for name, share in zip(entry["clips"], entry["static_share"], strict=True):
+        speed = next(speed for object_id, speed in speeds.items() if name.endswith(object_id))
+        if speed == 0:
+            parked += 1
+            assert share >= 0.95, name
+        else:
+            moving += 1
+            assert share <= 0.05, name
+    assert parked >= 1 and moving >= 1
 
 
 def test_stats_without_extrinsics_uses_camera_coordinates(clip_path, tmp_path):
