@@ -7,9 +7,17 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from pipeline.samples.driving_world import ACTORS
 from pipeline.viz.__main__ import main
-from pipeline.viz.clip_figure import load_clip, marker_radius, select_tracks, track_colors
-from pipeline.viz.stats_figure import dataset_stats
+from pipeline.viz.clip_figure import (
+    TrajectoryView,
+    load_clip,
+    marker_radius,
+    select_tracks,
+    track_colors,
+    wrap_title,
+)
+from pipeline.viz.stats_figure import dataset_stats, track_motion
 
 GREY = 128
 WIDTH, HEIGHT = 160, 120
@@ -65,23 +73,56 @@ def clip_path(tmp_path):
     return str(path)
 
 
-def test_png_marks_visible_filled_and_occluded_hollow(clip_path, tmp_path):
+def test_png_marks_visible_large_and_occluded_small_and_grey(clip_path, tmp_path):
     out = str(tmp_path / "frame.png")
     assert main([clip_path, "--out", out]) == 0
     image = np.asarray(Image.open(out).convert("RGB")).astype(int)
     colors = track_colors(3).astype(int)
     assert image.shape[1] > WIDTH and image.shape[0] >= HEIGHT  # frame plus the 3D panel
     assert (image[:, WIDTH:] != 255).any()
+    radius = marker_radius(HEIGHT, WIDTH)
     col, row = VISIBLE_PIXEL
     assert np.abs(image[row, col] - colors[0]).max() <= 8
+    assert np.abs(image[row, col + radius - 1] - colors[0]).max() <= 8  # a full-radius disc
     col, row = OCCLUDED_PIXEL
-    assert np.abs(image[row, col] - GREY).max() <= 3  # hollow: the centre keeps the frame
-    radius = marker_radius(HEIGHT, WIDTH)
+    assert np.abs(image[row, col] - (colors[1] + GREY) // 2).max() <= 8  # its colour halfway to grey
+    assert np.abs(image[row, col + radius // 2] - 64).max() <= 12  # a dark grey rim
     for d_row, d_col in ((0, radius), (0, -radius), (radius, 0), (-radius, 0)):
-        assert np.abs(image[row + d_row, col + d_col] - colors[1]).max() <= 40
+        assert np.abs(image[row + d_row, col + d_col] - GREY).max() <= 3  # smaller than a visible one
     col, row = STATIC_PIXEL
     assert np.abs(image[row, col] - colors[2]).max() <= 8
     assert np.abs(image[5, 5] - GREY).max() <= 3  # untouched background
+
+
+def test_visible_points_are_drawn_over_occluded_ones(tmp_path):
+    """Two pixels each under a visible and an occluded point, the occluded one first by index at
+    one, last at the other: the visible colour shows at both."""
+    first, second = unproject(*VISIBLE_PIXEL), unproject(*STATIC_PIXEL)
+    tracks = np.array([[first, first, second, second]] * FRAMES)
+    visibility = np.tile([False, True, True, False], (FRAMES, 1))
+    path, out = tmp_path / "stacked.npz", str(tmp_path / "stacked.png")
+    write_clip(path, tracks, visibility)
+    assert main([str(path), "--out", out]) == 0
+    image = np.asarray(Image.open(out).convert("RGB")).astype(int)
+    colors = track_colors(4).astype(int)
+    for (col, row), k in ((VISIBLE_PIXEL, 1), (STATIC_PIXEL, 2)):
+        assert np.abs(image[row, col] - colors[k]).max() <= 8
+
+
+def test_title_wraps_after_underscores():
+    title = "tapvid3d_sample0000000000000001_0_000_4_000_1_obj-3: 5 of 9 tracks"
+    assert wrap_title(title, 24) == "tapvid3d_\nsample0000000000000001_\n0_000_4_000_1_obj-3: 5\nof 9 tracks"
+    assert wrap_title(title, 60) == "tapvid3d_sample0000000000000001_0_000_4_000_1_obj-3: 5 of 9\ntracks"
+    assert wrap_title("a_bb_ccccccccc", 3) == "a_\nbb_\nccccccccc"  # an unbroken piece keeps its length
+
+
+def test_panel_counts_frames_from_one():
+    points = np.array([[[0.0, 0.0, 1.0]], [[0.1, 0.0, 1.0]]])
+    view = TrajectoryView(points, np.ones((2, 1), bool), track_colors(1), 200, "clip", "camera coordinates")
+    view.render(0)
+    assert view.axes.get_title().endswith("\nframe 1 of 2")
+    view.render(1)
+    assert view.axes.get_title().endswith("\nframe 2 of 2")
 
 
 def test_png_other_frame_and_determinism(clip_path, tmp_path):
@@ -171,6 +212,39 @@ def test_stats_counts_frames_static_tracks_and_speed(tmp_path, capsys):
     row = next(line for line in printed.splitlines() if line.startswith("adt"))
     assert row.split() == ["adt", "2", "4/5/6", "2/2.5/3", "0.167", "0.0200", "world"]
     assert (tmp_path / "stats.png").stat().st_size > 0
+
+
+def test_static_bound_is_one_percent_of_the_distance(tmp_path):
+    """Tracks wobbling along x about their median position (0, +a, 0, -a, 0) at 10 m and 1 m from a
+    camera moving 0.1 m/frame: static below 1% of the distance (10 cm, about 1.02 cm), moving above."""
+    wobble = np.array([0.0, 1.0, 0.0, -1.0, 0.0])[:, None] * [0.08, 0.12, 0.008, 0.012]
+    world = np.zeros((5, 4, 3))
+    world[..., 0] = wobble
+    world[..., 2] = [10.0, 10.0, 1.0, 1.0]
+    w2c = np.tile(np.eye(4), (5, 1, 1))
+    w2c[:, 0, 3] = -0.1 * np.arange(5)  # camera at x = 0.1 t
+    path = tmp_path / "clip.npz"
+    write_clip(path, world + w2c[:, None, :3, 3], np.ones((5, 4), bool), w2c)
+    static, _, frame = track_motion(load_clip(str(path)))
+    assert static.tolist() == [True, False, True, False]
+    assert frame == "world"
+
+
+def test_stats_parked_car_is_static_and_moving_cars_are_not(reference_run):
+    """The DriveTrack sample: the parked car's clip (static in the world, seen through the rolling
+    shutter from a moving camera) counts as static, the moving cars' clips as moving."""
+    entry = dataset_stats(reference_run("drivetrack"))["drivetrack"]
+    speeds = {actor.object_id: actor.speed for actor in ACTORS}
+    parked = moving = 0
+    for name, share in zip(entry["clips"], entry["static_share"], strict=True):
+        speed = next(speed for object_id, speed in speeds.items() if name.endswith(object_id))
+        if speed == 0:
+            parked += 1
+            assert share >= 0.95, name
+        else:
+            moving += 1
+            assert share <= 0.05, name
+    assert parked >= 1 and moving >= 1
 
 
 def test_stats_without_extrinsics_uses_camera_coordinates(clip_path, tmp_path):

@@ -7,7 +7,7 @@ Layout of every output image: the frame at its stored resolution at the top-left
 from __future__ import annotations
 
 import os
-import textwrap
+import re
 from collections.abc import Iterator
 
 import cv2
@@ -28,6 +28,9 @@ PANEL_MIN_PX = 480  # the 3D panel is square, max(frame height, this) pixels a s
 PANEL_INCHES = 6.4  # fixed figure size in inches, so fonts keep their share of the panel
 SUBPIXEL_BITS = 4  # cv2 drawing precision: 1/16 pixel
 BACKGROUND = (255, 255, 255)
+GREY = 128  # occluded points take their track's colour halfway to this grey
+OCCLUDED_EDGE = (64, 64, 64)  # dark grey rim of an occluded point on the frame
+TITLE_WIDTH = 60  # characters per line of the 3D panel's title
 OUTPUT_KINDS = (".png", ".gif", ".mp4")
 
 
@@ -69,6 +72,23 @@ def track_colors(count: int) -> np.ndarray:
     return (rgba[:, :3] * 255).round().astype(np.uint8)
 
 
+def occluded_colors(colors: np.ndarray) -> np.ndarray:
+    """RGB uint8 [K, 3]: the track colours [K, 3] taken halfway to grey, for occluded points."""
+    return ((colors.astype(np.int64) + GREY) // 2).astype(np.uint8)
+
+
+def wrap_title(text: str, width: int) -> str:
+    """``text`` on lines of at most ``width`` characters, broken only after an underscore (kept at
+    the end of its line) or at a space (dropped); a longer unbroken piece keeps a line to itself."""
+    lines = [""]
+    for piece in filter(None, re.findall(r"[^_ ]*(?:_| +|$)", text)):
+        if lines[-1] and len((lines[-1] + piece).rstrip()) > width:
+            lines[-1] = lines[-1].rstrip()
+            lines.append("")
+        lines[-1] += piece
+    return "\n".join(line.rstrip() for line in lines)
+
+
 def marker_radius(height: int, width: int) -> int:
     """Circle radius in pixels for frames of this size."""
     return max(4, round(min(height, width) / 100))
@@ -95,8 +115,10 @@ def draw_tracks(
 
     pixels [T, K, 2] (x, y) with pixel (row, col) covering [row, row + 1) x [col, col + 1);
     drawable [T, K] where the point is in front of the camera and near the image;
-    visibility [T, K]; colors [K, 3]. Visible = filled circle, occluded = hollow circle;
-    the tail joins the last ``tail`` frames' positions where both ends are visible.
+    visibility [T, K]; colors [K, 3]. Occluded points first: small discs in their track's colour
+    taken halfway to grey, rimmed dark grey; then visible ones over them: larger discs filled in
+    their track's colour. The tail joins the last ``tail`` frames' positions where both ends are
+    visible.
     """
     image = frame.copy()
     height, width = image.shape[:2]
@@ -109,14 +131,15 @@ def draw_tracks(
             if shown[s, k] and shown[s + 1, k]:
                 start, end = tuple(fixed[s, k].tolist()), tuple(fixed[s + 1, k].tolist())
                 cv2.line(image, start, end, color, 2, cv2.LINE_AA, SUBPIXEL_BITS)
-    ring = max(2, radius // 3)
-    for filled in (False, True):
-        for k in np.flatnonzero(drawable[t] & (visibility[t] == filled)):
-            centre = tuple(fixed[t, k].tolist())
-            thickness = -1 if filled else ring
-            cv2.circle(
-                image, centre, radius * scale, colors[k].tolist(), thickness, cv2.LINE_AA, SUBPIXEL_BITS
-            )
+    small = max(2, radius // 2)
+    greyed = occluded_colors(colors)
+    for k in np.flatnonzero(drawable[t] & ~visibility[t]):
+        centre = tuple(fixed[t, k].tolist())
+        cv2.circle(image, centre, small * scale, greyed[k].tolist(), -1, cv2.LINE_AA, SUBPIXEL_BITS)
+        cv2.circle(image, centre, small * scale, OCCLUDED_EDGE, 1, cv2.LINE_AA, SUBPIXEL_BITS)
+    for k in np.flatnonzero(drawable[t] & visibility[t]):
+        centre = tuple(fixed[t, k].tolist())
+        cv2.circle(image, centre, radius * scale, colors[k].tolist(), -1, cv2.LINE_AA, SUBPIXEL_BITS)
     return image
 
 
@@ -124,7 +147,8 @@ class TrajectoryView:
     """Matplotlib 3D axes (Agg) holding every trajectory; ``render(t)`` marks frame t's points.
 
     points [T, K, 3] in an OpenCV-axes frame (x right, y down, z forward), plotted with
-    z as depth and -y as up; visibility [T, K]; colors [K, 3] uint8.
+    z as depth and -y as up; visibility [T, K]; colors [K, 3] uint8. Marked as on the frame:
+    occluded points small, greyed and grey-rimmed, under the visible ones, large and filled.
     """
 
     def __init__(
@@ -139,10 +163,11 @@ class TrajectoryView:
         self.points = np.stack([points[..., 0], points[..., 2], -points[..., 1]], axis=-1)
         self.visibility = visibility
         self.colors = colors / 255.0
-        self.title = textwrap.fill(title, 60)
+        self.greyed = occluded_colors(colors) / 255.0
+        self.title = wrap_title(title, TITLE_WIDTH)
         self.figure = Figure(figsize=(PANEL_INCHES, PANEL_INCHES), dpi=size_px / PANEL_INCHES)
         FigureCanvasAgg(self.figure)
-        self.axes = self.figure.add_subplot(projection="3d")
+        self.axes = self.figure.add_subplot(projection="3d", computed_zorder=False)  # drawn by zorder
         for k, color in enumerate(self.colors):
             self.axes.plot(*self.points[:, k].T, color=color, linewidth=1.0, alpha=0.7)
         finite = self.points[np.isfinite(self.points).all(axis=-1)]
@@ -157,7 +182,8 @@ class TrajectoryView:
         self.axes.set_xlabel("x right (m)")
         self.axes.set_ylabel("z forward (m)")
         self.axes.set_zlabel("-y up (m)")
-        self.figure.text(0.5, 0.02, f"{frame_name}; filled = visible, hollow = occluded", ha="center")
+        legend = f"{frame_name}\nlarge filled = visible, small grey-rimmed = occluded"
+        self.figure.text(0.5, 0.02, legend, ha="center", va="bottom")
         self.markers: list = []
 
     def render(self, t: int) -> np.ndarray:
@@ -165,21 +191,24 @@ class TrajectoryView:
         for artist in self.markers:
             artist.remove()
         self.markers = []
-        for filled in (True, False):
-            keep = self.visibility[t] == filled
+        occluded = ~self.visibility[t]
+        for keep, size, faces, edges, zorder in (  # over the trajectories (lines: zorder 2)
+            (occluded, 10, self.greyed[occluded], np.array(OCCLUDED_EDGE) / 255.0, 3),
+            (~occluded, 40, self.colors[~occluded], self.colors[~occluded], 4),
+        ):
             if keep.any():
-                colors = self.colors[keep]
                 self.markers.append(
                     self.axes.scatter(
                         *self.points[t, keep].T,
-                        s=30,
-                        facecolors=colors if filled else "none",
-                        edgecolors=colors,
-                        linewidths=1.2,
+                        s=size,
+                        facecolors=faces,
+                        edgecolors=edges,
+                        linewidths=0.8,
                         depthshade=False,
+                        zorder=zorder,
                     )
                 )
-        self.axes.set_title(f"{self.title}\nframe {t} / {len(self.points) - 1}", fontsize=9)
+        self.axes.set_title(f"{self.title}\nframe {t + 1} of {len(self.points)}", fontsize=9)
         self.figure.canvas.draw()
         return np.asarray(self.figure.canvas.buffer_rgba())[..., :3].copy()
 

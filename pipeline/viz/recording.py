@@ -1,0 +1,129 @@
+"""One clip as a Rerun recording (``.rrd``): its frames, camera, 3D tracks and queries, saved to a
+file (no viewer, no network); open it with ``rerun CLIP.rrd``.
+
+Timeline ``frame``: the frame index 0..T-1. Entities (positions in metres, pixels as in the clip):
+
+- ``world/camera``: the camera's pose per frame, camera-to-world = inverse(``extrinsics_w2c[t]``).
+  A clip without extrinsics has no world frame of its own: its world is then the first camera's
+  frame (OpenCV axes, ``world`` logged as RDF) and the camera stays static at the identity, so
+  every position below is in camera coordinates.
+- ``world/camera/image``: the pinhole (the clip's fx, fy, cx, cy; width and height from the first
+  JPEG's header) and each frame's JPEG as stored (an encoded image, not re-encoded).
+- ``world/camera/image/tracks``: frame t's tracks in front of the camera (Z > 0) in pixels,
+  x = fx X / Z + cx, y = fy Y / Z + cy.
+- ``world/tracks``: frame t's tracks in the world, camera-to-world applied to ``tracks_XYZ[t]``.
+- ``world/tracks/trails``: per track, a line through its last ``tail`` + 1 world positions.
+- ``world/queries``: at frame t, the world positions of the tracks queried at frame t
+  (``queries_xyt[:, 2]``), larger; empty at the other frames.
+
+Every track keeps one colour over all frames (``track_colors``). A visible point is drawn in its
+track's colour at ``VISIBLE_RADIUS_UI``; an occluded one smaller (``OCCLUDED_RADIUS_UI``) in that
+colour taken halfway to grey (``occluded_colors``), in 3D and over the image alike. Radii are in UI
+points (Rerun's negative radii), so points keep their size on screen whatever the scene's scale.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import rerun as rr
+
+from pipeline.core.geometry import invert_se3, project
+from pipeline.core.images import jpeg_size
+from pipeline.viz.clip_figure import IMAGES_KEY, load_clip, occluded_colors, select_tracks, track_colors
+
+APPLICATION_ID = "tapvid3d"
+TIMELINE = "frame"
+VISIBLE_RADIUS_UI = 4.0
+OCCLUDED_RADIUS_UI = 2.0
+QUERY_RADIUS_UI = 8.0
+TRAIL_RADIUS_UI = 1.0
+
+
+def point_style(visible: np.ndarray, colors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Colours [K, 3] uint8 and radii [K] (negative: UI points) of points with visibility [K]
+    whose tracks are coloured ``colors`` [K, 3]."""
+    shown = np.where(visible[:, None], colors, occluded_colors(colors))
+    return shown, np.where(visible, -VISIBLE_RADIUS_UI, -OCCLUDED_RADIUS_UI)
+
+
+def camera_to_world(clip: dict[str, np.ndarray]) -> np.ndarray:
+    """Camera-to-world poses [T, 4, 4] (float64); the identity at every frame without extrinsics."""
+    if "extrinsics_w2c" in clip:
+        return invert_se3(clip["extrinsics_w2c"].astype(np.float64))
+    return np.tile(np.eye(4), (len(clip["tracks_XYZ"]), 1, 1))
+
+
+def log_camera(recording: rr.RecordingStream, clip: dict[str, np.ndarray], c2w: np.ndarray) -> None:
+    """The static pinhole, and the camera's pose: per frame with extrinsics, else static identity."""
+    height, width = jpeg_size(bytes(clip[IMAGES_KEY][0]))
+    fx, fy, cx, cy = clip["fx_fy_cx_cy"].astype(np.float64)
+    pinhole = rr.Pinhole(
+        focal_length=[fx, fy],
+        principal_point=[cx, cy],
+        width=width,
+        height=height,
+        camera_xyz=rr.ViewCoordinates.RDF,
+    )
+    recording.log("world/camera/image", pinhole, static=True)
+    if "extrinsics_w2c" not in clip:
+        recording.log("world", rr.ViewCoordinates.RDF, static=True)
+        recording.log(
+            "world/camera", rr.Transform3D(translation=c2w[0, :3, 3], mat3x3=c2w[0, :3, :3]), static=True
+        )
+        return
+    for t, pose in enumerate(c2w):
+        recording.set_time_sequence(TIMELINE, t)
+        recording.log("world/camera", rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3]))
+
+
+def write_recording(clip_path: str, out: str, max_tracks: int | None = None, tail: int = 5) -> int:
+    """Writes the clip's recording to ``out`` (.rrd): every track, or ``max_tracks`` evenly spaced
+    ones; trails through the last ``tail`` frames. Returns the number of frames."""
+    clip = load_clip(clip_path)
+    tracks = clip["tracks_XYZ"].astype(np.float64)
+    num_frames, num_tracks = tracks.shape[:2]
+    chosen = np.arange(num_tracks) if max_tracks is None else select_tracks(num_tracks, max_tracks)
+    tracks = tracks[:, chosen]
+    visibility = clip["visibility"][:, chosen]
+    query_frames = np.round(clip["queries_xyt"][chosen, 2]).astype(np.int64)
+    colors = track_colors(len(chosen))
+    c2w = camera_to_world(clip)
+    world = np.einsum("tij,tnj->tni", c2w[:, :3, :3], tracks) + c2w[:, None, :3, 3]
+    # Rerun draws an image's pixel [r, c] over [c, c + 1) x [r, r + 1) of its 2D space (top-left
+    # corner at (0, 0), centre at (c + 0.5, r + 0.5)): the clip's own convention, so its pixel
+    # coordinates are logged as they are, with no half-pixel shift.
+    pixels = project(tracks, clip["fx_fy_cx_cy"].astype(np.float64))
+
+    name = os.path.splitext(os.path.basename(clip_path))[0]
+    recording = rr.new_recording(APPLICATION_ID, recording_id=name)
+    try:
+        recording.save(out)
+    except RuntimeError as error:  # rerun's file sink cannot create the file
+        raise OSError(str(error)) from error
+    log_camera(recording, clip, c2w)
+    for t in range(num_frames):
+        recording.set_time_sequence(TIMELINE, t)
+        image = rr.EncodedImage(contents=bytes(clip[IMAGES_KEY][t]), media_type="image/jpeg")
+        recording.log("world/camera/image", image)
+        shown, radii = point_style(visibility[t], colors)
+        recording.log("world/tracks", rr.Points3D(world[t], colors=shown, radii=radii))
+        front = tracks[t, :, 2] > 0
+        recording.log(
+            "world/camera/image/tracks",
+            rr.Points2D(pixels[t, front], colors=shown[front], radii=radii[front]),
+        )
+        queried = query_frames == t
+        recording.log(
+            "world/queries",
+            rr.Points3D(world[t, queried], colors=colors[queried], radii=-QUERY_RADIUS_UI),
+        )
+        start = max(t - tail, 0)
+        if t > start:
+            strips = world[start : t + 1].transpose(1, 0, 2)
+            recording.log(
+                "world/tracks/trails", rr.LineStrips3D(strips, colors=colors, radii=-TRAIL_RADIUS_UI)
+            )
+    recording.disconnect()
+    return num_frames
