@@ -124,7 +124,8 @@ def pstudio(spec: dict) -> dict:
 
 
 def adt(spec: dict) -> dict:
-    from pipeline.adt.source import CHUNKS_PER_GROUP, open_reader
+    from pipeline.adt.frames import open_reader
+    from pipeline.adt.units import CHUNKS_PER_GROUP
     from pipeline.core.config import RunConfig, with_overrides
 
     config = with_overrides(RunConfig(), spec["overrides"])

@@ -17,7 +17,8 @@ import time
 import numpy as np
 
 from benchmarks.units import UnitSetup
-from pipeline.adt.source import CHUNKS_PER_GROUP, EXCERPT_SETTINGS, SHARED_EXCERPT, excerpt_path
+from pipeline.adt.source import EXCERPT_SETTINGS, SHARED_EXCERPT, excerpt_path
+from pipeline.adt.units import CHUNKS_PER_GROUP
 from pipeline.core.config import RunConfig
 
 CHUNK_FRAMES = 300
@@ -71,7 +72,7 @@ def _open_and_close_once(sequence: str, config: RunConfig) -> tuple[float, float
     sequence, read its frame timestamps and build the re-rendering tables (``open_sequence``; the
     tables are cached per calibration in the process, so the first opening builds them), then
     close it (``close_sequence``)."""
-    from pipeline.adt.source import close_sequence, open_sequence
+    from pipeline.adt.frames import close_sequence, open_sequence
 
     wall, cpu = time.perf_counter(), time.process_time()
     close_sequence(open_sequence(sequence, config))
@@ -81,7 +82,7 @@ def _open_and_close_once(sequence: str, config: RunConfig) -> tuple[float, float
 def _first_calls(sequence: str, config: RunConfig) -> tuple[float, float]:
     """Wall and CPU seconds of numba's first dispatch of the re-rendering loops (loading them from
     its cache: once per worker process, like the imports, so not a unit's cost)."""
-    from pipeline.adt.source import open_sequence
+    from pipeline.adt.frames import open_sequence
 
     frames = open_sequence(sequence, config).frames
     wall, cpu = time.perf_counter(), time.process_time()

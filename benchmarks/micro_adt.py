@@ -45,9 +45,11 @@ def _library_renderers(reader, config):
 
 def run(frames: int) -> None:
     """Print per-frame reading/re-rendering costs over ``frames`` frame reads, then the clip cost."""
-    from pipeline.adt.annotate import Chunk, annotate_chunk
+    from pipeline.adt.frames import SequenceFrames, encode_jpeg, open_reader
+    from pipeline.adt.records import Chunk
     from pipeline.adt.rectify import _stored_remap
-    from pipeline.adt.source import SequenceFrames, clip_name, encode_jpeg, open_reader, unit_name
+    from pipeline.adt.tracks import annotate_chunk
+    from pipeline.adt.units import clip_name, unit_name
 
     path = excerpt_path()
     if path is None:

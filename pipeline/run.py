@@ -20,7 +20,7 @@ import uuid
 import apache_beam as beam
 import numpy as np
 from apache_beam.metrics.metric import MetricsFilter
-from apache_beam.options.pipeline_options import PipelineOptions
+from apache_beam.options.pipeline_options import DirectOptions, PipelineOptions, StandardOptions
 
 import pipeline
 from pipeline import graph, sources, storage
@@ -28,6 +28,7 @@ from pipeline.core.config import RunConfig, with_overrides
 from pipeline.core.errors import InputError, OutputError, root_cause
 from pipeline.core.outcomes import FILTER_ORDER
 from pipeline.core.progress import quiet_worker_logs, set_verbose
+from pipeline.core.sizes import format_bytes
 from pipeline.export.files import is_local, remove_quietly, write_atomic
 from pipeline.export.layout import failures_path, release_verdicts_path, run_record_path, sample_folder
 from pipeline.finish import FinishedRun, finish_run
@@ -219,6 +220,26 @@ def plan_units(prepared: PreparedRun, input_root: str) -> UnitPlan:
         raise CannotStart(str(error)) from None
 
 
+def concurrent_workers(options: PipelineOptions) -> int | None:
+    """How many units run at once on the DirectRunner (its worker count in a multi-process or
+    multi-thread mode, else one); None for other runners (their cluster decides)."""
+    direct = options.view_as(DirectOptions)
+    if options.view_as(StandardOptions).runner not in (None, "DirectRunner"):
+        return None
+    if direct.direct_running_mode in ("multi_processing", "multi_threading"):
+        return direct.direct_num_workers or os.cpu_count() or 1
+    return 1
+
+
+def scratch_line(per_worker: int, options: PipelineOptions) -> str:
+    """The most scratch disk the run takes at once: concurrent workers x one worker's most."""
+    workers = concurrent_workers(options)
+    if workers is None:
+        return f"peak scratch: {format_bytes(per_worker)} per concurrent worker"
+    total = format_bytes(workers * per_worker)
+    return f"peak scratch: {workers} worker(s) x {format_bytes(per_worker)} = {total}"
+
+
 def provenance(prepared: PreparedRun, input_root: str, plan: UnitPlan) -> dict:
     """The run record's account of where the run came from."""
     return {
@@ -349,6 +370,8 @@ def run(prepared: PreparedRun, started: float) -> int:
     print(f"{source.name}: {len(plan.units)} unit(s) to annotate from {input_root}", flush=True)
     for note in plan.notes:
         print(note, flush=True)
+    if plan.scratch_per_worker:
+        print(scratch_line(plan.scratch_per_worker, prepared.options), flush=True)
     removed = remove_partial_files(output, source.name)
     if removed:
         print(f"removed {removed} partial file(s) an interrupted run left in {output}")

@@ -31,7 +31,9 @@ class UnitPlan:
       sequence or camera is not in ``--input``).
     not_made: on a release run, release clip -> why the input, as the settings read it, makes no
       clip of that name (a chunk past a sequence's end, a camera the settings leave out).
-    notes: lines to print before the run starts (what the run will need, e.g. scratch space).
+    notes: lines to print before the run starts (what the run will fetch, where).
+    scratch_per_worker: the most scratch disk one worker needs at a time (bytes; 0: none), printed
+      with the number of workers at start.
     """
 
     units: list
@@ -39,6 +41,7 @@ class UnitPlan:
     absent: Mapping[str, str] = dataclasses.field(default_factory=dict)
     not_made: Mapping[str, str] = dataclasses.field(default_factory=dict)
     notes: tuple[str, ...] = ()
+    scratch_per_worker: int = 0
 
 
 # One unit's wanted clip names (a release run's), or None for every clip it can make.

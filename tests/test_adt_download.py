@@ -9,9 +9,10 @@ import pathlib
 import pytest
 
 from pipeline.adt import download
-from pipeline.adt.download import fetch_sequence, format_bytes, is_url_file, plan_download, read_url_file
+from pipeline.adt.download import fetch_sequence, is_url_file, plan_download, read_url_file
 from pipeline.adt.reader import SequenceReader, required_files
 from pipeline.core.errors import InputError
+from pipeline.core.sizes import format_bytes
 from tests.adt_excerpt import SAMPLE, needs_excerpt
 from tests.support.adt_server import GROUPS, serve, write_layout
 

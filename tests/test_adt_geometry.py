@@ -4,19 +4,7 @@ depth-test visibility with the hand term, and a whole chunk through ``annotate_c
 import numpy as np
 import pytest
 
-from pipeline.adt.annotate import (
-    Chunk,
-    Frame,
-    IdRuns,
-    Instances,
-    annotate_chunk,
-    attach,
-    carry,
-    draw_query_pixels,
-    frame_visibility,
-    interior,
-    sample_depth,
-)
+from pipeline.adt.records import Chunk, Frame, IdRuns, Instances
 from pipeline.adt.rectify import (
     CAM_ROT_FROM_CAM,
     rotate_cw,
@@ -24,6 +12,15 @@ from pipeline.adt.rectify import (
     stored_cam_from_world,
     stored_intrinsics,
     unrotate_pixels_cw,
+)
+from pipeline.adt.tracks import (
+    annotate_chunk,
+    attach,
+    carry,
+    draw_query_pixels,
+    frame_visibility,
+    interior,
+    sample_depth,
 )
 from pipeline.core.config import RunConfig, with_overrides
 

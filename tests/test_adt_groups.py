@@ -1,4 +1,4 @@
-"""ADT chunks annotated in groups (``pipeline.adt.source.annotate_chunks``): a group opens its
+"""ADT chunks annotated in groups (``pipeline.adt.annotate.annotate_chunks``): a group opens its
 sequence once (and closes it once, after its last chunk) and makes, chunk by chunk, the clips each
 chunk makes alone; an unreadable sequence fails every chunk of the group, each error naming its own
 unit."""
@@ -6,7 +6,8 @@ unit."""
 import numpy as np
 
 from pipeline import sources
-from pipeline.adt import source as adt
+from pipeline.adt import annotate
+from pipeline.adt import units as adt_units
 from pipeline.core.config import RunConfig, with_overrides
 from pipeline.core.errors import InputError
 from tests.adt_excerpt import SAMPLE, needs_excerpt
@@ -18,7 +19,7 @@ ONE_FRAME_CHUNKS = ("adt.chunk_frames=1", "adt.min_frames=1", "adt.max_gt_offset
 def _count_openings_and_closings(monkeypatch) -> tuple[list, list]:
     """(opened, closed): the sequences ``open_sequence`` returns and ``close_sequence`` is given."""
     opened, closed = [], []
-    open_sequence, close_sequence = adt.open_sequence, adt.close_sequence
+    open_sequence, close_sequence = annotate.open_sequence, annotate.close_sequence
 
     def counted_open(*args):
         opened.append(open_sequence(*args))
@@ -28,21 +29,21 @@ def _count_openings_and_closings(monkeypatch) -> tuple[list, list]:
         closed.append(sequence)
         close_sequence(sequence)
 
-    monkeypatch.setattr(adt, "open_sequence", counted_open)
-    monkeypatch.setattr(adt, "close_sequence", counted_close)
+    monkeypatch.setattr(annotate, "open_sequence", counted_open)
+    monkeypatch.setattr(annotate, "close_sequence", counted_close)
     return opened, closed
 
 
 @needs_excerpt
 def test_a_group_opens_its_sequence_once_and_makes_each_chunks_own_clip(monkeypatch):
     config = with_overrides(RunConfig(), list(ONE_FRAME_CHUNKS))
-    units = adt.list_units(str(SAMPLE), config).units
-    assert len(units) == 2 and len({adt.group_of(unit) for unit in units}) == 1
+    units = adt_units.list_units(str(SAMPLE), config).units
+    assert len(units) == 2 and len({adt_units.group_of(unit) for unit in units}) == 1
     opened, closed = _count_openings_and_closings(monkeypatch)
-    alone = [list(adt.annotate_chunks(str(SAMPLE), [unit], config))[0].clips for unit in units]
+    alone = [list(annotate.annotate_chunks(str(SAMPLE), [unit], config))[0].clips for unit in units]
     assert len(opened) == 2 and closed == opened  # a unit alone opens and closes its sequence
     del opened[:], closed[:]
-    made = adt.annotate_chunks(str(SAMPLE), units, config)
+    made = annotate.annotate_chunks(str(SAMPLE), units, config)
     together = [next(made)]
     assert len(opened) == 1 and not closed  # still open for the group's next chunk
     together += list(made)
@@ -57,7 +58,7 @@ def test_a_group_opens_its_sequence_once_and_makes_each_chunks_own_clip(monkeypa
 def test_a_group_stopped_early_still_closes_its_sequence(monkeypatch):
     config = with_overrides(RunConfig(), list(ONE_FRAME_CHUNKS))
     opened, closed = _count_openings_and_closings(monkeypatch)
-    made = adt.annotate_chunks(str(SAMPLE), adt.list_units(str(SAMPLE), config).units, config)
+    made = annotate.annotate_chunks(str(SAMPLE), adt_units.list_units(str(SAMPLE), config).units, config)
     next(made)
     made.close()  # the caller stops after the first chunk (a Ctrl-C, a failed write)
     assert len(opened) == 1 and closed == opened
@@ -67,11 +68,11 @@ def test_an_unreadable_sequence_fails_each_chunk_under_its_own_name(tmp_path):
     sequence = tmp_path / "Apartment_release_broken_seq001"
     sequence.mkdir()
     units = [(str(sequence), chunk) for chunk in range(3)]
-    results = list(adt.annotate_chunks(str(tmp_path), units, RunConfig()))
+    results = list(annotate.annotate_chunks(str(tmp_path), units, RunConfig()))
     assert len(results) == 3
     for unit, result in zip(units, results, strict=True):
         assert isinstance(result, InputError)
-        assert str(result).startswith(f"{adt.unit_name(unit)}: ")
+        assert str(result).startswith(f"{adt_units.unit_name(unit)}: ")
 
 
 def test_groups_are_three_chunks_of_one_sequence():

@@ -46,6 +46,7 @@ from requests.adapters import HTTPAdapter
 from urllib3.util.retry import Retry
 
 from pipeline.core.errors import InputError
+from pipeline.core.sizes import format_bytes
 
 RECORDING_GROUP = "main_vrs"
 MAX_URL_FILE_BYTES = 64 << 20
@@ -114,14 +115,6 @@ class SequenceDownload:
 
 class _GroupError(Exception):
     """The cause of a group's failure, turned into an ``InputError`` naming sequence and group."""
-
-
-def format_bytes(count: int) -> str:
-    """``count`` bytes for messages: ``512 B``, ``12.3 MB``, ``1.7 TB`` (powers of 1000)."""
-    units, power = ("B", "kB", "MB", "GB", "TB"), 0
-    while power < len(units) - 1 and abs(count) >= 1000 ** (power + 1):
-        power += 1
-    return f"{count} B" if power == 0 else f"{count / 1000**power:.1f} {units[power]}"
 
 
 def _one_line(text: object) -> str:

@@ -6,6 +6,11 @@ missing) and evaluates every combination of the ``--grid`` thresholds with the f
 own rule (``verdicts_from_stats``), without annotating again. It writes ``report.md`` (a table
 per combination, statistic summaries), ``sweep.parquet`` (the same table) and two PNGs:
 the survival curve of each filter and the histogram of each statistic.
+
+On a release run (``--release``, or the run's own), only the release's clips are replayed, and each
+combination also counts, per split, the release clips that survive it: written, with at least
+``min_tracks`` tracks passing the filters. A release clip the run could not make (its input absent,
+its unit failed, no clip of its name) survives no threshold.
 """
 
 from __future__ import annotations
@@ -23,16 +28,18 @@ import pyarrow.parquet as pq
 
 from pipeline import sources
 from pipeline.core.config import RunConfig, config_from_dict, with_overrides
+from pipeline.core.errors import InputError
 from pipeline.core.outcomes import FILTER_ORDER
 from pipeline.export.files import list_files, read_bytes, write_atomic
 from pipeline.export.layout import audit_path, run_record_path, sweep_folder
 from pipeline.filters.select import count_dropped, verdicts_from_stats
+from pipeline.release import SPLITS, Release, read_release
 from pipeline.sources import Source
 
 
 def sweepable(source: Source) -> tuple[str, ...]:
     """The config keys a sweep may vary for ``source``: the filter stage's thresholds only."""
-    return ("flicker.max_fraction", *source.sweepable)
+    return ("flicker.max_fraction", "min_tracks", *source.sweepable)
 
 
 def load_statistics(output: str, source: str) -> list[dict]:
@@ -64,11 +71,15 @@ def load_statistics(output: str, source: str) -> list[dict]:
     return clips
 
 
-def evaluate(clips: list[dict], source: Source, config: RunConfig) -> dict:
+def evaluate(
+    clips: list[dict], source: Source, config: RunConfig, splits: dict[str, str] | None = None
+) -> dict:
     """The filter stage's totals at ``config``: candidates, dropped per filter, passed, clips
-    with a survivor, and those that would fall below their target track count."""
+    written (at least ``min_tracks`` passing), those below their target track count and, with the
+    release's ``splits`` (clip -> split), the release clips written per split."""
     dropped = dict.fromkeys(FILTER_ORDER, 0)
     candidates = passed = written = below = 0
+    release = dict.fromkeys(SPLITS, 0)
     for clip in clips:
         verdicts = verdicts_from_stats(
             clip["stats"], clip["num_frames"], config, source.mask_min_agreement(config)
@@ -78,15 +89,21 @@ def evaluate(clips: list[dict], source: Source, config: RunConfig) -> dict:
         survivors = int(np.logical_and.reduce([verdicts[name] for name in FILTER_ORDER]).sum())
         candidates += len(clip["stats"]["visible_frames"])
         passed += survivors
-        written += survivors > 0
-        below += 0 < survivors < clip["target_tracks"]
-    return {
+        kept = survivors >= config.min_tracks
+        written += kept
+        below += kept and survivors < clip["target_tracks"]
+        if splits is not None and kept and clip["clip"] in splits:
+            release[splits[clip["clip"]]] += 1
+    result = {
         "candidates": candidates,
         "dropped": dropped,
         "passed": passed,
         "clips_written": written,
         "clips_below_target": below,
     }
+    if splits is not None:
+        result["release"] = release
+    return result
 
 
 def parse_grid(assignments: list[str], source: Source) -> dict[str, list[str]]:
@@ -174,9 +191,19 @@ def numeric_statistics(clips: list[dict]) -> dict[str, np.ndarray]:
     return result
 
 
-def report_markdown(source: str, rows: list[dict], run_summary: dict | None, statistics: dict) -> str:
+def report_markdown(
+    source: str, rows: list[dict], run_summary: dict | None, statistics: dict, named: dict | None = None
+) -> str:
+    """The report: the table of combinations (with, on a release run, the release clips surviving
+    per split of ``named``: split -> release clips named), then the statistics' quantiles."""
     keys = list(rows[0]["values"])
     lines = [f"# Threshold sweep: {source}", ""]
+    if named is not None:
+        lines += [
+            "Release run: the release's clips only; `release <split>` = release clips that survive "
+            "(written, at least min_tracks tracks passing) of those the release names.",
+            "",
+        ]
     if run_summary is not None:
         matches = rows[0]["matches_run"]
         lines += [
@@ -187,11 +214,14 @@ def report_markdown(source: str, rows: list[dict], run_summary: dict | None, sta
     header = (
         keys + ["candidates"] + [f"dropped: {n}" for n in FILTER_ORDER] + ["passed", "clips", "below target"]
     )
+    header += [f"release {split}" for split in SPLITS] if named is not None else []
     lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for row in rows:
         r = row["result"]
         cells = [row["values"][k] for k in keys] + [r["candidates"]] + [r["dropped"][n] for n in FILTER_ORDER]
         cells += [r["passed"], r["clips_written"], r["clips_below_target"]]
+        if named is not None:
+            cells += [f"{r['release'][split]} of {named[split]}" for split in SPLITS]
         lines.append("| " + " | ".join(str(c) for c in cells) + " |")
     lines += ["", "## Statistics over all candidates", "", "| statistic | min | 5% | median | 95% | max |"]
     lines.append("|---|---|---|---|---|---|")
@@ -204,12 +234,24 @@ def report_markdown(source: str, rows: list[dict], run_summary: dict | None, sta
     return "\n".join(lines)
 
 
-def run_summary_and_config(output: str, source: str, overrides: list[str]) -> tuple[dict | None, RunConfig]:
+def run_record(output: str, source: str) -> dict | None:
+    """The run's record (``run_<source>.json``), None when there is none."""
     path = run_record_path(output, source)
     if not os.path.exists(path) and "://" not in output:
+        return None
+    return json.loads(read_bytes(path))
+
+
+def run_summary_and_config(record: dict | None, overrides: list[str]) -> tuple[dict | None, RunConfig]:
+    if record is None:
         return None, with_overrides(RunConfig(), overrides)
-    record = json.loads(read_bytes(path))
     return record["summary"], with_overrides(config_from_dict(RunConfig, record["config"]), overrides)
+
+
+def release_of(given: str | None, record: dict | None) -> Release | None:
+    """The release a sweep counts: ``--release``, else the one the run was restricted to."""
+    path = given or (record or {}).get("release")
+    return read_release(path, "--release" if given else "the run's release") if path else None
 
 
 def main(argv: list[str]) -> int:
@@ -222,10 +264,16 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--grid", action="append", default=[], metavar="KEY=V1,V2,...")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     parser.add_argument("--report", help="report folder (default <output>/sweep_<source>)")
+    parser.add_argument(
+        "--release",
+        metavar="SPLITS_JSON",
+        help="count, per split, the release's clips that survive each combination (default: the run's "
+        "own --release); a run made for the sweep is restricted to them",
+    )
     args = parser.parse_args(argv)
     try:
         return sweep(args)
-    except (ValueError, KeyError, OSError, pa.ArrowException) as error:
+    except (ValueError, KeyError, OSError, pa.ArrowException, InputError) as error:
         print(f"sweep: {error}", file=sys.stderr)
         return 2
 
@@ -243,20 +291,29 @@ def sweep(args: argparse.Namespace) -> int:
         command = ["--source", args.source, "--output", output] + (
             ["--input", args.input] if args.input else []
         )
+        command += ["--release", args.release] if args.release else []
         code = run.main(command + [f"--set={o}" for o in args.overrides])
         if code == 2:
             return code
-    run_summary, base = run_summary_and_config(output, args.source, args.overrides)
+    record = run_record(output, args.source)
+    run_summary, base = run_summary_and_config(record, args.overrides)
+    release = release_of(args.release, record)
+    splits = dict(release.clips.get(args.source, {})) if release is not None else None
     clips = load_statistics(output, args.source)
+    if splits is not None:
+        clips = [clip for clip in clips if clip["clip"] in splits]
     if not clips:
         print(f"no audit tables in {output}/audit/{args.source}/", file=sys.stderr)
         return 1
     keys = list(grid)
-    rows = [{"values": {k: _current(base, k) for k in keys}, "result": evaluate(clips, source, base)}]
+    rows = [{"values": {k: _current(base, k) for k in keys}, "result": evaluate(clips, source, base, splits)}]
     for values in itertools.product(*grid.values()) if keys else []:
         config = with_overrides(base, [f"{k}={v}" for k, v in zip(keys, values, strict=True)])
         rows.append(
-            {"values": dict(zip(keys, values, strict=True)), "result": evaluate(clips, source, config)}
+            {
+                "values": dict(zip(keys, values, strict=True)),
+                "result": evaluate(clips, source, config, splits),
+            }
         )
     if run_summary is not None:
         rows[0]["matches_run"] = matches_run(rows[0]["result"], run_summary)
@@ -265,7 +322,10 @@ def sweep(args: argparse.Namespace) -> int:
     statistics = numeric_statistics(clips)
     survival_figure(clips, source, base, f"{report}/survival.png")
     histogram_figure(statistics, args.source, f"{report}/histograms.png")
-    markdown = report_markdown(args.source, rows, run_summary, statistics)
+    named = (
+        {split: sum(s == split for s in splits.values()) for split in SPLITS} if splits is not None else None
+    )
+    markdown = report_markdown(args.source, rows, run_summary, statistics, named)
     write_atomic(f"{report}/report.md", markdown.encode())
     write_atomic(f"{report}/sweep.parquet", _rows_parquet(rows))
     print(markdown.split("\n## Statistics")[0])
@@ -274,8 +334,10 @@ def sweep(args: argparse.Namespace) -> int:
 
 
 def _current(config: RunConfig, key: str) -> str:
-    section, field = key.split(".")
-    return str(getattr(getattr(config, section), field))
+    node = config
+    for part in key.split("."):
+        node = getattr(node, part)
+    return str(node)
 
 
 def matches_run(result: dict, summary: dict) -> bool:
@@ -295,6 +357,9 @@ def _rows_parquet(rows: list[dict]) -> bytes:
         columns[f"dropped_{name}"] = [r["result"]["dropped"][name] for r in rows]
     for name in ("passed", "clips_written", "clips_below_target"):
         columns[name] = [r["result"][name] for r in rows]
+    if "release" in rows[0]["result"]:
+        for split in SPLITS:
+            columns[f"release_{split}"] = [r["result"]["release"][split] for r in rows]
     buffer = io.BytesIO()
     pq.write_table(pa.table(columns), buffer)
     return buffer.getvalue()

@@ -156,6 +156,9 @@ class AdtConfig:
     tracks_per_clip, oversample: tracks written per clip; candidates drawn = oversample x that.
     scratch_dir: where sequences fetched from a download-URLs JSON (``--input``) are unpacked, one
       at a time per worker, and deleted after; empty = a folder under the system's temporary folder.
+    download_retries, download_backoff_s: a download that fails with 429, a 5xx answer or a lost
+      connection is retried this many times, waiting backoff x 2^(n-1) s before the n-th retry but
+      the first.
     """
 
     chunk_frames: int = ranged(300, "[1, 100000]")
@@ -170,6 +173,8 @@ class AdtConfig:
     tracks_per_clip: int = ranged(1024, "[1, 100000]")
     oversample: int = ranged(4, "[1, 10000]")
     scratch_dir: str = not_in_clips("")
+    download_retries: int = not_in_clips(5, "[0, 100]")
+    download_backoff_s: float = not_in_clips(2.0, "[0, 600]")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -3,7 +3,7 @@ its group form, ``Source.annotate_group``; these call it for one unit)."""
 
 from __future__ import annotations
 
-from pipeline.adt.source import annotate_chunks
+from pipeline.adt.annotate import annotate_chunks
 from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
 from pipeline.drivetrack.annotate import annotate_cameras

@@ -1,0 +1,206 @@
+"""ADT's units: (sequence, 300-frame chunk), their names, groups and clip names, listed from local
+sequence folders or from the download-URLs JSON (sequences fetched when their group runs).
+
+A local sequence is its folder's path; a sequence of the URLs JSON is written ``url:<name>`` in its
+units (``FETCHED``) and its group is the whole sequence, fetched once. Its frames are counted only
+once it is fetched, so without ``--release`` it is one unit making every chunk's clip
+(``ALL_CHUNKS``); a release run lists the chunks it names.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import tempfile
+
+from pipeline.adt.download import is_url_file, plan_download, read_url_file
+from pipeline.adt.frames import open_reader
+from pipeline.adt.reader import list_sequences, required_files, v1_name
+from pipeline.core.config import RunConfig
+from pipeline.core.errors import InputError
+from pipeline.core.progress import progress
+from pipeline.core.sizes import format_bytes
+from pipeline.sources import UnitPlan
+
+FETCHED = "url:"
+ALL_CHUNKS = -1
+# Chunks annotated together (0-2, 3-5, ...): a group opens its sequence and builds the re-rendering
+# tables once (S^2 calls of projectaria-tools' projection); a sequence holds ~9 chunks, so its
+# groups still spread over workers. A fetched sequence is one group: it is downloaded once.
+CHUNKS_PER_GROUP = 3
+# The device-serial suffix ADT v2 adds to a v1 sequence name (``_M1292``, ``_61283``, ...).
+SERIAL_SUFFIX = re.compile(r"_[0-9A-Za-z]{4,}")
+
+
+def is_fetched(sequence: str) -> bool:
+    return sequence.startswith(FETCHED)
+
+
+def sequence_name(sequence: str) -> str:
+    """A unit's sequence as named in messages: the URLs JSON's name, or the folder's name."""
+    return sequence[len(FETCHED) :] if is_fetched(sequence) else os.path.basename(os.path.normpath(sequence))
+
+
+def unit_name(unit: tuple[str, int]) -> str:
+    sequence, chunk = unit
+    return f"{sequence_name(sequence)}/" + ("all_chunks" if chunk == ALL_CHUNKS else f"chunk_{chunk}")
+
+
+def group_of(unit: tuple[str, int]) -> str:
+    """The group of a (sequence, chunk) unit: a fetched sequence whole, else its sequence and
+    chunk // CHUNKS_PER_GROUP."""
+    sequence, chunk = unit
+    return sequence if is_fetched(sequence) else f"{sequence}/chunks_{chunk // CHUNKS_PER_GROUP}"
+
+
+def clip_name(sequence: str, chunk: int) -> str:
+    """The release's ADT clip name of a local sequence folder: ``<v1 sequence name>_<chunk index>``."""
+    return f"{v1_name(sequence)}_{chunk}"
+
+
+def chunk_count(frames: int, config: RunConfig) -> int:
+    """Chunks of ``chunk_frames`` frames; the last one only if it has ``min_frames`` or more."""
+    size = config.adt.chunk_frames
+    full, rest = divmod(frames, size)
+    return full + (1 if rest and rest >= config.adt.min_frames else 0)
+
+
+def chunk_beyond(chunk: int, frames: int, config: RunConfig) -> str:
+    """Why chunk ``chunk`` of a sequence of ``frames`` annotated frames makes no clip."""
+    start = chunk * config.adt.chunk_frames
+    if start >= frames:
+        return f"chunk {chunk} starts past the sequence's {frames:,} annotated frames"
+    return f"chunk {chunk} has {frames - start} frame(s), fewer than adt.min_frames={config.adt.min_frames}"
+
+
+def _chunk_of(name: str) -> tuple[str, int] | None:
+    """(v1 sequence name, chunk index) of an ADT clip name, or None when it is not one."""
+    sequence, sep, chunk = name.rpartition("_")
+    return (sequence, int(chunk)) if sep and sequence and chunk.isdigit() else None
+
+
+def release_chunks(release: frozenset[str]) -> dict[str, set[int]]:
+    """v1 sequence name -> the chunk indices the release names of it."""
+    named: dict[str, set[int]] = {}
+    for name in release:
+        parsed = _chunk_of(name)
+        if parsed:
+            named.setdefault(parsed[0], set()).add(parsed[1])
+    return named
+
+
+def scratch_folder(config: RunConfig) -> str:
+    """Where fetched sequences are unpacked: ``adt.scratch_dir``, or one under the system's
+    temporary folder."""
+    return config.adt.scratch_dir or os.path.join(tempfile.gettempdir(), "tapvid3d-adt-scratch")
+
+
+def list_units(input_root: str, config: RunConfig, release: frozenset[str] | None = None) -> UnitPlan:
+    """The chunks of every sequence of ``input_root`` (a sequence folder, a folder of them, or the
+    download-URLs JSON); on a release run, only the chunks the release names."""
+    if config.adt.chunk_frames < 1 or config.adt.min_frames < 1:
+        raise InputError("adt.chunk_frames and adt.min_frames must be at least 1")
+    named = release_chunks(release) if release is not None else None
+    if is_url_file(input_root):
+        plan = list_fetched(input_root, config, named)
+    else:
+        plan = list_local(input_root, config, named)
+    if release is None:
+        return plan
+    invalid = {
+        name: "not an ADT clip name (<sequence>_<chunk index>)" for name in release if not _chunk_of(name)
+    }
+    return UnitPlan(
+        plan.units,
+        plan.expected,
+        {**plan.absent, **invalid},
+        plan.not_made,
+        plan.notes,
+        plan.scratch_per_worker,
+    )
+
+
+def list_local(input_root: str, config: RunConfig, named: dict[str, set[int]] | None) -> UnitPlan:
+    """The chunks of local sequence folders (each opened to count its frames). A sequence that
+    cannot be read yields one unit (chunk 0; on a release run, each chunk named), which fails at
+    annotate with the reason, so the other sequences still run and the failure is recorded."""
+    units, not_made, found = [], {}, set()
+    for sequence in list_sequences(input_root):
+        v1 = v1_name(sequence)
+        found.add(v1)
+        if named is not None and v1 not in named:
+            continue
+        try:
+            frames = len(open_reader(sequence, config).frame_timestamps())
+        except InputError:
+            units += [(sequence, k) for k in sorted(named[v1] if named is not None else {0})]
+            continue
+        chunks = chunk_count(frames, config)
+        if named is None:
+            if not chunks:
+                progress(
+                    f"{os.path.basename(sequence)}: {frames} frame(s) in the ground-truth window, fewer "
+                    f"than adt.min_frames={config.adt.min_frames}; skipped"
+                )
+            units += [(sequence, k) for k in range(chunks)]
+            continue
+        for k in sorted(named[v1]):
+            if k < chunks:
+                units.append((sequence, k))
+            else:
+                not_made[f"{v1}_{k}"] = chunk_beyond(k, frames, config)
+    if named is None:
+        return UnitPlan(units)
+    absent = {
+        f"{v1}_{k}": f"sequence {v1} is not in --input"
+        for v1, chunks in named.items()
+        if v1 not in found
+        for k in chunks
+    }
+    expected = {unit_name(unit): (clip_name(*unit),) for unit in units}
+    return UnitPlan(sorted(units), expected=expected, absent=absent, not_made=not_made)
+
+
+def release_name_of(name: str, named: dict[str, set[int]]) -> str | None:
+    """The v1 name the release uses for the URLs JSON's sequence ``name`` (itself, or without its
+    device-serial suffix), or None when the release names neither."""
+    head, _, tail = name.rpartition("_")
+    candidates = [name] + ([head] if head and SERIAL_SUFFIX.fullmatch(f"_{tail}") else [])
+    return next((candidate for candidate in candidates if candidate in named), None)
+
+
+def list_fetched(url_path: str, config: RunConfig, named: dict[str, set[int]] | None) -> UnitPlan:
+    """The units of the sequences of a download-URLs JSON (on a release run, those it names),
+    and what fetching them takes: their download size and a worker's peak scratch space."""
+    url_file = read_url_file(url_path)
+    needed = required_files(config.adt.with_skeleton)
+    units, expected, matched, downloads = [], {}, set(), []
+    for name in url_file.sequences:
+        v1 = release_name_of(name, named) if named is not None else name
+        if v1 is None:
+            continue
+        matched.add(v1)
+        try:
+            downloads.append(plan_download(url_file, name, needed))
+        except InputError:
+            pass  # its units fail at annotate, with the reason
+        chunks = sorted(named[v1]) if named is not None else [ALL_CHUNKS]
+        for k in chunks:
+            units.append((FETCHED + name, k))
+            if named is not None:
+                expected[unit_name(units[-1])] = (f"{v1}_{k}",)
+    absent = {}
+    if named is not None:
+        absent = {
+            f"{v1}_{k}": f"sequence {v1} is not in the download-URLs JSON"
+            for v1, chunks in named.items()
+            if v1 not in matched
+            for k in chunks
+        }
+    peak = max((d.peak_bytes for d in downloads), default=0)
+    total = sum(d.download_bytes for d in downloads)
+    note = (
+        f"adt: {len({u[0] for u in units})} sequence(s) to fetch from {url_path} ({format_bytes(total)}), "
+        f"each into {scratch_folder(config)} and deleted after its chunks"
+    )
+    return UnitPlan(units, expected=expected, absent=absent, notes=(note,), scratch_per_worker=peak)

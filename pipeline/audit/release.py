@@ -1,0 +1,97 @@
+"""``python -m pipeline.audit release OUT``: the release verdicts of a run, per source and split.
+
+Reads ``<OUT>/release_<source>.jsonl`` (written by a ``--release`` run) and prints, per source, a
+table of the verdicts per split (written, not produced, input absent, failed) and the most common
+reasons of each status, numbers and names folded so that alike reasons count together.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import sys
+from collections import Counter
+
+from pipeline import sources
+from pipeline.export.files import read_bytes
+from pipeline.export.layout import release_verdicts_path
+from pipeline.release import SPLITS, STATUSES
+
+MAX_VERDICT_BYTES = 256 << 20
+SHOWN_REASONS = 3
+_NAMED = re.compile(r"\b(object id|object|sequence|segment|camera|unit) \S+?('s)?(?=[\s,;:)]|$)")
+_NUMBER = re.compile(r"\d[\d,.]*\d|\d")
+
+
+def reason_kind(reason: str) -> str:
+    """A reason with its names and numbers folded (``object X``, ``N``), so alike reasons match."""
+    return _NUMBER.sub("N", _NAMED.sub(lambda m: f"{m[1]} X{m[2] or ''}", reason))
+
+
+def read_verdicts(output: str, source: str) -> list[dict] | None:
+    """The verdict rows of ``source`` in ``output``, None when the run wrote none."""
+    path = release_verdicts_path(output, source)
+    if not os.path.exists(path) and "://" not in output:
+        return None
+    rows = []
+    for number, line in enumerate(read_bytes(path, MAX_VERDICT_BYTES).decode().splitlines(), 1):
+        try:
+            row = json.loads(line)
+            if row["status"] not in STATUSES or row["split"] not in SPLITS:
+                raise ValueError(f"status {row['status']!r}, split {row['split']!r}")
+        except (ValueError, KeyError, TypeError) as error:
+            raise ValueError(f"{path} line {number}: not a release verdict ({error})") from None
+        rows.append(row)
+    return rows
+
+
+def source_table(source: str, rows: list[dict]) -> str:
+    """The verdicts of one source per split, then the most common reasons of each status."""
+    header = f"{'split':<10}{'named':>7}" + "".join(f"{status:>14}" for status in STATUSES)
+    lines = [f"{source}: {len(rows)} release clip(s)", header]
+    for split in (*SPLITS, "all"):
+        chosen = [row for row in rows if split in ("all", row["split"])]
+        counts = Counter(row["status"] for row in chosen)
+        lines.append(f"{split:<10}{len(chosen):>7}" + "".join(f"{counts[s]:>14}" for s in STATUSES))
+    for status in STATUSES[1:] + STATUSES[:1]:
+        kinds = Counter(reason_kind(row["reason"]) for row in rows if row["status"] == status)
+        if not kinds:
+            continue
+        lines.append(f"  {status}, most common reasons:")
+        for kind, count in kinds.most_common(SHOWN_REASONS):
+            example = next(
+                row for row in rows if row["status"] == status and reason_kind(row["reason"]) == kind
+            )
+            lines.append(f"    {count:>6} x {kind}   (e.g. {example['clip']}: {example['reason']})")
+    return "\n".join(lines)
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="python -m pipeline.audit release", description=__doc__)
+    parser.add_argument("output", help="the output folder of a --release run")
+    parser.add_argument(
+        "--source", choices=sources.names(), help="one source (default: every one with verdicts)"
+    )
+    args = parser.parse_args(argv)
+    chosen = [args.source] if args.source else list(sources.names())
+    found = 0
+    for source in chosen:
+        try:
+            rows = read_verdicts(args.output, source)
+        except (OSError, ValueError) as error:
+            print(f"release: {error}", file=sys.stderr)
+            return 2
+        if rows is None:
+            continue
+        found += 1
+        print(source_table(source, rows) + "\n")
+    if not found:
+        print(
+            f"release: no release_<source>.jsonl in {args.output}: run python -m pipeline.run --release "
+            "SPLITS_JSON first",
+            file=sys.stderr,
+        )
+        return 2
+    return 0
