@@ -52,11 +52,13 @@ import os
 import sys
 import time
 
+from pipeline.commandline import StrictParser
+
 ORDER = ("drivetrack", "pstudio", "adt")
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
+    parser = StrictParser(
         prog="python -m benchmarks",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,

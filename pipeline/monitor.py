@@ -4,13 +4,16 @@ Workers write each unit's record when it is done (``pipeline/unit.py``); the mon
 records folder from a thread of the main process, so it reports the same on every runner and any
 number of worker processes. On a terminal it draws a live tqdm bar and writes the unit lines above
 it; piped, it prints plain lines, each with the count done, the elapsed time and an estimate of
-what is left. A closed output (``| head``) sets ``closed`` and stops the main thread with
+what is left. A closed output (``| head``) sets ``OUTPUT_CLOSED`` and stops the main thread with
 KeyboardInterrupt (``_thread.interrupt_main``) so the run ends promptly instead of running on.
 """
 
 from __future__ import annotations
 
 import _thread
+import os
+import select
+import stat
 import sys
 import threading
 import time
@@ -21,6 +24,36 @@ from tqdm import tqdm
 from pipeline.core.outcomes import UnitOutcome
 from pipeline.export.layout import unit_record_path
 from pipeline.resume import outcome_of, read_unit_record
+
+# Set when a report could not be written because the reader went away (a closed pipe).
+OUTPUT_CLOSED = threading.Event()
+
+
+def watch_output_pipes(interval_s: float = 0.5) -> None:
+    """From a daemon thread, stop the main thread (KeyboardInterrupt, with ``OUTPUT_CLOSED`` set) as
+    soon as the reader of the command's stdout or stderr pipe goes away (``| head``), even while
+    nothing is being printed (Linux reports a pipe whose reader closed as POLLERR on its write end)."""
+    pipes = [fd for fd in (1, 2) if _is_pipe(fd)]
+    if not pipes:
+        return
+    poller = select.poll()
+    for fd in pipes:
+        poller.register(fd, select.POLLERR | select.POLLHUP)
+
+    def watch() -> None:
+        while not poller.poll(interval_s * 1000):
+            pass
+        OUTPUT_CLOSED.set()
+        _thread.interrupt_main()
+
+    threading.Thread(target=watch, name="output-watch", daemon=True).start()
+
+
+def _is_pipe(fd: int) -> bool:
+    try:
+        return stat.S_ISFIFO(os.fstat(fd).st_mode)
+    except OSError:
+        return False
 
 
 def clock(seconds: float) -> str:
@@ -114,6 +147,7 @@ class RunMonitor:
                 )
         except (BrokenPipeError, ValueError):  # ValueError: the stream was closed
             self.closed = True
+            OUTPUT_CLOSED.set()
 
     def timing(self) -> str:
         """Elapsed time and, from the units annotated so far (resumed ones cost nothing), an estimate

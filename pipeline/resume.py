@@ -128,17 +128,20 @@ def finished_outcome(
 ) -> UnitOutcome | None:
     """The outcome of a unit a previous run finished with these settings, resumed; else None.
 
-    wanted: the clips this run wants of the unit (None: every clip it makes). A record made for
-    some clips only resumes a run that wants no others; every wanted clip must be made or have
-    its reason; on a release run only the wanted clips' reports are kept.
+    wanted: the clips this run wants of the unit (None: every clip it makes). A record of every clip
+    the unit makes resumes any run; one made for some clips only (a release run's) resumes a run
+    whose wanted clips it all accounts for, made or with the reason they were not. On a release run
+    only the wanted clips' reports are kept, and a wanted clip a complete record neither made nor
+    explains is one the unit does not make.
     """
     if record is None or record.get("fingerprint") != fingerprint or record["failures"]:
         return None
     outcome = outcome_of(record)
     made = {report.clip for report in outcome.reports}
-    if wanted is None and record.get("wanted") is not None:
+    complete = record.get("wanted") is None
+    if wanted is None and not complete:
         return None
-    if wanted is not None and not wanted <= made | set(outcome.not_made):
+    if wanted is not None and not complete and not wanted <= made | set(outcome.not_made):
         return None
     for report in outcome.reports:
         if report.written and not _clip_is_intact(
@@ -147,10 +150,14 @@ def finished_outcome(
             return None
     if wanted is None:
         return dataclasses.replace(outcome, resumed=True, seconds=0.0)
+    unexplained = wanted - made - set(outcome.not_made)
     return dataclasses.replace(
         outcome,
         reports=tuple(report for report in outcome.reports if report.clip in wanted),
-        not_made={name: why for name, why in outcome.not_made.items() if name in wanted},
+        not_made={
+            **{name: why for name, why in outcome.not_made.items() if name in wanted},
+            **dict.fromkeys(unexplained, f"unit {outcome.name} makes no clip of this name"),
+        },
         resumed=True,
         seconds=0.0,
     )

@@ -2,13 +2,20 @@
 
 Regenerates TAPVid-3D clips from a source dataset. Any option not listed here is passed to
 Beam (``--runner``, ``--direct_num_workers``, ``--direct_running_mode``, Dataflow/Flink/Spark
-options, ...). Without ``--input`` it runs on the embedded sample world. With ``--release`` it
-regenerates the release's own clips and writes a verdict for each (``<out>/release_<source>.jsonl``).
+options, ...) and checked against the options Beam and the runner define. Without ``--input`` it
+runs on the embedded sample world. With ``--release`` it regenerates the release's own clips and
+writes a verdict for each (``<out>/release_<source>.jsonl``).
+
+Exit status: 0 done (clips written, or every unit finished by an earlier run); 1 some unit failed;
+2 the run could not start (a bad option or setting, a missing input, an output that cannot be
+written) or finish; 3 nothing was produced and nothing resumed (the last line says why); 130
+interrupted by Ctrl-C; 141 the output was closed (``| head``): the run stopped.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import logging
 import os
@@ -24,15 +31,17 @@ from apache_beam.options.pipeline_options import DirectOptions, PipelineOptions,
 
 import pipeline
 from pipeline import graph, sources, storage
-from pipeline.core.config import RunConfig, with_overrides
+from pipeline.commandline import StrictParser, UsageError, check_beam_args
+from pipeline.core.config import RunConfig, SettingsError, with_overrides
 from pipeline.core.errors import InputError, OutputError, root_cause
 from pipeline.core.outcomes import FILTER_ORDER
-from pipeline.core.progress import quiet_worker_logs, set_verbose
+from pipeline.core.progress import quiet_worker_logs, set_verbose, workers_silenced
 from pipeline.core.sizes import format_bytes
 from pipeline.export.files import is_local, remove_quietly, write_atomic
 from pipeline.export.layout import failures_path, release_verdicts_path, run_record_path, sample_folder
 from pipeline.finish import FinishedRun, finish_run
-from pipeline.monitor import RunMonitor
+from pipeline.monitor import OUTPUT_CLOSED as OUTPUT_WENT_AWAY
+from pipeline.monitor import RunMonitor, watch_output_pipes
 from pipeline.release import Release, read_release
 from pipeline.resume import remove_partial_files
 from pipeline.sources import NoSample, Source, UnitPlan
@@ -40,6 +49,7 @@ from pipeline.unit import UnitJob
 
 DASK_RUNNER = "apache_beam.runners.dask.dask_runner.DaskRunner"
 PROBE_BYTES = 4 << 20
+NOTHING_PRODUCED, INTERRUPTED, OUTPUT_CLOSED = 3, 130, 141
 
 log = logging.getLogger("pipeline")
 
@@ -49,8 +59,8 @@ class CannotStart(Exception):
     message is one line, printed as ``cannot start: <message>`` with exit status 2."""
 
 
-def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
-    parser = argparse.ArgumentParser(
+def command_parser() -> StrictParser:
+    parser = StrictParser(
         prog="python -m pipeline.run",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -92,7 +102,17 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
         help="override a config field, e.g. flicker.max_fraction=0.2 (repeatable)",
     )
     parser.add_argument("--verbose", action="store_true", help="also print the workers' and Beam's log lines")
-    return parser.parse_known_args(argv)
+    return parser
+
+
+def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
+    """The command's own options, and the Beam options (checked, with our defaults); UsageError
+    names an unknown option (with the nearest valid name) or a bad value."""
+    parser = command_parser()
+    args, rest = parser.parse_known_args(argv)
+    beam_args = runner_args(rest)
+    check_beam_args(beam_args, parser.option_names())
+    return args, beam_args
 
 
 @dataclasses.dataclass(frozen=True)
@@ -182,9 +202,9 @@ def settings(args: argparse.Namespace) -> tuple[RunConfig, Release | None]:
 
 
 def prepare_run(args: argparse.Namespace, beam_args: list[str]) -> PreparedRun:
-    """Check everything before any work; CannotStart (or ValueError, InputError) says what is wrong."""
+    """Check everything before any work; CannotStart (or SettingsError, InputError) says what is
+    wrong."""
     source = sources.get(args.source)
-    beam_args = runner_args(beam_args)
     options = PipelineOptions(beam_args)
     storage.use_options(options)
     output = absolute(args.output)
@@ -275,9 +295,13 @@ def beam_counters(result) -> dict[str, int] | str:
 
 
 def run_pipeline(prepared: PreparedRun, job: UnitJob, plan: UnitPlan):
-    """Run the Beam graph over the plan's units, reporting each unit as it finishes; the result."""
+    """Run the Beam graph over the plan's units, reporting each unit as it finishes (worker processes
+    silent unless ``--verbose``); the result."""
     names = [prepared.source.unit_name(unit) for unit in plan.units]
-    with RunMonitor(job.output, job.source.name, names, job.run_id, time.monotonic()):
+    with (
+        workers_silenced() as report,
+        RunMonitor(job.output, job.source.name, names, job.run_id, time.monotonic(), report),
+    ):
         p = beam.Pipeline(options=prepared.options)
         _ = p | "RegenerateClips" >> graph.RegenerateClips(job, plan.units, prepared.options)
         result = p.run()
@@ -332,27 +356,94 @@ class _ReportedByUs(logging.Filter):
         return not (kind and issubclass(kind, (KeyboardInterrupt, OSError, OutputError)))
 
 
+def why_nothing(summary: dict, config: RunConfig) -> str:
+    """Why a run wrote no clip, in one line."""
+    resumed = summary["units_resumed"]
+    earlier = f" ({resumed} of them finished by an earlier run with these settings)" if resumed else ""
+    return _why_nothing(summary, config) + earlier
+
+
+def _why_nothing(summary: dict, config: RunConfig) -> str:
+    if not summary["units"]:
+        return "no clip written: no unit to annotate (nothing in --input for this run)"
+    if summary["units_failed"] == summary["units"]:
+        return f"no clip written: all {summary['units']} unit(s) failed"
+    if not summary["clips_annotated"]:
+        given = (
+            f"; --queries-from {config.queries_from} holds none of their clips" if config.queries_from else ""
+        )
+        return f"no clip written: the {summary['units']} unit(s) made no clip{given}"
+    if not summary["candidate_tracks"]:
+        return f"no clip written: the {summary['clips_annotated']} clip(s) made had no candidate track"
+    if not summary["tracks_passing_filters"]:
+        dropped = ", ".join(
+            f"{name} {count}" for name, count in summary["dropped_by_filter"].items() if count
+        )
+        candidates = summary["candidate_tracks"]
+        return f"no clip written: every one of the {candidates} candidate tracks was dropped ({dropped})"
+    return f"no clip written: no clip kept min_tracks={config.min_tracks} tracks"
+
+
+def exit_status(summary: dict) -> int:
+    """0 done, 1 some unit failed, 3 nothing produced and nothing resumed."""
+    if summary["failures"]:
+        return 1
+    nothing = summary["clips_written"] == 0 and summary["units_resumed"] == 0
+    return NOTHING_PRODUCED if nothing else 0
+
+
+def stopped(prepared: PreparedRun) -> int:
+    """After a Ctrl-C or a closed output: this process's partial files removed, one line (when the
+    output is still open); 130, or 141 for a closed output."""
+    removed = remove_partial_files(prepared.output, prepared.source.name, include_own=True)
+    if OUTPUT_WENT_AWAY.is_set():
+        silence_output()
+        return OUTPUT_CLOSED
+    note = f"; removed {removed} partial file(s)" if removed else ""
+    print(
+        f"interrupted: stopped{note}; finished units are kept, rerun the same command to resume",
+        file=sys.stderr,
+    )
+    return INTERRUPTED
+
+
+def silence_output() -> None:
+    """Point stdout and stderr at /dev/null: their reader is gone, and a late flush must not fail."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            os.dup2(devnull, stream.fileno())
+        except (OSError, ValueError, AttributeError):
+            continue
+    os.close(devnull)
+
+
 def main(argv: list[str] | None = None) -> int:
-    """The command; exit 0 when every unit succeeded, 1 when some failed, 2 when the run could not
-    start or finish, 130 when interrupted (Ctrl-C)."""
+    """The command; its exit status (the module's docstring lists them)."""
     started = time.monotonic()
-    args, beam_args = parse_args(sys.argv[1:] if argv is None else argv)
+    try:
+        args, beam_args = parse_args(sys.argv[1:] if argv is None else argv)
+    except UsageError as problem:
+        print(f"python -m pipeline.run: {problem}", file=sys.stderr)
+        return 2
     configure_logging(args.verbose)
     try:
         prepared = prepare_run(args, beam_args)
+    except SettingsError as problem:
+        print(f"cannot start: {len(problem.problems)} problem(s) with the settings:", file=sys.stderr)
+        for line in problem.problems:
+            print(f"  {line}", file=sys.stderr)
+        return 2
     except (CannotStart, ValueError, InputError) as problem:
         print(f"cannot start: {problem}", file=sys.stderr)
         return 2
     try:
         return run(prepared, started)
     except KeyboardInterrupt:
-        removed = remove_partial_files(prepared.output, prepared.source.name, include_own=True)
-        note = f"; removed {removed} partial file(s)" if removed else ""
-        print(
-            f"interrupted: stopped{note}; finished units are kept, rerun the same command to resume",
-            file=sys.stderr,
-        )
-        return 130
+        return stopped(prepared)
+    except BrokenPipeError:
+        OUTPUT_WENT_AWAY.set()
+        return stopped(prepared)
 
 
 def run(prepared: PreparedRun, started: float) -> int:
@@ -403,8 +494,25 @@ def run(prepared: PreparedRun, started: float) -> int:
         return 2
     print_summary(finished, metrics, output, source.name)
     print(f"finished in {time.monotonic() - started:.1f} s")
-    return 1 if finished.summary["failures"] else 0
+    if finished.summary["clips_written"] == 0:
+        print(why_nothing(finished.summary, prepared.config))
+    return exit_status(finished.summary)
+
+
+def stop_workers() -> None:
+    """Kill this process's children (the DirectRunner's worker processes): their threads here
+    would otherwise keep the interpreter from exiting after a Ctrl-C or a closed output."""
+    import psutil
+
+    for child in psutil.Process().children(recursive=True):
+        with contextlib.suppress(psutil.Error):
+            child.kill()
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    watch_output_pipes()
+    status = main()
+    if status in (INTERRUPTED, OUTPUT_CLOSED):
+        stop_workers()
+        os._exit(status)  # Beam's worker threads are not daemons: do not wait for them
+    sys.exit(status)

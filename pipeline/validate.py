@@ -1,4 +1,5 @@
-"""``python -m pipeline.validate DIR``: check every clip under DIR; exit 1 on any violation.
+"""``python -m pipeline.validate PATH``: check one clip, or every clip under a folder; exit 1 on any
+violation (2 when PATH holds no clip).
 
 Also prints, per clip, quality findings that do not fail the run (queries hidden at their own
 query frame, tracks visible off the image or behind the camera, flickering tracks); ``--report
@@ -7,12 +8,13 @@ FILE`` writes the same table as JSON.
 
 from __future__ import annotations
 
-import argparse
 import json
+import os
 import sys
 
+from pipeline.commandline import StrictParser
 from pipeline.export.clip_reader import add_limit_argument, limits_from
-from pipeline.export.files import list_files, read_bytes, write_atomic
+from pipeline.export.files import file_size, is_local, list_files, read_bytes, write_atomic
 from pipeline.export.validator import FINDINGS, FLICKER_MAX_FRACTION, NO_FINDINGS, inspect_clip_bytes
 
 
@@ -26,9 +28,25 @@ def findings_table(rows: list[dict]) -> str:
     )
 
 
+def clip_paths(path: str) -> list[str]:
+    """The clips to check: ``path`` itself when it is a file, else ``<path>/*.npz`` and
+    ``<path>/*/*.npz``; ValueError saying when there is none."""
+    root = path.rstrip("/") or "/"
+    if is_local(root) and not os.path.exists(root):
+        raise ValueError(f"{root} does not exist")
+    if (is_local(root) and os.path.isfile(root)) or (not is_local(root) and file_size(root) is not None):
+        return [root]
+    paths = list_files(f"{root}/*.npz") + list_files(f"{root}/*/*.npz")
+    if not paths:
+        raise ValueError(f"no .npz clips in {root} (<folder>/*.npz or <folder>/<source>/*.npz)")
+    return paths
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.validate", description=__doc__)
-    parser.add_argument("directory", help="an output folder (<out>/<source>/*.npz) or a folder of clips")
+    parser = StrictParser(prog="python -m pipeline.validate", description=__doc__)
+    parser.add_argument(
+        "path", help="a clip (.npz), an output folder (<out>/<source>/*.npz) or a folder of clips"
+    )
     parser.add_argument(
         "--flicker-max-fraction",
         type=float,
@@ -42,11 +60,11 @@ def main(argv: list[str] | None = None) -> int:
         limits = limits_from(args.limit)
     except ValueError as error:
         parser.error(str(error))
-    root = args.directory.rstrip("/")
-    paths = list_files(f"{root}/*.npz") + list_files(f"{root}/*/*.npz")
-    if not paths:
-        print(f"no .npz clips under {root}", file=sys.stderr)
-        return 1
+    try:
+        paths = clip_paths(args.path)
+    except ValueError as error:
+        print(f"validate: {error}", file=sys.stderr)
+        return 2
     bad = 0
     rows = []
     for path in paths:

@@ -207,7 +207,8 @@ def test_config_overrides_are_typed_and_checked():
     )
     assert config.flicker.max_fraction == 0.2 and config.drivetrack.cameras == (1, 3)
     assert config.drivetrack.facing_test is False and config.seed == 4
-    with pytest.raises(ValueError, match="unknown setting; valid keys:.*flicker.max_fraction"):
+    expected = r"unknown setting; did you mean flicker.max_fraction\? valid keys:.*flicker.max_fraction"
+    with pytest.raises(ValueError, match=expected):
         with_overrides(RunConfig(), ["flicker.maxfraction=1"])
     with pytest.raises(ValueError, match="expected float"):
         with_overrides(RunConfig(), ["flicker.max_fraction=lots"])

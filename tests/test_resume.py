@@ -131,6 +131,7 @@ def test_a_clip_left_without_tracks_by_new_settings_is_removed(finished_copy):
     result = run_in_process(
         "pstudio", "--input", source_input, "--output", out, "--set", "pstudio.max_attach_distance_m=1e-9"
     )
-    assert result.returncode == 0, result.stderr[-3000:]
+    assert result.returncode == 3, result.stderr[-3000:]  # nothing produced, nothing resumed
+    assert result.stdout.splitlines()[-1] == "no clip written: the 4 clip(s) made had no candidate track"
     assert clip_bytes(out, "pstudio") == {}
     assert open(os.path.join(out, "manifests", "minival.txt")).read() == ""

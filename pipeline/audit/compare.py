@@ -30,7 +30,6 @@ written.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import os
@@ -46,6 +45,7 @@ from pipeline.audit.metrics import (
     query_frame_indices,
     tapvid3d_metrics,
 )
+from pipeline.commandline import StrictParser
 from pipeline.core.images import jpeg_size
 from pipeline.export.clip_reader import (
     DEFAULT_LIMITS,
@@ -318,7 +318,7 @@ def compare_dirs(
 
 def main(argv: list[str] | None = None) -> int:
     """The ``compare`` subcommand; exit status as the module doc says."""
-    parser = argparse.ArgumentParser(prog="python -m pipeline.audit compare", description=__doc__)
+    parser = StrictParser(prog="python -m pipeline.audit compare", description=__doc__)
     parser.add_argument("ref_dir", help="reference output folder (<dir>/<source>/<clip>.npz): ground truth")
     parser.add_argument("new_dir", help="output folder to score as the prediction")
     parser.add_argument("--clips", help="score only these REF clips (a file of <source>/<clip>.npz lines)")

@@ -7,7 +7,6 @@ reasons of each status, numbers and names folded so that alike reasons count tog
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import re
@@ -15,6 +14,7 @@ import sys
 from collections import Counter
 
 from pipeline import sources
+from pipeline.commandline import StrictParser
 from pipeline.export.files import read_bytes
 from pipeline.export.layout import release_verdicts_path
 from pipeline.release import SPLITS, STATUSES
@@ -69,7 +69,7 @@ def source_table(source: str, rows: list[dict]) -> str:
 
 
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.audit release", description=__doc__)
+    parser = StrictParser(prog="python -m pipeline.audit release", description=__doc__)
     parser.add_argument("output", help="the output folder of a --release run")
     parser.add_argument(
         "--source", choices=sources.names(), help="one source (default: every one with verdicts)"

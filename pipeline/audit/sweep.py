@@ -27,7 +27,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from pipeline import sources
-from pipeline.core.config import RunConfig, config_from_dict, with_overrides
+from pipeline.commandline import StrictParser, closest
+from pipeline.core.config import RunConfig, SettingsError, config_from_dict, setting_keys, with_overrides
 from pipeline.core.errors import InputError
 from pipeline.core.outcomes import FILTER_ORDER
 from pipeline.export.files import list_files, read_bytes, write_atomic
@@ -106,20 +107,35 @@ def evaluate(
     return result
 
 
-def parse_grid(assignments: list[str], source: Source) -> dict[str, list[str]]:
-    """``key=v1,v2`` -> {key: [v1, v2]}; only thresholds the filter stage reads can be swept."""
-    grid = {}
+def parse_grid(assignments: list[str], source: Source, base: RunConfig) -> dict[str, list[str]]:
+    """``key=v1,v2`` -> {key: [v1, v2]}; only thresholds the filter stage reads can be swept, each
+    value checked as ``--set`` checks it. SettingsError lists every problem."""
+    grid, problems = {}, []
     for assignment in assignments:
         key, sep, values = assignment.partition("=")
         key = key.strip()
-        if not sep or not values:
-            raise ValueError(f"--grid {assignment!r}: expected key=v1,v2,...")
-        if key not in sweepable(source):
-            raise ValueError(
+        if not sep or not values.strip(","):
+            problems.append(f"--grid {assignment!r}: expected key=v1,v2,...")
+        elif key not in setting_keys(base):
+            near = closest(key, sweepable(source))
+            hint = f"did you mean {near}? " if near else ""
+            problems.append(
+                f"--grid {key}: unknown key; {hint}the keys a sweep varies: {', '.join(sweepable(source))}"
+            )
+        elif key not in sweepable(source):
+            problems.append(
                 f"--grid {key}: the sweep replays the filter stage only ({', '.join(sweepable(source))}); "
                 "a setting that changes annotation needs a new run (python -m pipeline.run --set ...)"
             )
-        grid[key] = [v.strip() for v in values.split(",") if v.strip()]
+        else:
+            grid[key] = [v.strip() for v in values.split(",") if v.strip()]
+            for value in grid[key]:
+                try:
+                    with_overrides(base, [f"{key}={value}"], option="--grid")
+                except SettingsError as error:
+                    problems += error.problems
+    if problems:
+        raise SettingsError(problems)
     return grid
 
 
@@ -255,7 +271,7 @@ def release_of(given: str | None, record: dict | None) -> Release | None:
 
 
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.audit sweep", description=__doc__)
+    parser = StrictParser(prog="python -m pipeline.audit sweep", description=__doc__)
     parser.add_argument("--source", required=True, choices=sources.names())
     parser.add_argument("--input", help="source data, for a run when --output holds none yet")
     parser.add_argument(
@@ -273,6 +289,11 @@ def main(argv: list[str]) -> int:
     args = parser.parse_args(argv)
     try:
         return sweep(args)
+    except SettingsError as problem:
+        print(f"sweep: {len(problem.problems)} problem(s):", file=sys.stderr)
+        for line in problem.problems:
+            print(f"  {line}", file=sys.stderr)
+        return 2
     except (ValueError, KeyError, OSError, pa.ArrowException, InputError) as error:
         print(f"sweep: {error}", file=sys.stderr)
         return 2
@@ -282,8 +303,10 @@ def sweep(args: argparse.Namespace) -> int:
     """The sweep of ``main``'s arguments; raises ValueError, KeyError, OSError or ArrowException on
     bad input, which ``main`` prints as one line."""
     source = sources.get(args.source)
-    grid = parse_grid(args.grid, source)
+    grid = parse_grid(args.grid, source, with_overrides(RunConfig(), args.overrides))
     output = os.path.abspath(args.output) if "://" not in args.output else args.output
+    if "://" not in output and os.path.isfile(output):
+        raise ValueError(f"--output {output} is a file, not a folder")
     if not load_statistics(output, args.source):
         from pipeline import run
 

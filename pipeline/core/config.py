@@ -7,6 +7,7 @@ refuses a value outside its field's range (``check_ranges``) before any work sta
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import re
 import typing
 
@@ -291,18 +292,37 @@ def _show(value) -> str:
     return ",".join(str(v) for v in value) if isinstance(value, tuple) else str(value)
 
 
-def check_ranges(config, assigned: dict[str, str] | None = None) -> None:
-    """Raise ValueError naming every field of ``config`` outside its range, its value and the range.
+class SettingsError(ValueError):
+    """Every problem of a set of assignments (``problems``, one line each), reported together."""
 
-    ``assigned`` maps the keys given with ``--set`` to their text, which the message quotes.
+    def __init__(self, problems: list[str]):
+        super().__init__("; ".join(problems))
+        self.problems = problems
+
+
+def range_problems(config, assigned: dict[str, str] | None = None, option: str = "--set") -> list[str]:
+    """One line per field of ``config`` outside its range, with its value and the range.
+
+    ``assigned`` maps the keys given with ``option`` to their text, which the message quotes.
     """
     assigned = assigned or {}
-    problems = [
-        (f"--set {key}={assigned[key]}" if key in assigned else f"{key}={_show(value)}") + f": must be {need}"
+    shown = {key: f"{option} {key}={text}" for key, text in assigned.items()}
+    return [
+        f"{shown.get(key, f'{key}={_show(value)}')}: must be {need}"
         for key, value, need in _violations(config)
     ]
+
+
+def check_ranges(config, assigned: dict[str, str] | None = None) -> None:
+    """Raise SettingsError naming every field of ``config`` outside its range, its value and the range."""
+    problems = range_problems(config, assigned)
     if problems:
-        raise ValueError("; ".join(problems))
+        raise SettingsError(problems)
+
+
+def setting_keys(config) -> list[str]:
+    """Every field of ``config`` as ``section.field`` (or ``field``)."""
+    return _keys(config)
 
 
 def _keys(config, prefix: str = "") -> list[str]:
@@ -316,39 +336,49 @@ def _keys(config, prefix: str = "") -> list[str]:
     return keys
 
 
-def with_overrides(config, assignments: list[str]):
-    """Return ``config`` with ``section.field=value`` assignments applied, types and ranges checked."""
-    assigned = {}
+def with_overrides(config, assignments: list[str], option: str = "--set"):
+    """Return ``config`` with ``section.field=value`` assignments applied, types and ranges checked;
+    SettingsError listing every problem (``option`` names where the assignments came from)."""
+    assigned, problems = {}, []
     for assignment in assignments:
         key, sep, text = assignment.partition("=")
         if not sep:
-            raise ValueError(f"--set {assignment!r}: expected key=value")
+            problems.append(f"{option} {assignment!r}: expected key=value")
+            continue
         key, text = key.strip(), text.strip()
-        config = _replace_path(config, key.split("."), text, key, config)
+        try:
+            config = _replace_path(config, key.split("."), text, key, config, option)
+        except ValueError as error:
+            problems.append(str(error))
+            continue
         assigned[key] = text
-    check_ranges(config, assigned)
+    problems += range_problems(config, assigned, option)
+    if problems:
+        raise SettingsError(problems)
     return config
 
 
-def _replace_path(node, path: list[str], text: str, key: str, root, prefix: str = ""):
+def _replace_path(node, path: list[str], text: str, key: str, root, option: str, prefix: str = ""):
     hints = typing.get_type_hints(type(node))
     name = path[0]
     if name not in hints:
-        valid = ", ".join(_keys(root))
-        raise ValueError(f"--set {key}: unknown setting; valid keys: {valid}")
+        valid = setting_keys(root)
+        near = difflib.get_close_matches(key, valid, n=1, cutoff=0.6)
+        hint = f"did you mean {near[0]}? " if near else ""
+        raise ValueError(f"{option} {key}: unknown setting; {hint}valid keys: {', '.join(valid)}")
     current = getattr(node, name)
     if dataclasses.is_dataclass(current):
         if len(path) == 1:
-            raise ValueError(f"--set {key}: is a section; name one of its fields")
-        value = _replace_path(current, path[1:], text, key, root, f"{prefix}{name}.")
+            raise ValueError(f"{option} {key}: is a section; name one of its fields")
+        value = _replace_path(current, path[1:], text, key, root, option, f"{prefix}{name}.")
     elif len(path) > 1:
-        raise ValueError(f"--set {key}: {name} has no fields")
+        raise ValueError(f"{option} {key}: {name} has no fields")
     else:
         try:
             value = _parse_value(text, hints[name])
         except ValueError:
             expected, need = _EXPECTED[hints[name]], _need(node, name, hints[name], prefix)
-            raise ValueError(f"--set {key}={text}: expected {expected}; must be {need}") from None
+            raise ValueError(f"{option} {key}={text}: expected {expected}; must be {need}") from None
     return dataclasses.replace(node, **{name: value})
 
 

@@ -2,15 +2,19 @@
 
 The main process reports every unit as its record appears (``pipeline/monitor.py``), on every runner;
 a worker's own lines (``progress``) and Beam's log records are for ``--verbose`` runs only. The
-setting travels to worker processes in the environment (``VERBOSE_ENV``).
+setting travels to worker processes in the environment (``VERBOSE_ENV``); the worker processes the
+DirectRunner starts inherit a silenced stderr (``workers_silenced``).
 """
 
 from __future__ import annotations
 
+import contextlib
+import io
 import logging
 import os
 import sys
 import time
+from collections.abc import Iterator
 
 VERBOSE_ENV = "TAPVID3D_VERBOSE"
 # Loggers that speak on a worker: Beam's own, and the GCP client's import warning.
@@ -37,3 +41,37 @@ def quiet_worker_logs() -> None:
     level = logging.INFO if verbose() else logging.WARNING
     for name in NOISY_LOGGERS:
         logging.getLogger(name).setLevel(level)
+
+
+@contextlib.contextmanager
+def workers_silenced() -> Iterator[io.TextIOBase]:
+    """For the ``with`` block, file descriptor 2 goes to /dev/null (unless ``--verbose``): worker
+    processes started meanwhile inherit it, so Beam's harness lines and a worker's log stay out of
+    the user's terminal. Yields the stream the main process reports on: the real stderr."""
+    if verbose() or not _has_descriptor(sys.stderr):
+        yield sys.stderr
+        return
+    sys.stderr.flush()
+    saved = os.dup(2)
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    report = os.fdopen(os.dup(saved), "w", buffering=1)
+    os.dup2(devnull, 2)
+    os.close(devnull)
+    try:
+        yield report
+    finally:
+        with contextlib.suppress(OSError, ValueError):
+            report.flush()
+        sys.stderr.flush()
+        os.dup2(saved, 2)
+        os.close(saved)
+        with contextlib.suppress(OSError, ValueError):
+            report.close()
+
+
+def _has_descriptor(stream) -> bool:
+    try:
+        stream.fileno()
+    except (AttributeError, OSError, ValueError):
+        return False
+    return True

@@ -91,7 +91,8 @@ def select_objects(
 
     world_from_frame: [T, 4, 4] vehicle pose per camera frame (``poses.py``).
     wanted: object ids to consider (a release run's); None: every object of the segment.
-    Returns the runs and, for each wanted object left out, why.
+    Returns the runs and, for each object considered and left out (and each wanted id the segment
+    does not have), why.
     """
     rules = config.drivetrack
     boxes = unit.boxes
@@ -143,4 +144,4 @@ def select_objects(
             )
             continue
         runs.append(ObjectRun(object_id, start, stop, world_from_box[start:stop], lidar[start:stop]))
-    return runs, skipped if wanted is not None else {}
+    return runs, skipped

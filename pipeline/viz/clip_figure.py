@@ -255,7 +255,13 @@ def render_clip(
 
 
 def write_clip_figure(
-    clip_path: str, out: str, frame: int | None = None, max_tracks: int = 50, fps: float = 10.0, tail: int = 5
+    clip_path: str,
+    out: str,
+    frame: int | None = None,
+    max_tracks: int = 50,
+    fps: float = 10.0,
+    tail: int = 5,
+    limits: ReadLimits = DEFAULT_LIMITS,
 ) -> int:
     """Writes ``out`` (.png: one frame, default the middle one; .gif/.mp4: every frame).
 
@@ -264,7 +270,7 @@ def write_clip_figure(
     kind = os.path.splitext(out)[1].lower()
     if kind not in OUTPUT_KINDS:
         raise ValueError(f"unsupported output {out!r}: use one of {', '.join(OUTPUT_KINDS)}")
-    clip = load_clip(clip_path)
+    clip = load_clip(clip_path, limits=limits)
     num_frames = len(clip[IMAGES_KEY])
     name = os.path.splitext(os.path.basename(clip_path))[0]
     if kind == ".png":

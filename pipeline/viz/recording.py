@@ -31,6 +31,7 @@ import rerun as rr
 
 from pipeline.core.geometry import invert_se3, project
 from pipeline.core.images import jpeg_size
+from pipeline.export.clip_reader import DEFAULT_LIMITS, ReadLimits
 from pipeline.viz.clip_figure import IMAGES_KEY, load_clip, occluded_colors, select_tracks, track_colors
 
 APPLICATION_ID = "tapvid3d"
@@ -78,10 +79,16 @@ def log_camera(recording: rr.RecordingStream, clip: dict[str, np.ndarray], c2w: 
         recording.log("world/camera", rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3]))
 
 
-def write_recording(clip_path: str, out: str, max_tracks: int | None = None, tail: int = 5) -> int:
+def write_recording(
+    clip_path: str,
+    out: str,
+    max_tracks: int | None = None,
+    tail: int = 5,
+    limits: ReadLimits = DEFAULT_LIMITS,
+) -> int:
     """Writes the clip's recording to ``out`` (.rrd): every track, or ``max_tracks`` evenly spaced
     ones; trails through the last ``tail`` frames. Returns the number of frames."""
-    clip = load_clip(clip_path)
+    clip = load_clip(clip_path, limits=limits)
     tracks = clip["tracks_XYZ"].astype(np.float64)
     num_frames, num_tracks = tracks.shape[:2]
     chosen = np.arange(num_tracks) if max_tracks is None else select_tracks(num_tracks, max_tracks)

@@ -18,6 +18,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from pipeline.export.clip_reader import DEFAULT_LIMITS, ReadLimits
 from pipeline.viz.clip_figure import load_clip, world_tracks
 
 STATIC_MAX_SPREAD = 0.01  # of the track's median distance to the camera
@@ -46,7 +47,7 @@ def track_motion(clip: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, s
     return spread < STATIC_MAX_SPREAD * distance, speed, frame
 
 
-def dataset_stats(directory: str) -> dict[str, dict]:
+def dataset_stats(directory: str, limits: ReadLimits = DEFAULT_LIMITS) -> dict[str, dict]:
     """Statistics per source folder of ``directory`` holding clips, sources and clips in name order.
 
     Each value: ``clips`` (names), ``frames`` [C] and ``tracks`` [C] (int), ``static_share`` [C]
@@ -60,7 +61,7 @@ def dataset_stats(directory: str) -> dict[str, dict]:
             continue
         frames, tracks, static_share, speeds, coordinates = [], [], [], [], set()
         for path in paths:
-            clip = load_clip(path)
+            clip = load_clip(path, limits=limits)
             static, speed, frame = track_motion(clip)
             frames.append(clip["tracks_XYZ"].shape[0])
             tracks.append(clip["tracks_XYZ"].shape[1])
