@@ -56,10 +56,19 @@ class StrictParser(argparse.ArgumentParser):
         raise SystemExit(2)
 
     def parse_args(self, args=None, namespace=None):
+        args = sys.argv[1:] if args is None else list(args)
+        self.refuse_unknown_options(args)
         parsed, unknown = self.parse_known_args(args, namespace)
         if unknown:
             self.error(unknown_message(unknown, self.option_names()))
         return parsed
+
+    def refuse_unknown_options(self, args: list[str], also_valid: Iterable[str] = ()) -> None:
+        """Name an unknown option first, before any other problem (a missing argument) hides it."""
+        valid = {*self.option_names(), *also_valid}
+        unknown = [a for a in args if a.startswith("--") and a != "--" and a.split("=", 1)[0] not in valid]
+        if unknown:
+            self.error(unknown_message(unknown, valid))
 
 
 def beam_parser(error_class=UsageError) -> argparse.ArgumentParser:

@@ -65,7 +65,7 @@ def command_parser() -> StrictParser:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("--source", required=True, choices=sources.names())
+    parser.add_argument("--source", choices=sources.names(), help="the dataset to regenerate (required)")
     parser.add_argument("--input", help="source data (DriveTrack: a Waymo Open v2 split folder)")
     parser.add_argument("--output", default="tapvid3d_out", help="output folder (default %(default)s)")
     parser.add_argument(
@@ -112,6 +112,8 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
     args, rest = parser.parse_known_args(argv)
     beam_args = runner_args(rest)
     check_beam_args(beam_args, parser.option_names())
+    if args.source is None:
+        parser.error("the following arguments are required: --source")
     return args, beam_args
 
 

@@ -112,9 +112,7 @@ def test_a_bad_download_fails_the_sequence_and_a_rerun_completes(served, local_c
     assert result.returncode == 1
     (failure,) = failures(out)
     assert failure["unit"] == f"{SEQUENCE}/all_chunks"
-    assert failure["error"].startswith(
-        f"InputError: {SEQUENCE}/all_chunks: data group segmentation: {cause}"
-    )
+    assert failure["error"].startswith(f"InputError: {SEQUENCE}/all_chunks: data group segmentation: {cause}")
     assert os.listdir(scratch) == [] and not (out / "adt").exists()
     rerun = fetch_run(layout.url_file, out, scratch)
     assert rerun.returncode == 0, rerun.stderr[-3000:]
