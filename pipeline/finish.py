@@ -15,7 +15,6 @@ import json
 
 from pipeline import sources
 from pipeline.core.outcomes import FILTER_ORDER, Failure, UnitOutcome
-from pipeline.export.files import list_files, write_atomic
 from pipeline.export.layout import (
     clip_folder,
     failures_path,
@@ -24,6 +23,7 @@ from pipeline.export.layout import (
     run_record_path,
 )
 from pipeline.export.manifests import split_clips
+from pipeline.io.files import list_files, write_atomic
 from pipeline.release import Release, summary_line, tally, verdict_lines, verdicts
 from pipeline.resume import outcome_of, read_unit_record
 from pipeline.sources import UnitPlan

@@ -23,9 +23,10 @@ import apache_beam as beam
 from apache_beam.metrics import Metrics
 from apache_beam.options.pipeline_options import PipelineOptions
 
-from pipeline import sources, storage, unit
+from pipeline import sources, unit
 from pipeline.core.outcomes import FILTER_ORDER, UnitOutcome
 from pipeline.core.progress import quiet_worker_logs
+from pipeline.io import storage
 
 METRICS_NAMESPACE = "tapvid3d"
 COUNTERS = (

@@ -17,7 +17,7 @@ from collections.abc import Iterable, Mapping
 
 from pipeline.core.errors import InputError
 from pipeline.core.outcomes import FILTER_ORDER, ClipReport, UnitOutcome
-from pipeline.export.files import read_bytes
+from pipeline.io.files import read_bytes
 
 # The release's split names, in its file; ``full_test`` is what our manifests call ``full_eval``.
 SPLITS = ("minival", "full_eval")

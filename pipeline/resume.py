@@ -30,8 +30,6 @@ import pipeline
 from pipeline import sources
 from pipeline.core.config import RunConfig
 from pipeline.core.outcomes import ClipReport, Failure, UnitOutcome
-from pipeline.export.clip_reader import DEFAULT_LIMITS
-from pipeline.export.files import PARTIAL, is_abandoned, read_bytes, remove_quietly, write_atomic, writer_pid
 from pipeline.export.layout import (
     audit_path,
     clip_path,
@@ -41,6 +39,8 @@ from pipeline.export.layout import (
     unit_record_path,
 )
 from pipeline.export.validator import check_clip_bytes
+from pipeline.io.clip_reader import DEFAULT_LIMITS
+from pipeline.io.files import PARTIAL, is_abandoned, read_bytes, remove_quietly, write_atomic, writer_pid
 
 
 def sha256(data: bytes) -> str:
@@ -187,7 +187,7 @@ def write_unit_record(output: str, source: str, record: dict) -> None:
 
 
 def remove_partial_files(output: str, source: str, include_own: bool = False) -> int:
-    """Delete the hidden ``.<name>.partial-*`` temporaries (pipeline/export/files.py) that runs which
+    """Delete the hidden ``.<name>.partial-*`` temporaries (pipeline/io/files.py) that runs which
     are gone left in this source's folders and the shared manifests folder; a concurrent run's live
     temporaries stay. ``include_own`` also deletes this process's (it is stopping). Returns how many
     went."""

@@ -30,16 +30,17 @@ from apache_beam.metrics.metric import MetricsFilter
 from apache_beam.options.pipeline_options import DirectOptions, PipelineOptions, StandardOptions
 
 import pipeline
-from pipeline import graph, sources, storage
+from pipeline import graph, sources
 from pipeline.commandline import StrictParser, UsageError, check_beam_args
 from pipeline.core.config import RunConfig, SettingsError, with_overrides
 from pipeline.core.errors import InputError, OutputError, root_cause
 from pipeline.core.outcomes import FILTER_ORDER
 from pipeline.core.progress import quiet_worker_logs, set_verbose, workers_silenced
 from pipeline.core.sizes import format_bytes
-from pipeline.export.files import is_local, remove_quietly, write_atomic
 from pipeline.export.layout import failures_path, release_verdicts_path, run_record_path, sample_folder
 from pipeline.finish import FinishedRun, finish_run
+from pipeline.io import storage
+from pipeline.io.files import is_local, remove_quietly, write_atomic
 from pipeline.monitor import OUTPUT_CLOSED as OUTPUT_WENT_AWAY
 from pipeline.monitor import RunMonitor, watch_output_pipes
 from pipeline.release import Release, read_release

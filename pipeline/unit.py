@@ -22,10 +22,10 @@ from pipeline.core.outcomes import ClipReport, Failure, UnitClips, UnitOutcome
 from pipeline.core.progress import progress
 from pipeline.export.audit_table import encode_parquet, outcome_table
 from pipeline.export.depth_export import encode_depth
-from pipeline.export.files import remove_quietly, write_atomic
 from pipeline.export.layout import audit_path, check_clip_name, clip_path, depth_path
 from pipeline.export.npz_writer import clip_members, encode_npz
 from pipeline.filters.select import FilterOutcome, apply_filters
+from pipeline.io.files import remove_quietly, write_atomic
 from pipeline.resume import (
     finished_outcome,
     read_unit_record,

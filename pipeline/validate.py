@@ -13,9 +13,9 @@ import os
 import sys
 
 from pipeline.commandline import StrictParser
-from pipeline.export.clip_reader import add_limit_argument, limits_from
-from pipeline.export.files import file_size, is_local, list_files, read_bytes, write_atomic
 from pipeline.export.validator import FINDINGS, FLICKER_MAX_FRACTION, NO_FINDINGS, inspect_clip_bytes
+from pipeline.io.clip_reader import add_limit_argument, limits_from
+from pipeline.io.files import file_size, is_local, list_files, read_bytes, write_atomic
 
 
 def findings_table(rows: list[dict]) -> str:

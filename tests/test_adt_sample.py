@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import pytest
 
-from pipeline.export.clip_reader import read_clip_bytes
+from pipeline.io.clip_reader import read_clip_bytes
 from pipeline.run import main as run_main
 from pipeline.validate import main as validate_main
 from tests.adt_excerpt import SAMPLE, SETTINGS, needs_excerpt

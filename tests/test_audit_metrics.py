@@ -16,8 +16,8 @@ from pipeline.audit.metrics import (
     query_frame_indices,
     tapvid3d_metrics,
 )
-from pipeline.export.clip_reader import DEFAULT_LIMITS
 from pipeline.export.npz_writer import encode_npz
+from pipeline.io.clip_reader import DEFAULT_LIMITS
 
 # Evaluation-scale intrinsics with f = 100 px: at z = 2 m a d-pixel threshold is a 3D radius of
 # d * 2 / 100 m, i.e. 0.02, 0.04, 0.08, 0.16, 0.32 m for d = 1, 2, 4, 8, 16.

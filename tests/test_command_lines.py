@@ -150,10 +150,8 @@ def test_validate_takes_one_clip_and_says_what_is_missing(reference_run, tmp_pat
     from pipeline.validate import main as validate_main
 
     clip = sorted(
-
-            os.path.join(reference_run("pstudio"), "pstudio", n)
-            for n in clip_bytes(reference_run("pstudio"), "pstudio")
-
+        os.path.join(reference_run("pstudio"), "pstudio", n)
+        for n in clip_bytes(reference_run("pstudio"), "pstudio")
     )[0]
     assert validate_main([clip]) == 0
     missing = command("pipeline.validate", str(tmp_path / "absent"))

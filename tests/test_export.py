@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from pipeline.core.config import RunConfig, with_overrides
-from pipeline.export.clip_reader import read_clip_bytes
-from pipeline.export.files import write_atomic
 from pipeline.export.manifests import split_clips
 from pipeline.export.npz_writer import FixedWidthBytes, encode_npz
 from pipeline.export.validator import check_arrays, check_clip_bytes
+from pipeline.io.clip_reader import read_clip_bytes
+from pipeline.io.files import write_atomic
 from pipeline.release import parse_release
 
 INTRINSICS = np.array([100.0, 100.0, 50.0, 50.0])

@@ -14,9 +14,9 @@ import time
 import pytest
 
 from pipeline.core.errors import InputError
-from pipeline.export import files
-from pipeline.export.files import remove_quietly, temporary_path, write_atomic
 from pipeline.export.layout import check_clip_name
+from pipeline.io import files
+from pipeline.io.files import remove_quietly, temporary_path, write_atomic
 from pipeline.resume import remove_partial_files
 from tests.cli import REPO, run_pipeline
 

@@ -20,9 +20,9 @@ from PIL import Image
 
 from pipeline.audit.compare import main as compare_main
 from pipeline.core.errors import InputError
-from pipeline.export.clip_reader import read_clip_bytes
-from pipeline.export.given_queries import given_queries
-from pipeline.export.npz_reader import NpzError
+from pipeline.io.clip_reader import read_clip_bytes
+from pipeline.io.given_queries import given_queries
+from pipeline.io.npz_reader import NpzError
 from pipeline.run import main as run_main
 from pipeline.validate import main as validate_main
 from pipeline.viz.__main__ import main as viz_main

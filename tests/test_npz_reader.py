@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.export.npz_reader import NpzArchive
+from pipeline.io.npz_reader import NpzArchive
 
 
 @pytest.mark.parametrize("order", ["C", "F"])

@@ -11,7 +11,7 @@ from apache_beam.io.filesystems import FileSystems
 from apache_beam.options.pipeline_options import PipelineOptions
 from moto.server import ThreadedMotoServer
 
-from pipeline import storage
+from pipeline.io import storage
 from tests.cli import clip_bytes, run_pipeline
 
 BUCKET = "tapvid3d"

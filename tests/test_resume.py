@@ -12,8 +12,8 @@ import time
 
 import pytest
 
-from pipeline.export import files
 from pipeline.export.validator import check_clip_bytes
+from pipeline.io import files
 from pipeline.validate import main as validate_main
 from tests.bad_input import partial_files
 from tests.cli import REPO, clip_bytes, run_in_process

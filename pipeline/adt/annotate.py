@@ -29,7 +29,7 @@ from pipeline.core.clip import ClipRecord
 from pipeline.core.config import RunConfig
 from pipeline.core.errors import InputError
 from pipeline.core.outcomes import UnitClips
-from pipeline.export.given_queries import given_queries
+from pipeline.io.given_queries import given_queries
 from pipeline.sources import Wanted
 
 

@@ -31,7 +31,7 @@ from pipeline.core.errors import InputError
 from pipeline.core.geometry import in_image, invert_se3, project, unproject
 from pipeline.core.sampling import rng_for
 from pipeline.export.depth_export import dense_depth_mm, dense_record
-from pipeline.export.given_queries import given_queries, given_query_frames
+from pipeline.io.given_queries import given_queries, given_query_frames
 
 # ------------------------------------------------------------------------------------ pixels
 

@@ -17,7 +17,7 @@ and the median 3D error in metres (not a tapnet metric). As in tapnet:
 The median error is averaged over the clips whose prediction was read. A REF clip that cannot be
 read (tapnet's evaluator would stop there) is named and left out of the means (status
 ``ref_error``). Writes ``PREFIX.md`` and ``PREFIX.json`` (default prefix ``NEW_DIR/compare``).
-Nothing is unpickled and every size is bounded (``pipeline.export.clip_reader``): a prediction's
+Nothing is unpickled and every size is bounded (``pipeline.io.clip_reader``): a prediction's
 members may hold no more than REF's T frames and N tracks need. The frame size that sets the
 evaluation scale comes from REF's first JPEG header.
 
@@ -47,7 +47,7 @@ from pipeline.audit.metrics import (
 )
 from pipeline.commandline import StrictParser
 from pipeline.core.images import jpeg_size
-from pipeline.export.clip_reader import (
+from pipeline.io.clip_reader import (
     DEFAULT_LIMITS,
     FRAMES,
     ReadLimits,
@@ -56,8 +56,8 @@ from pipeline.export.clip_reader import (
     member_caps,
     read_clip_file,
 )
-from pipeline.export.files import is_local, list_files, read_bytes, write_atomic
-from pipeline.export.npz_reader import NpzArchive, NpzError
+from pipeline.io.files import is_local, list_files, read_bytes, write_atomic
+from pipeline.io.npz_reader import NpzArchive, NpzError
 
 NUMERIC_KEYS = ("queries_xyt", "tracks_XYZ", "visibility", "fx_fy_cx_cy")
 PREDICTION_KEYS = ("tracks_XYZ", "visibility")

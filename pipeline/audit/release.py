@@ -15,8 +15,8 @@ from collections import Counter
 
 from pipeline import sources
 from pipeline.commandline import StrictParser
-from pipeline.export.files import read_bytes
 from pipeline.export.layout import release_verdicts_path
+from pipeline.io.files import read_bytes
 from pipeline.release import SPLITS, STATUSES
 
 MAX_VERDICT_BYTES = 256 << 20

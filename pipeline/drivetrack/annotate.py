@@ -32,8 +32,8 @@ from pipeline.drivetrack.undistort import undistort_image, undistortion_maps
 from pipeline.drivetrack.unit_input import UnitInput
 from pipeline.drivetrack.visibility import track_visibility
 from pipeline.export.depth_export import sparse_record
-from pipeline.export.given_queries import given_queries
 from pipeline.filters.mask import agreement, on_mask
+from pipeline.io.given_queries import given_queries
 from pipeline.sources import Wanted
 
 log = logging.getLogger(__name__)

@@ -10,7 +10,7 @@ from pipeline.core.errors import InputError
 from pipeline.core.geometry import transform_points
 from pipeline.drivetrack.camera_model import UnitCamera
 from pipeline.drivetrack.objects import ObjectRun
-from pipeline.export.given_queries import given_query_frames
+from pipeline.io.given_queries import given_query_frames
 
 
 def match_given_queries(

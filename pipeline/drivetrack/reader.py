@@ -27,7 +27,7 @@ from apache_beam.io.filesystems import FileSystems
 
 from pipeline.core.errors import InputError
 from pipeline.drivetrack import columns as C
-from pipeline.export.files import open_binary
+from pipeline.io.files import open_binary
 
 # Rows decoded at a time: a TOP lidar row is a few MB of range image, a camera row one JPEG.
 BATCH_ROWS = 8

@@ -16,7 +16,7 @@ from pipeline.drivetrack.camera_model import UnitCamera
 from pipeline.drivetrack.evidence import LidarEvidence
 from pipeline.drivetrack.objects import ObjectRun
 from pipeline.drivetrack.unit_input import UnitInput
-from pipeline.export.files import read_input
+from pipeline.io.files import read_input
 
 MAX_CLOSING_PX = 63
 

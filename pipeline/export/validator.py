@@ -1,6 +1,6 @@
 """Check clips against every invariant of the released TAPVid-3D schema (docs/formats.md, section 1).
 
-Files are read with ``pipeline.export.clip_reader`` (nothing unpickled, sizes bounded by the
+Files are read with ``pipeline.io.clip_reader`` (nothing unpickled, sizes bounded by the
 clip's own T and N) and accepted as the release writes them: frames as a ``|S`` bytes array,
 float32 or float64 geometry, ``extrinsics_w2c`` optional (the release's ADT files have none),
 extra keys ignored.
@@ -13,9 +13,9 @@ import numpy as np
 from pipeline.core.config import FlickerConfig
 from pipeline.core.geometry import in_image, project
 from pipeline.core.images import jpeg_size
-from pipeline.export.clip_reader import DEFAULT_LIMITS, ReadLimits, read_clip_bytes
-from pipeline.export.npz_reader import NpzError
 from pipeline.filters.flicker import passes_flicker, visibility_flips
+from pipeline.io.clip_reader import DEFAULT_LIMITS, ReadLimits, read_clip_bytes
+from pipeline.io.npz_reader import NpzError
 
 REQUIRED_KEYS = ("images_jpeg_bytes", "queries_xyt", "tracks_XYZ", "visibility", "fx_fy_cx_cy")
 FLOATS = (np.dtype(np.float32), np.dtype(np.float64))

@@ -29,7 +29,7 @@ from pipeline.core.geometry import invert_se3, project, transform_points, unproj
 from pipeline.core.sampling import rng_for
 from pipeline.core.visibility import in_view
 from pipeline.export.depth_export import dense_depth_mm, dense_record
-from pipeline.export.given_queries import given_queries, given_query_frames
+from pipeline.io.given_queries import given_queries, given_query_frames
 from pipeline.pstudio.nearest import nearest_centres
 from pipeline.pstudio.render import render_depth_at, render_depth_image
 from pipeline.pstudio.splats import GaussianConstants, Splats2D, gaussian_constants, project_splats

@@ -14,8 +14,8 @@ from apache_beam.io.filesystems import FileSystems
 from pipeline.core.config import PstudioConfig
 from pipeline.core.errors import InputError
 from pipeline.core.images import check_jpeg
-from pipeline.export.files import open_binary, read_input
-from pipeline.export.npz_reader import NpzArchive, NpzError
+from pipeline.io.files import open_binary, read_input
+from pipeline.io.npz_reader import NpzArchive, NpzError
 from pipeline.pstudio.annotate import Gaussians, Views
 from pipeline.pstudio.masks import MASKS, unpack_mask
 
@@ -128,7 +128,7 @@ def read_views(input_root: str, sequence: str) -> tuple[Views, dict]:
 
 def read_gaussians(path: str, frames: int) -> Gaussians:
     """The Gaussians of params.npz, checked against T = ``frames`` and N = the Gaussians of
-    ``means3D`` from the members' headers before anything is read (``pipeline.export.npz_reader``:
+    ``means3D`` from the members' headers before anything is read (``pipeline.io.npz_reader``:
     no pickled objects, no allocation a header merely claims)."""
     if not FileSystems.exists(path):
         raise InputError(f"missing file {path}")

@@ -9,7 +9,7 @@ import os
 import sys
 
 from pipeline.commandline import StrictParser
-from pipeline.export.clip_reader import ReadLimits, add_limit_argument, limits_from
+from pipeline.io.clip_reader import ReadLimits, add_limit_argument, limits_from
 from pipeline.viz.clip_figure import OUTPUT_KINDS, write_clip_figure
 from pipeline.viz.recording import write_recording
 from pipeline.viz.stats_figure import dataset_stats, format_table, write_stats_figure

@@ -19,8 +19,8 @@ from PIL import Image
 
 from pipeline.core.geometry import invert_se3, project
 from pipeline.core.images import jpeg_size
-from pipeline.export.clip_reader import CLIP_KEYS, DEFAULT_LIMITS, ReadLimits, read_clip_file
 from pipeline.export.validator import structure_problems
+from pipeline.io.clip_reader import CLIP_KEYS, DEFAULT_LIMITS, ReadLimits, read_clip_file
 
 IMAGES_KEY = "images_jpeg_bytes"
 COLORMAP = "gist_rainbow"

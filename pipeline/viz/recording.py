@@ -31,7 +31,7 @@ import rerun as rr
 
 from pipeline.core.geometry import invert_se3, project
 from pipeline.core.images import jpeg_size
-from pipeline.export.clip_reader import DEFAULT_LIMITS, ReadLimits
+from pipeline.io.clip_reader import DEFAULT_LIMITS, ReadLimits
 from pipeline.viz.clip_figure import IMAGES_KEY, load_clip, occluded_colors, select_tracks, track_colors
 
 APPLICATION_ID = "tapvid3d"

@@ -18,7 +18,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from pipeline.export.clip_reader import DEFAULT_LIMITS, ReadLimits
+from pipeline.io.clip_reader import DEFAULT_LIMITS, ReadLimits
 from pipeline.viz.clip_figure import load_clip, world_tracks
 
 STATIC_MAX_SPREAD = 0.01  # of the track's median distance to the camera

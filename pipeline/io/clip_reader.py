@@ -11,8 +11,8 @@ from __future__ import annotations
 import argparse
 import dataclasses
 
-from pipeline.export.files import read_bytes
-from pipeline.export.npz_reader import NpzArchive, NpzError
+from pipeline.io.files import read_bytes
+from pipeline.io.npz_reader import NpzArchive, NpzError
 
 FRAMES = "images_jpeg_bytes"
 CLIP_KEYS = (FRAMES, "queries_xyt", "tracks_XYZ", "visibility", "fx_fy_cx_cy", "extrinsics_w2c")

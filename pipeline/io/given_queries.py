@@ -1,7 +1,7 @@
 """``--queries-from DIR``: the query points of existing clips, to re-annotate exactly those.
 
 The clip ``<DIR>/<source>/<clip>.npz`` (or ``<DIR>/<clip>.npz``) is matched by name; only its
-``queries_xyt`` member is read, through ``pipeline.export.clip_reader`` (nothing unpickled, its
+``queries_xyt`` member is read, through ``pipeline.io.clip_reader`` (nothing unpickled, its
 size bounded by the clip's own headers), so a released file or a stranger's works alike.
 """
 
@@ -11,8 +11,8 @@ import numpy as np
 from apache_beam.io.filesystems import FileSystems
 
 from pipeline.core.errors import InputError
-from pipeline.export.clip_reader import read_clip_file
-from pipeline.export.npz_reader import NpzError
+from pipeline.io.clip_reader import read_clip_file
+from pipeline.io.npz_reader import NpzError
 
 
 def given_queries(queries_from: str, source: str, clip: str) -> np.ndarray | None:
