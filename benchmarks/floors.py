@@ -126,7 +126,8 @@ def pstudio(spec: dict) -> dict:
 def adt(spec: dict) -> dict:
     from pipeline.adt.frames import open_reader
     from pipeline.adt.units import CHUNKS_PER_GROUP
-    from pipeline.core.config import RunConfig, with_overrides
+    from pipeline.core.config import with_overrides
+    from pipeline.settings import RunConfig
 
     config = with_overrides(RunConfig(), spec["overrides"])
     sequence, chunk = spec["unit"]

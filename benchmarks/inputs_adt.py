@@ -19,7 +19,7 @@ import numpy as np
 from benchmarks.units import UnitSetup
 from pipeline.adt.source import EXCERPT_SETTINGS, SHARED_EXCERPT, excerpt_path
 from pipeline.adt.units import CHUNKS_PER_GROUP
-from pipeline.core.config import RunConfig
+from pipeline.settings import RunConfig
 
 CHUNK_FRAMES = 300
 # Each repeated run opens and closes the sequence again (warm: the tables cached); the worker times

@@ -17,7 +17,8 @@ import time
 import numpy as np
 
 from pipeline.adt.source import EXCERPT_SETTINGS, SHARED_EXCERPT, excerpt_path
-from pipeline.core.config import RunConfig, with_overrides
+from pipeline.core.config import with_overrides
+from pipeline.settings import RunConfig
 
 
 def _timed(function, *args):

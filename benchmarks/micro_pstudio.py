@@ -16,9 +16,9 @@ import cv2
 import numba
 import numpy as np
 
-from pipeline.core.config import RunConfig
 from pipeline.pstudio.annotate import Gaussians, UnitInput, Views, annotate_unit, splats_in_view
 from pipeline.pstudio.render import render_depth_at, render_depth_image
+from pipeline.settings import RunConfig
 
 WIDTH, HEIGHT, FRAMES, CAMERAS = 640, 360, 150, 4
 REPEATS = 3  # runs of each render per timed frame; the fastest counts (the machine may be busy)

@@ -84,7 +84,8 @@ def run(spec: dict) -> dict:
 
         return {**measure(spec), "peak_rss": peak_rss()}
     from pipeline import sources
-    from pipeline.core.config import RunConfig, with_overrides
+    from pipeline.core.config import with_overrides
+    from pipeline.settings import RunConfig
     from pipeline.unit import UnitJob, run_group
 
     config = with_overrides(RunConfig(), spec["overrides"])

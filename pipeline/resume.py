@@ -23,12 +23,13 @@ import hashlib
 import json
 import os
 import time
+from typing import TYPE_CHECKING
 
 from apache_beam.io.filesystems import FileSystems
 
 import pipeline
 from pipeline import sources
-from pipeline.core.config import RunConfig
+from pipeline.core.config import settings_items
 from pipeline.core.outcomes import ClipReport, Failure, UnitOutcome
 from pipeline.export.layout import (
     audit_path,
@@ -42,21 +43,24 @@ from pipeline.export.validator import check_clip_bytes
 from pipeline.io.clip_reader import DEFAULT_LIMITS
 from pipeline.io.files import PARTIAL, is_abandoned, read_bytes, remove_quietly, write_atomic, writer_pid
 
+if TYPE_CHECKING:
+    from pipeline.settings import RunConfig
+
 
 def sha256(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
 def clip_settings(config, source: str) -> dict:
-    """The settings that decide the bytes of ``source``'s clips: every field of ``config`` but those
+    """The settings that decide the bytes of ``source``'s clips: every setting of ``config`` but those
     marked ``not_in_clips`` and the sections named after other sources."""
     others = set(sources.names()) - {source}
+    marked = {field.name: field.metadata for field in dataclasses.fields(config)}
     settings = {}
-    for field in dataclasses.fields(config):
-        value = getattr(config, field.name)
-        if field.metadata.get("clip_bytes", True) is False or field.name in others:
+    for name, value, _ in settings_items(config):
+        if marked.get(name, {}).get("clip_bytes", True) is False or name in others:
             continue
-        settings[field.name] = clip_settings(value, source) if dataclasses.is_dataclass(value) else value
+        settings[name] = clip_settings(value, source) if dataclasses.is_dataclass(value) else value
     return settings
 
 

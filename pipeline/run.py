@@ -32,7 +32,7 @@ from apache_beam.options.pipeline_options import DirectOptions, PipelineOptions,
 import pipeline
 from pipeline import graph, sources
 from pipeline.commandline import StrictParser, UsageError, check_beam_args
-from pipeline.core.config import RunConfig, SettingsError, with_overrides
+from pipeline.core.config import SettingsError, with_overrides
 from pipeline.core.errors import InputError, OutputError, root_cause
 from pipeline.core.outcomes import FILTER_ORDER
 from pipeline.core.progress import quiet_worker_logs, set_verbose, workers_silenced
@@ -45,6 +45,7 @@ from pipeline.monitor import OUTPUT_CLOSED as OUTPUT_WENT_AWAY
 from pipeline.monitor import RunMonitor, watch_output_pipes
 from pipeline.release import Release, read_release
 from pipeline.resume import remove_partial_files
+from pipeline.settings import RunConfig
 from pipeline.sources import NoSample, Source, UnitPlan
 from pipeline.unit import UnitJob
 

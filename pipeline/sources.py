@@ -1,20 +1,31 @@
 """The registry of sources: each dataset the pipeline regenerates clips from is one ``Source``.
 
-Everything that needs the list of sources (the command line, manifests, validate, sweep, the
-benchmarks) reads it here. A source is plain Python on arrays and files: it never imports the Beam
-shell (``pipeline.graph``) nor the per-unit driver (``pipeline.unit``), which sit above it.
-Built-in sources are imported on first use, so listing names costs no heavy import.
+Everything that needs the list of sources (the command line, the settings' sections, manifests,
+validate, sweep, compare, the benchmarks) reads it here. A built-in source is one package and one
+line of ``BUILT_IN``: ``<package>/source.py`` defines ``SOURCE``, ``<package>/settings.py`` its
+settings section ``SETTINGS``. A plug-in is registered at run time (``register``), or named in the
+environment (``PLUGINS_ENV``: modules defining ``SOURCE``), which worker processes inherit.
+A source is plain Python on arrays and files: it never imports the Beam shell (``pipeline.graph``)
+nor the per-unit driver (``pipeline.unit``), which sit above it. Built-in sources are imported on
+first use, so listing names and settings costs no heavy import.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import importlib
+import os
 from collections.abc import Callable, Iterable, Iterator, Mapping
+from typing import TYPE_CHECKING
 
 from pipeline.core.clip import ClipRecord
-from pipeline.core.config import RunConfig
 from pipeline.core.outcomes import UnitClips
+
+if TYPE_CHECKING:
+    from pipeline.settings import RunConfig
+
+# Modules defining a plug-in's ``SOURCE``, comma-separated, registered on the registry's first use.
+PLUGINS_ENV = "TAPVID3D_SOURCES"
 
 
 class NoSample(Exception):
@@ -68,6 +79,9 @@ class Source:
     group_of: unit -> the key of the units annotated together, in one worker, when inputs they
       share are cheaper read once (DriveTrack: a segment's cameras share its lidar); None: each
       unit alone.
+    settings: the dataclass of the source's settings section (``--set <name>.<field>``), or None.
+    bench: the module of the source's benchmark entry (``benchmarks/README``); default
+      ``benchmarks.<name>``.
     """
 
     name: str
@@ -78,6 +92,12 @@ class Source:
     mask_min_agreement: Callable[[RunConfig], float]
     sweepable: tuple[str, ...] = ()
     group_of: Callable[[object], object] | None = None
+    settings: type | None = None
+    bench: str = ""
+
+    @property
+    def bench_module(self) -> str:
+        return self.bench or f"benchmarks.{self.name}"
 
     def group_key(self, unit) -> str:
         """The key ``pipeline.graph`` groups ``unit`` under: its group's, else its own name."""
@@ -101,13 +121,15 @@ def one_by_one(
     return annotate_each
 
 
-# name -> module defining ``SOURCE``: adding a source is one folder and one line here.
+# name -> the package of a built-in source. Sources are listed in this order (tapnet's evaluation
+# order, in which its overall score sums the sources' means), then plug-ins.
 BUILT_IN = {
-    "adt": "pipeline.adt.source",
-    "drivetrack": "pipeline.drivetrack.source",
-    "pstudio": "pipeline.pstudio.source",
+    "drivetrack": "pipeline.drivetrack",
+    "adt": "pipeline.adt",
+    "pstudio": "pipeline.pstudio",
 }
 _registered: dict[str, Source] = {}
+_plugins_loaded = False
 
 
 def register(source: Source) -> Source:
@@ -120,15 +142,37 @@ def unregister(name: str) -> None:
     _registered.pop(name, None)
 
 
+def _load_plugins() -> None:
+    """Register the sources of the modules ``PLUGINS_ENV`` names (once per process)."""
+    global _plugins_loaded
+    if _plugins_loaded:
+        return
+    _plugins_loaded = True
+    for module in filter(None, (part.strip() for part in os.environ.get(PLUGINS_ENV, "").split(","))):
+        register(importlib.import_module(module).SOURCE)
+
+
 def names() -> tuple[str, ...]:
-    """Every source's name, sorted."""
-    return tuple(sorted({*BUILT_IN, *_registered}))
+    """Every source's name: the built-in ones in ``BUILT_IN``'s order, then plug-ins in the order
+    they were registered."""
+    _load_plugins()
+    return (*BUILT_IN, *(name for name in _registered if name not in BUILT_IN))
 
 
 def get(name: str) -> Source:
     """The source called ``name``; KeyError listing the known names otherwise."""
+    _load_plugins()
     if name in _registered:
         return _registered[name]
     if name not in BUILT_IN:
         raise KeyError(f"unknown source {name!r}; known: {', '.join(names())}")
-    return importlib.import_module(BUILT_IN[name]).SOURCE
+    return importlib.import_module(f"{BUILT_IN[name]}.source").SOURCE
+
+
+def settings_of(name: str) -> type | None:
+    """The settings section class of source ``name`` (None for a source without settings), read for
+    a built-in source from its light ``settings`` module."""
+    _load_plugins()
+    if name in _registered:
+        return _registered[name].settings
+    return importlib.import_module(f"{BUILT_IN[name]}.settings").SETTINGS

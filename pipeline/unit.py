@@ -14,9 +14,9 @@ import dataclasses
 import time
 import traceback
 from collections.abc import Iterator, Mapping
+from typing import TYPE_CHECKING
 
 from pipeline.core.clip import ClipRecord
-from pipeline.core.config import RunConfig
 from pipeline.core.errors import InputError, OutputError, root_cause
 from pipeline.core.outcomes import ClipReport, Failure, UnitClips, UnitOutcome
 from pipeline.core.progress import progress
@@ -35,6 +35,9 @@ from pipeline.resume import (
     write_unit_record,
 )
 from pipeline.sources import Source, Wanted
+
+if TYPE_CHECKING:
+    from pipeline.settings import RunConfig
 
 
 @dataclasses.dataclass(frozen=True)

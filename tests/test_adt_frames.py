@@ -14,7 +14,8 @@ from PIL import Image
 from pipeline.adt.reader import SequenceReader
 from pipeline.adt.rectify import Rectifier
 from pipeline.adt.source import EXCERPT_SETTINGS
-from pipeline.core.config import RunConfig, with_overrides
+from pipeline.core.config import with_overrides
+from pipeline.settings import RunConfig
 from tests.adt_excerpt import SAMPLE, needs_excerpt
 from tests.support.units import adt_clips
 

@@ -3,13 +3,14 @@
 import numpy as np
 import pytest
 
-from pipeline.core.config import RunConfig, with_overrides
+from pipeline.core.config import with_overrides
 from pipeline.drivetrack import annotate as A
 from pipeline.drivetrack.evidence import gather_lidar
 from pipeline.drivetrack.objects import select_objects
 from pipeline.drivetrack.poses import frame_poses
 from pipeline.filters.select import apply_filters, decide
 from pipeline.samples.waymo_world import SEGMENT
+from pipeline.settings import RunConfig
 from tests.support.units import drivetrack_clips, drivetrack_input
 from tests.waymo_truth import true_tracks, world_points
 

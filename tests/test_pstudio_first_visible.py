@@ -9,9 +9,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from pipeline.core.config import RunConfig
 from pipeline.pstudio import annotate
 from pipeline.pstudio.annotate import Gaussians, UnitInput, Views, track_first_visible, track_visibility
+from pipeline.settings import RunConfig
 from tests.test_pstudio_culling import HEIGHT, INTRINSICS, WIDTH, crowded_scene
 
 FRAMES = 4

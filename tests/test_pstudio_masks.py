@@ -10,11 +10,11 @@ import cv2
 import numpy as np
 import pytest
 
-from pipeline.core.config import RunConfig
 from pipeline.core.errors import InputError
 from pipeline.pstudio import masks, reader
 from pipeline.pstudio.annotate import annotate_unit
 from pipeline.pstudio.source import list_units
+from pipeline.settings import RunConfig
 from tests.support.units import pstudio_input
 
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.core.config import RunConfig
 from pipeline.core.geometry import project, rotation_from_roll_pitch_yaw, transform_points
 from pipeline.core.visibility import in_view
 from pipeline.pstudio.annotate import (
@@ -17,6 +16,7 @@ from pipeline.pstudio.annotate import (
     multiview_mask_fraction,
     track_visibility,
 )
+from pipeline.settings import RunConfig
 
 SIZE = 32
 FOCAL = 500.0

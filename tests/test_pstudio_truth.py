@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.core.config import RunConfig
 from pipeline.core.geometry import invert_se3, project, transform_points
 from pipeline.export.npz_writer import clip_arrays
 from pipeline.export.validator import check_arrays
@@ -13,6 +12,7 @@ from pipeline.filters.select import apply_filters
 from pipeline.pstudio.annotate import annotate_unit, multiview_mask_fraction
 from pipeline.pstudio.source import list_units
 from pipeline.samples.studio_world import FRAMES
+from pipeline.settings import RunConfig
 from tests.support.units import pstudio_input
 
 

@@ -7,12 +7,12 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from pipeline.core.config import RunConfig
 from pipeline.core.errors import InputError
 from pipeline.drivetrack import columns as C
 from pipeline.drivetrack.annotate import unit_camera
 from pipeline.drivetrack.reader import SegmentReader, list_segments, transforms_from_column
 from pipeline.samples.waymo_world import SEGMENT, camera_to_vehicle
+from pipeline.settings import RunConfig
 from tests.support.units import drivetrack_input
 
 

@@ -12,11 +12,11 @@ import os
 import pytest
 
 from pipeline import sources
-from pipeline.core.config import RunConfig
 from pipeline.core.errors import InputError
 from pipeline.core.outcomes import Failure, UnitClips
 from pipeline.export.layout import clip_path, failures_path
 from pipeline.run import main as run_main
+from pipeline.settings import RunConfig
 from pipeline.unit import UnitJob, run_group
 from tests.toy_source import TOY, annotate, write_sample
 

@@ -16,8 +16,8 @@ import cv2
 import numpy as np
 
 from pipeline.core.clip import ClipRecord
-from pipeline.core.config import RunConfig
 from pipeline.core.errors import InputError
+from pipeline.settings import RunConfig
 from pipeline.sources import Source, UnitPlan, one_by_one
 
 WIDTH, HEIGHT = 64, 48

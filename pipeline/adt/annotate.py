@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Iterator
+from typing import TYPE_CHECKING
 
 from pipeline.adt.download import fetch_sequence, plan_download, read_url_file
 from pipeline.adt.frames import OpenedSequence, close_sequence, open_sequence
@@ -26,11 +27,13 @@ from pipeline.adt.units import (
     unit_name,
 )
 from pipeline.core.clip import ClipRecord
-from pipeline.core.config import RunConfig
 from pipeline.core.errors import InputError
 from pipeline.core.outcomes import UnitClips
 from pipeline.io.given_queries import given_queries
 from pipeline.sources import Wanted
+
+if TYPE_CHECKING:
+    from pipeline.settings import RunConfig
 
 
 def _named(error: InputError, sequence: str, name: str) -> InputError:

@@ -4,6 +4,7 @@ frame in the stored camera (re-rendered RGB as JPEG, depth, ids, poses), read on
 from __future__ import annotations
 
 import dataclasses
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -11,7 +12,9 @@ import numpy as np
 from pipeline.adt.reader import SequenceReader
 from pipeline.adt.records import Frame, Instances
 from pipeline.adt.rectify import Rectifier, stored_cam_from_world
-from pipeline.core.config import RunConfig
+
+if TYPE_CHECKING:
+    from pipeline.settings import RunConfig
 
 JPEG_QUALITY = 95
 

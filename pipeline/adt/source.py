@@ -8,6 +8,7 @@ import operator
 import os
 
 from pipeline.adt.annotate import annotate_chunks
+from pipeline.adt.settings import AdtConfig
 from pipeline.adt.units import group_of, list_units, unit_name
 from pipeline.sources import NoSample, Source
 
@@ -58,5 +59,6 @@ SOURCE = Source(
     sample_input=sample_input,
     mask_min_agreement=operator.attrgetter("adt.mask_min_agreement"),
     sweepable=("adt.mask_min_agreement",),
+    settings=AdtConfig,
     group_of=group_of,
 )

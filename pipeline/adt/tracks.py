@@ -20,18 +20,22 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from pipeline.adt.records import Chunk, Frame, IdRuns, Instances
 from pipeline.adt.rectify import stored_intrinsics
+from pipeline.adt.settings import AdtConfig
 from pipeline.core.clip import ClipRecord
-from pipeline.core.config import AdtConfig, RunConfig
 from pipeline.core.errors import InputError
 from pipeline.core.geometry import in_image, invert_se3, project, unproject
 from pipeline.core.sampling import rng_for
 from pipeline.export.depth_export import dense_depth_mm, dense_record
 from pipeline.io.given_queries import given_queries, given_query_frames
+
+if TYPE_CHECKING:
+    from pipeline.settings import RunConfig
 
 # ------------------------------------------------------------------------------------ pixels
 

@@ -12,15 +12,18 @@ from __future__ import annotations
 import os
 import re
 import tempfile
+from typing import TYPE_CHECKING
 
 from pipeline.adt.download import is_url_file, plan_download, read_url_file
 from pipeline.adt.frames import open_reader
 from pipeline.adt.reader import list_sequences, required_files, v1_name
-from pipeline.core.config import RunConfig
 from pipeline.core.errors import InputError
 from pipeline.core.progress import progress
 from pipeline.core.sizes import format_bytes
 from pipeline.sources import UnitPlan
+
+if TYPE_CHECKING:
+    from pipeline.settings import RunConfig
 
 FETCHED = "url:"
 ALL_CHUNKS = -1

@@ -38,6 +38,7 @@ import sys
 
 import numpy as np
 
+from pipeline import sources as registry
 from pipeline.audit.metrics import (
     SCALINGS,
     eval_intrinsics,
@@ -65,8 +66,6 @@ TAPNET_KEYS = (*(f"{key}_{scaling}" for scaling in SCALINGS for key in ("aj", "a
 SUMMARY_KEYS = (*TAPNET_KEYS, "median_error_m")
 CLIP_ENTRY = re.compile(r"[^/\s]+/[^/\s]+\.npz")
 MAX_LIST_BYTES = 16 << 20
-# tapnet's default ``data_sources_to_evaluate``: the order its overall mean sums the sources in.
-SOURCE_ORDER = ("drivetrack", "adt", "pstudio")
 
 
 class ClipError(Exception):
@@ -222,10 +221,12 @@ def mean_row(rows: list[dict], source: str) -> dict:
 
 
 def summarise(rows: list[dict]) -> list[dict]:
-    """One row per source (tapnet's order, then others sorted), then ``all``: the mean of the
-    source means (as tapnet's ``main``) over the sources with a counted clip."""
+    """One row per source (the registry's order, tapnet's for the built-in sources; then others
+    sorted), then ``all``: the mean of the source means (as tapnet's ``main``) over the sources with a
+    counted clip."""
     present = {row["source"] for row in rows}
-    sources = [s for s in SOURCE_ORDER if s in present] + sorted(present - set(SOURCE_ORDER))
+    order = registry.names()
+    sources = [s for s in order if s in present] + sorted(present - set(order))
     per_source = [mean_row([row for row in rows if row["source"] == source], source) for source in sources]
     overall = {
         "source": "all",

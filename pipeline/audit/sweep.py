@@ -28,13 +28,14 @@ import pyarrow.parquet as pq
 
 from pipeline import sources
 from pipeline.commandline import StrictParser, closest
-from pipeline.core.config import RunConfig, SettingsError, config_from_dict, setting_keys, with_overrides
+from pipeline.core.config import SettingsError, config_from_dict, setting_keys, with_overrides
 from pipeline.core.errors import InputError
 from pipeline.core.outcomes import FILTER_ORDER
 from pipeline.export.layout import audit_path, run_record_path, sweep_folder
 from pipeline.filters.select import count_dropped, verdicts_from_stats
 from pipeline.io.files import list_files, read_bytes, write_atomic
 from pipeline.release import SPLITS, Release, read_release
+from pipeline.settings import RunConfig
 from pipeline.sources import Source
 
 

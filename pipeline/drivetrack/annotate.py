@@ -11,12 +11,12 @@ facing, not occluded), ``silhouette.py`` (object masks), ``queries.py`` and ``un
 from __future__ import annotations
 
 import logging
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
 from pipeline.core.clip import ClipRecord
-from pipeline.core.config import RunConfig
 from pipeline.core.geometry import transform_directions_batch, transform_points_batch
 from pipeline.core.images import check_jpeg
 from pipeline.core.outcomes import UnitClips
@@ -35,6 +35,9 @@ from pipeline.export.depth_export import sparse_record
 from pipeline.filters.mask import agreement, on_mask
 from pipeline.io.given_queries import given_queries
 from pipeline.sources import Wanted
+
+if TYPE_CHECKING:
+    from pipeline.settings import RunConfig
 
 log = logging.getLogger(__name__)
 

@@ -5,15 +5,18 @@ from __future__ import annotations
 
 import dataclasses
 from collections import Counter
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from pipeline.core.config import RunConfig
 from pipeline.core.errors import InputError
 from pipeline.core.geometry import transform_points
 from pipeline.drivetrack.boxes import box_corners_local, box_poses, longest_run
 from pipeline.drivetrack.camera_model import Projection, UnitCamera
 from pipeline.drivetrack.unit_input import UnitInput
+
+if TYPE_CHECKING:
+    from pipeline.settings import RunConfig
 
 
 @dataclasses.dataclass(frozen=True)

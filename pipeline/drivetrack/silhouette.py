@@ -4,12 +4,13 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import cv2
 import numpy as np
 from apache_beam.io.filesystems import FileSystems
 from scipy.spatial import cKDTree
 
-from pipeline.core.config import RunConfig
 from pipeline.core.geometry import in_image, transform_points
 from pipeline.core.images import decode_image
 from pipeline.drivetrack.camera_model import UnitCamera
@@ -17,6 +18,9 @@ from pipeline.drivetrack.evidence import LidarEvidence
 from pipeline.drivetrack.objects import ObjectRun
 from pipeline.drivetrack.unit_input import UnitInput
 from pipeline.io.files import read_input
+
+if TYPE_CHECKING:
+    from pipeline.settings import RunConfig
 
 MAX_CLOSING_PX = 63
 

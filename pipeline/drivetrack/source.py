@@ -5,13 +5,17 @@ from __future__ import annotations
 
 import operator
 import re
+from typing import TYPE_CHECKING
 
-from pipeline.core.config import RunConfig
 from pipeline.core.outcomes import UnitClips
 from pipeline.drivetrack.annotate import annotate_cameras, clip_name
 from pipeline.drivetrack.reader import SegmentReader, list_segments
+from pipeline.drivetrack.settings import DriveTrackConfig
 from pipeline.drivetrack.unit_input import UnitInput
 from pipeline.sources import Source, UnitPlan, Wanted
+
+if TYPE_CHECKING:
+    from pipeline.settings import RunConfig
 
 # A release clip name: tapvid3d_<segment>_<camera>_<object id>, the segment named as Waymo names
 # them (<context>_<start>_<ms>_<end>_<ms>); the object id may itself hold '_'.
@@ -116,5 +120,6 @@ SOURCE = Source(
     sample_input=sample_input,
     mask_min_agreement=operator.attrgetter("drivetrack.mask_min_agreement"),
     sweepable=("drivetrack.mask_min_agreement",),
+    settings=DriveTrackConfig,
     group_of=operator.itemgetter(0),
 )

@@ -7,14 +7,17 @@ The statistics stay with every candidate track, so an audit can replay other thr
 from __future__ import annotations
 
 import dataclasses
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from pipeline.core.clip import ClipRecord
-from pipeline.core.config import RunConfig
 from pipeline.core.outcomes import FILTER_ORDER
 from pipeline.core.sampling import choose_subset, rng_for
 from pipeline.filters.flicker import passes_flicker, visibility_flips
+
+if TYPE_CHECKING:
+    from pipeline.settings import RunConfig
 
 
 @dataclasses.dataclass

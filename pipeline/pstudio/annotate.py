@@ -18,12 +18,12 @@ from __future__ import annotations
 import dataclasses
 import functools
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
 
 from pipeline.core.clip import ClipRecord
-from pipeline.core.config import RunConfig
 from pipeline.core.errors import InputError
 from pipeline.core.geometry import invert_se3, project, transform_points, unproject
 from pipeline.core.sampling import rng_for
@@ -33,6 +33,9 @@ from pipeline.io.given_queries import given_queries, given_query_frames
 from pipeline.pstudio.nearest import nearest_centres
 from pipeline.pstudio.render import render_depth_at, render_depth_image
 from pipeline.pstudio.splats import GaussianConstants, Splats2D, gaussian_constants, project_splats
+
+if TYPE_CHECKING:
+    from pipeline.settings import RunConfig
 
 
 @dataclasses.dataclass

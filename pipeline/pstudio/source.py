@@ -7,13 +7,17 @@ from __future__ import annotations
 import dataclasses
 import operator
 from collections.abc import Iterator
+from typing import TYPE_CHECKING
 
-from pipeline.core.config import RunConfig
 from pipeline.core.errors import InputError
 from pipeline.core.outcomes import UnitClips
 from pipeline.pstudio.annotate import Gaussians, UnitInput, Views, annotate_unit, clip_name
 from pipeline.pstudio.reader import SequenceFiles, list_sequences, params_path, read_gaussians, read_views
+from pipeline.pstudio.settings import PstudioConfig
 from pipeline.sources import Source, UnitPlan, Wanted
+
+if TYPE_CHECKING:
+    from pipeline.settings import RunConfig
 
 # The camera of the one unit listed for a sequence whose train_meta.json cannot be read: that
 # unit fails with the reason, and the other sequences still run.
@@ -179,5 +183,6 @@ SOURCE = Source(
     sample_input=sample_input,
     mask_min_agreement=operator.attrgetter("pstudio.mask_min_agreement"),
     sweepable=("pstudio.mask_min_agreement",),
+    settings=PstudioConfig,
     group_of=group_of,
 )

@@ -5,12 +5,12 @@ from __future__ import annotations
 
 from pipeline.adt.annotate import annotate_chunks
 from pipeline.core.clip import ClipRecord
-from pipeline.core.config import RunConfig
 from pipeline.drivetrack.annotate import annotate_cameras
 from pipeline.drivetrack.source import load_units
 from pipeline.drivetrack.unit_input import UnitInput as DriveTrackInput
 from pipeline.pstudio.annotate import UnitInput as StudioInput
 from pipeline.pstudio.source import camera_input, open_sequence
+from pipeline.settings import RunConfig
 
 
 def _ok(result):

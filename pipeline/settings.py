@@ -1,0 +1,56 @@
+"""The run's settings: the run-wide fields, the filters' thresholds, and one section per source, named
+after it, that each source declares (``Source.settings``: ``pipeline/<source>/settings.py``).
+
+Read ``config.<source>.<field>``; set from the command line with ``--set <source>.<field>=value``.
+A source registered at run time (a plug-in) brings its section with it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from typing import Any
+
+from pipeline import sources
+from pipeline.core.config import FlickerConfig, not_in_clips, ranged, sections, settings_dict
+
+
+def default_sections() -> dict[str, Any]:
+    """Each registered source's section at its defaults, by source name."""
+    return {name: kind() for name in sources.names() if (kind := sources.settings_of(name)) is not None}
+
+
+@dataclasses.dataclass(frozen=True)
+class RunConfig:
+    """Everything that decides a run's output besides its input.
+
+    seed: every random choice is seeded from it and the clip's name.
+    splits_file: the release's splits JSON: the manifests follow its membership where clip names
+      match (``--release`` also restricts the run to its clips).
+    queries_from: a folder of existing clips whose queries are re-annotated instead of sampling
+      new ones (``--queries-from``); only clips found there are made.
+    export_depth: also write the depth each visibility test read (``--export-depth``).
+    minival_per_source: without a splits file, minival is a seeded draw of this many clips per
+      source; full_test holds every other clip.
+    min_tracks: a clip is written only when at least this many tracks pass the filters.
+    flicker: the flicker filter's threshold.
+    source_sections: each source's section, by name (``config.adt`` reads the ``adt`` one).
+    """
+
+    seed: int = ranged(0, "[0, 4294967295]")
+    splits_file: str = not_in_clips("")
+    queries_from: str = ""
+    export_depth: bool = not_in_clips(False)
+    minival_per_source: int = not_in_clips(50, "[0, 1000000]")
+    min_tracks: int = ranged(1, "[1, 100000]")
+    flicker: FlickerConfig = dataclasses.field(default_factory=FlickerConfig)
+    source_sections: Mapping[str, Any] = sections(default_sections)
+
+    def __getattr__(self, name: str):
+        held = self.__dict__.get("source_sections", {})
+        if name in held:
+            return held[name]
+        raise AttributeError(f"RunConfig has no setting or source section {name!r}")
+
+    def to_dict(self) -> dict:
+        return settings_dict(self)
