@@ -174,9 +174,8 @@ def measure_fixed_cost(spec: dict, config) -> dict:
     like the imports, so not a unit's cost (reported, not counted; the extrapolation would carry it
     6.6 times over). The first camera's records are read first, untimed, to call the camera model
     with the types a unit calls it with. first_calls_s / first_calls_cpu_s."""
-    from pipeline.drivetrack.annotate import unit_camera
-    from pipeline.drivetrack.depth import camera_occluded_lidar, nearest_depth_max4
-    from pipeline.drivetrack.source import load_units
+    from pipeline.drivetrack.annotate import load_units, unit_camera
+    from pipeline.drivetrack.visibility import camera_occluded_lidar, nearest_depth_max4
 
     segment, camera = spec["unit"][0]
     (unit,) = load_units(spec["input_root"], segment, [camera])

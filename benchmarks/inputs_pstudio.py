@@ -24,10 +24,11 @@ import numpy as np
 
 from benchmarks import micro_pstudio as scene
 from benchmarks.units import UnitSetup
-from pipeline.pstudio.annotate import UnitInput, splats_in_view
 from pipeline.pstudio.nearest import nearest_centres
+from pipeline.pstudio.records import UnitInput
 from pipeline.pstudio.render import render_depth_at
-from pipeline.pstudio.source import CAMERAS_PER_GROUP
+from pipeline.pstudio.tracks import splats_in_view
+from pipeline.pstudio.units import CAMERAS_PER_GROUP
 
 SEQUENCE = "dome"
 EXPERIMENT = "bench"

@@ -11,7 +11,7 @@ import time
 import numpy as np
 
 from pipeline.core.visibility import passes_relative_depth_test
-from pipeline.drivetrack.depth import dense_nearest_depth, max4_from_dense, nearest_depth_max4
+from pipeline.drivetrack.visibility import dense_nearest_depth, max4_from_dense, nearest_depth_max4
 
 WIDTH, HEIGHT, FOCAL = 1920, 1280, 2055.0
 

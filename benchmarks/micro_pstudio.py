@@ -16,8 +16,9 @@ import cv2
 import numba
 import numpy as np
 
-from pipeline.pstudio.annotate import Gaussians, UnitInput, Views, annotate_unit, splats_in_view
+from pipeline.pstudio.records import Gaussians, UnitInput, Views
 from pipeline.pstudio.render import render_depth_at, render_depth_image
+from pipeline.pstudio.tracks import annotate_unit, splats_in_view
 from pipeline.settings import RunConfig
 
 WIDTH, HEIGHT, FRAMES, CAMERAS = 640, 360, 150, 4

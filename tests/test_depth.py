@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from pipeline.drivetrack.depth import (
+from pipeline.drivetrack.visibility import (
     camera_occluded_lidar,
     dense_nearest_depth,
     max4_from_dense,
@@ -91,7 +91,7 @@ def test_the_cell_grid_finds_the_kd_trees_nearest_point_near_and_far():
     (the image around a lidar cluster): the nearest point is the KD-tree's."""
     from scipy.spatial import cKDTree
 
-    from pipeline.drivetrack.depth import depth_tree
+    from pipeline.drivetrack.visibility import depth_tree
 
     rng = np.random.default_rng(4)
     lidar_uv = np.concatenate([rng.normal([900, 900], [200, 40], (3000, 2)), rng.uniform(0, 1920, (30, 2))])

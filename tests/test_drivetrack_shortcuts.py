@@ -3,10 +3,9 @@
 import numpy as np
 
 from pipeline.core.geometry import invert_se3, rotation_from_roll_pitch_yaw, transform_points
-from pipeline.drivetrack.boxes import box_poses, inside_box
-from pipeline.drivetrack.depth import depth_tree, nearest_depth_max4
-from pipeline.drivetrack.evidence import box_points
-from pipeline.drivetrack.lidar import kept_poses, posed_points
+from pipeline.drivetrack.lidar import box_points, kept_poses, posed_points
+from pipeline.drivetrack.objects import box_poses, inside_box
+from pipeline.drivetrack.visibility import depth_tree, nearest_depth_max4
 
 
 def _plain_poses(pixel_pose, kept):

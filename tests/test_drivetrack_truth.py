@@ -5,9 +5,9 @@ import pytest
 
 from pipeline.core.config import with_overrides
 from pipeline.drivetrack import annotate as A
-from pipeline.drivetrack.evidence import gather_lidar
+from pipeline.drivetrack.camera_model import frame_poses
+from pipeline.drivetrack.lidar import gather_lidar
 from pipeline.drivetrack.objects import select_objects
-from pipeline.drivetrack.poses import frame_poses
 from pipeline.filters.select import apply_filters, decide
 from pipeline.samples.waymo_world import SEGMENT
 from pipeline.settings import RunConfig
@@ -107,8 +107,8 @@ def test_mask_filter_drops_planted_off_object_tracks(sample_split, world):
 def test_a_segments_cameras_share_one_lidar_read_and_make_the_same_clips(clips, sample_split, monkeypatch):
     """The graph's group (``annotate_segment``): the TOP lidar is streamed once for the three cameras,
     each frame once, and every clip is the one its camera makes alone."""
+    from pipeline.drivetrack.annotate import annotate_segment
     from pipeline.drivetrack.reader import SegmentReader
-    from pipeline.drivetrack.source import annotate_segment
 
     streamed = []
     original = SegmentReader.top_lidar_frames

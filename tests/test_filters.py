@@ -4,7 +4,7 @@ import numpy as np
 
 from pipeline.core.clip import ClipRecord
 from pipeline.core.config import with_overrides
-from pipeline.drivetrack.silhouette import adaptive_closing_px, silhouette_mask
+from pipeline.drivetrack.masks import adaptive_closing_px, silhouette_mask
 from pipeline.filters.flicker import passes_flicker, visibility_flips
 from pipeline.filters.mask import agreement, on_mask
 from pipeline.filters.select import apply_filters

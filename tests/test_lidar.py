@@ -5,11 +5,11 @@ import numpy as np
 
 from pipeline.drivetrack.lidar import (
     beam_inclinations,
+    range_image_normals,
     range_image_to_vehicle,
     sensor_points,
     top_lidar_world_points,
 )
-from pipeline.drivetrack.normals import range_image_normals
 from pipeline.drivetrack.reader import LidarCalibration, SegmentReader
 from pipeline.samples.waymo_world import SEGMENT, frame_time, lidar_to_vehicle, timestamp, world_from_camera
 

@@ -9,8 +9,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from pipeline.pstudio import annotate
-from pipeline.pstudio.annotate import Gaussians, UnitInput, Views, track_first_visible, track_visibility
+from pipeline.pstudio import tracks as annotate
+from pipeline.pstudio.records import Gaussians, UnitInput, Views
+from pipeline.pstudio.tracks import track_first_visible, track_visibility
 from pipeline.settings import RunConfig
 from tests.test_pstudio_culling import HEIGHT, INTRINSICS, WIDTH, crowded_scene
 

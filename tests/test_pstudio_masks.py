@@ -12,8 +12,8 @@ import pytest
 
 from pipeline.core.errors import InputError
 from pipeline.pstudio import masks, reader
-from pipeline.pstudio.annotate import annotate_unit
-from pipeline.pstudio.source import list_units
+from pipeline.pstudio.tracks import annotate_unit
+from pipeline.pstudio.units import list_units
 from pipeline.settings import RunConfig
 from tests.support.units import pstudio_input
 

@@ -7,15 +7,8 @@ import numpy as np
 
 from pipeline.core.geometry import project, rotation_from_roll_pitch_yaw, transform_points
 from pipeline.core.visibility import in_view
-from pipeline.pstudio.annotate import (
-    Gaussians,
-    UnitInput,
-    Views,
-    attach_queries,
-    camera_pixel,
-    multiview_mask_fraction,
-    track_visibility,
-)
+from pipeline.pstudio.records import Gaussians, UnitInput, Views
+from pipeline.pstudio.tracks import attach_queries, camera_pixel, multiview_mask_fraction, track_visibility
 from pipeline.settings import RunConfig
 
 SIZE = 32

@@ -9,8 +9,8 @@ from pipeline.core.geometry import invert_se3, project, transform_points
 from pipeline.export.npz_writer import clip_arrays
 from pipeline.export.validator import check_arrays
 from pipeline.filters.select import apply_filters
-from pipeline.pstudio.annotate import annotate_unit, multiview_mask_fraction
-from pipeline.pstudio.source import list_units
+from pipeline.pstudio.tracks import annotate_unit, multiview_mask_fraction
+from pipeline.pstudio.units import list_units
 from pipeline.samples.studio_world import FRAMES
 from pipeline.settings import RunConfig
 from tests.support.units import pstudio_input
@@ -125,8 +125,8 @@ def test_static_cameras_and_no_extrinsics(clips):
 def test_a_sequences_cameras_share_one_read_and_make_the_same_clips(clips, pstudio_sample, monkeypatch):
     """The graph's group (``annotate_sequence``): params.npz is read once for every camera, each
     mask decoded at most once, and every clip is the one its camera makes alone."""
+    import pipeline.pstudio.annotate as source
     import pipeline.pstudio.reader as reader
-    import pipeline.pstudio.source as source
     from pipeline.pstudio import masks
 
     root, _ = pstudio_sample

@@ -13,7 +13,7 @@ import pytest
 from pipeline.core.config import with_overrides
 from pipeline.drivetrack import columns as C
 from pipeline.drivetrack.annotate import unit_camera
-from pipeline.drivetrack.undistort import JPEG_QUALITY, undistort_image, undistortion_maps
+from pipeline.drivetrack.camera_model import JPEG_QUALITY, undistort_image, undistortion_maps
 from pipeline.export.npz_writer import clip_arrays
 from pipeline.export.validator import check_arrays, quality_findings
 from pipeline.samples.waymo_world import POSE_DELAY_S, SEGMENT, frame_time

@@ -20,16 +20,19 @@ from pipeline.core.clip import ClipRecord
 from pipeline.core.geometry import transform_directions_batch, transform_points_batch
 from pipeline.core.images import check_jpeg
 from pipeline.core.outcomes import UnitClips
-from pipeline.drivetrack.camera_model import UnitCamera
-from pipeline.drivetrack.draws import point_keys, query_draws
-from pipeline.drivetrack.evidence import CameraPass, LidarEvidence, gather_lidar_cameras
+from pipeline.drivetrack.camera_model import (
+    UnitCamera,
+    camera_from_world,
+    frame_poses,
+    undistort_image,
+    undistortion_maps,
+)
+from pipeline.drivetrack.lidar import CameraPass, LidarEvidence, gather_lidar_cameras
+from pipeline.drivetrack.masks import object_masks
 from pipeline.drivetrack.objects import ObjectRun, select_objects
-from pipeline.drivetrack.poses import camera_from_world, frame_poses
-from pipeline.drivetrack.queries import clip_queries
-from pipeline.drivetrack.silhouette import object_masks
-from pipeline.drivetrack.tracks import choose_points, point_pool
-from pipeline.drivetrack.undistort import undistort_image, undistortion_maps
-from pipeline.drivetrack.unit_input import UnitInput
+from pipeline.drivetrack.reader import SegmentReader
+from pipeline.drivetrack.records import UnitInput, clip_name
+from pipeline.drivetrack.tracks import choose_points, clip_queries, point_keys, point_pool, query_draws
 from pipeline.drivetrack.visibility import track_visibility
 from pipeline.export.depth_export import sparse_record
 from pipeline.filters.mask import agreement, on_mask
@@ -40,11 +43,6 @@ if TYPE_CHECKING:
     from pipeline.settings import RunConfig
 
 log = logging.getLogger(__name__)
-
-
-def clip_name(segment: str, camera: int, object_id: str) -> str:
-    """The release's DriveTrack clip name."""
-    return f"tapvid3d_{segment}_{camera}_{object_id}"
 
 
 def track_object(
@@ -221,3 +219,55 @@ def object_ids(unit: UnitInput, wanted: Wanted) -> frozenset[str] | None:
         return None
     prefix = clip_name(unit.segment, unit.camera, "")
     return frozenset(name[len(prefix) :] for name in wanted if name.startswith(prefix))
+
+
+def load_units(input_root: str, segment: str, cameras: list[int]) -> list[UnitInput | Exception]:
+    """What each camera's unit of one segment reads, or the exception that failed it: the segment's
+    shared files (calibration of the TOP lidar, vehicle poses, boxes) are read once, and a bad one
+    fails every camera; ``camera_image`` is read once, each camera failing on its own rows."""
+    reader = SegmentReader(input_root, segment)
+    try:
+        reader.check_components()
+        shared = {
+            "lidar_calibration": reader.lidar_calibration(),
+            "world_from_vehicle": reader.vehicle_poses(),
+            "boxes": reader.box_labels(),
+        }
+    except Exception as error:  # noqa: BLE001 - becomes each unit's failure
+        return [error] * len(cameras)
+    try:
+        every_frames = reader.cameras_frames(cameras)  # camera_image read once
+    except Exception as error:  # noqa: BLE001 - each camera's failure, after its calibration's
+        every_frames = [error] * len(cameras)
+    loaded: list[UnitInput | Exception] = []
+    for camera, frames in zip(cameras, every_frames, strict=True):
+        try:
+            calibration = reader.camera_calibration(camera)
+        except Exception as error:  # noqa: BLE001 - this camera's failure only
+            loaded.append(error)
+            continue
+        if isinstance(frames, Exception):
+            loaded.append(frames)
+            continue
+        loaded.append(
+            UnitInput(
+                segment, camera, calibration, frames=frames, lidar_frames=reader.top_lidar_frames, **shared
+            )
+        )
+    return loaded
+
+
+def annotate_segment(
+    input_root: str, units: list[tuple[str, int]], config: RunConfig, wanted: list[Wanted] | None = None
+) -> list[UnitClips | Exception]:
+    """The units of one segment annotated together (its lidar decoded once): per unit, its clips
+    or the exception that failed it; ``wanted``: per unit, the clips to make (None: every one)."""
+    segments = {segment for segment, _ in units}
+    if len(segments) != 1:
+        raise ValueError(f"annotate_segment takes the units of one segment, got {sorted(segments)}")
+    loaded = load_units(input_root, units[0][0], [camera for _, camera in units])
+    wanted = wanted or [None] * len(units)
+    readable = [item for item in loaded if not isinstance(item, Exception)]
+    readable_wanted = [w for item, w in zip(loaded, wanted, strict=True) if not isinstance(item, Exception)]
+    annotated = iter(annotate_cameras(readable, config, readable_wanted))
+    return [item if isinstance(item, Exception) else next(annotated) for item in loaded]

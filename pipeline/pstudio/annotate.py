@@ -1,348 +1,75 @@
-"""Panoptic Studio annotation of one (sequence, camera) unit, on arrays (no Beam, no files).
-
-1. Queries: pixels on the unit camera's foreground mask at random frames; the splats' median
-   depth (pipeline/pstudio/render.py) rendered at those pixels' centres; unprojected; attached
-   to the nearest foreground Gaussian centre at that frame (pipeline/pstudio/nearest.py). The
-   track is that centre at every frame, in the camera frame.
-2. Visibility per frame: in the image, in front, and |z - D(u, v)| < delta, with D the median
-   depth of all Gaussians at the track's projection, where the transmittance drops below 0.5
-   there (no hand term for this source).
-3. A candidate is kept only if it is visible at its own query frame; the query (x, y) is the
-   centre's projection there.
-4. Multi-view mask statistic: over every (frame, camera) pair where the centre projects into
-   the image, the fraction that lands on that camera's foreground mask.
-"""
+"""Annotate Panoptic Studio units: the cameras of one sequence together, its Gaussians read once and
+each mask decoded once (the multi-view mask statistic reads every camera's); per unit, as soon as it is
+made, its clip (``UnitClips``) or the exception that failed it (a bad train_meta.json or params.npz
+fails them all)."""
 
 from __future__ import annotations
 
 import dataclasses
-import functools
-from collections.abc import Callable
+from collections.abc import Iterator
 from typing import TYPE_CHECKING
 
-import numba
-import numpy as np
-
-from pipeline.core.clip import ClipRecord
 from pipeline.core.errors import InputError
-from pipeline.core.geometry import invert_se3, project, transform_points, unproject
-from pipeline.core.sampling import rng_for
-from pipeline.core.visibility import in_view
-from pipeline.export.depth_export import dense_depth_mm, dense_record
-from pipeline.io.given_queries import given_queries, given_query_frames
-from pipeline.pstudio.nearest import nearest_centres
-from pipeline.pstudio.render import render_depth_at, render_depth_image
-from pipeline.pstudio.splats import GaussianConstants, Splats2D, gaussian_constants, project_splats
+from pipeline.core.outcomes import UnitClips
+from pipeline.pstudio.reader import SequenceFiles, params_path, read_gaussians, read_views
+from pipeline.pstudio.records import Gaussians, UnitInput, Views
+from pipeline.pstudio.tracks import annotate_unit
+from pipeline.sources import Wanted
 
 if TYPE_CHECKING:
     from pipeline.settings import RunConfig
 
 
-@dataclasses.dataclass
-class Views:
-    """The sequence's static cameras (C of them): ids [C], fx_fy_cx_cy [C, 4], w2c [C, 4, 4]."""
+@dataclasses.dataclass(frozen=True)
+class LoadedSequence:
+    """What every camera's unit of a sequence shares: its views, its files (images, and masks
+    through the process's mask cache) and its Gaussians."""
 
-    camera_ids: np.ndarray
-    fx_fy_cx_cy: np.ndarray
-    w2c: np.ndarray
-    width: int
-    height: int
-
-    def index(self, camera_id: int) -> int:
-        return int(np.nonzero(self.camera_ids == camera_id)[0][0])
-
-
-@dataclasses.dataclass
-class Gaussians:
-    """Dynamic 3D Gaussians: means [T, N, 3], quaternions [T, N, 4] (w, x, y, z, unnormalised),
-    scales [N, 3], opacities [N], foreground [N] bool; ``constants`` (what no frame changes) is
-    computed on first use, once for every frame and camera."""
-
-    means: np.ndarray
-    quaternions: np.ndarray
-    scales: np.ndarray
-    opacities: np.ndarray
-    foreground: np.ndarray
-
-    @property
-    def num_frames(self) -> int:
-        return int(self.means.shape[0])
-
-    @functools.cached_property
-    def constants(self) -> GaussianConstants:
-        return gaussian_constants(self.scales, self.opacities)
-
-
-def clip_name(sequence: str, camera: int) -> str:
-    """The release's Panoptic Studio clip name."""
-    return f"{sequence}_{camera}"
-
-
-@dataclasses.dataclass
-class UnitInput:
-    """Everything one unit reads. ``mask(view, t)`` returns camera ``view``'s foreground mask
-    [H, W] bool at frame t; ``frames_jpeg`` are the unit camera's T frames."""
-
-    sequence: str
-    camera_id: int
+    name: str
     views: Views
+    files: SequenceFiles
+    frames: int
     gaussians: Gaussians
-    frames_jpeg: list[bytes]
-    mask: Callable[[int, int], np.ndarray]
-
-    @property
-    def clip_name(self) -> str:
-        return clip_name(self.sequence, self.camera_id)
 
 
-def splats_in_view(
-    unit: UnitInput, view: int, t: int, points_uv: np.ndarray | None = None, limits: np.ndarray | None = None
-) -> Splats2D:
-    """The Gaussians of frame t projected into camera ``view`` (all of them are occluders);
-    with ``points_uv`` [P, 2], only those that can reach the blocks of those points; with
-    ``limits`` [P], only those no deeper than a limit there (``project_splats``)."""
-    g, v = unit.gaussians, unit.views
-    return project_splats(
-        g.means[t],
-        g.quaternions[t],
-        g.constants,
-        v.w2c[view],
-        v.fx_fy_cx_cy[view],
-        v.width,
-        v.height,
-        points_uv,
-        limits,
-    )
+def load_sequence(input_root: str, sequence: str, config: RunConfig) -> LoadedSequence:
+    """Read a sequence's train_meta.json and Gaussians (params.npz); masks are read when asked."""
+    views, meta = read_views(input_root, sequence)
+    files = SequenceFiles(input_root, sequence, meta, views)
+    gaussians = read_gaussians(params_path(input_root, sequence, config.pstudio), len(meta["fn"]))
+    return LoadedSequence(sequence, views, files, len(meta["fn"]), gaussians)
 
 
-def attach_queries(
-    unit: UnitInput, attempts: int, config: RunConfig
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Draw ``attempts`` query pixels on the unit camera's mask at random frames; attach the
-    surface rendered at each pixel's centre to the nearest foreground Gaussian centre there.
-
-    Returns (query frames [A], Gaussian indices [A], attachment distances [A] in metres) for the
-    attempts that hit a surface within ``max_attach_distance_m`` of a centre, in draw order,
-    each Gaussian at most once.
-    """
-    view = unit.views.index(unit.camera_id)
-    intrinsics = unit.views.fx_fy_cx_cy[view]
-    world_from_cam = invert_se3(unit.views.w2c[view])
-    foreground = np.nonzero(unit.gaussians.foreground)[0]
-    rng = rng_for(config.seed, f"{unit.clip_name}/queries")
-    frames = rng.integers(0, unit.gaussians.num_frames, size=attempts)
-    draws = rng.random(attempts)
-    gaussian = np.full(attempts, -1)
-    distance = np.full(attempts, np.nan)
-    for t in np.unique(frames):
-        on_mask = np.flatnonzero(unit.mask(view, int(t)))  # row-major, as np.nonzero's (row, column)
-        picked = np.nonzero(frames == t)[0]
-        if not len(on_mask):
-            continue
-        choice = on_mask[np.minimum((draws[picked] * len(on_mask)).astype(np.int64), len(on_mask) - 1)]
-        rows, cols = np.divmod(choice, unit.views.width)
-        pixels = np.stack([cols, rows], axis=1) + 0.5
-        depth, surface = render_depth_at(splats_in_view(unit, view, int(t), pixels), pixels)
-        points = transform_points(world_from_cam, unproject(pixels[surface], depth[surface], intrinsics))
-        nearest_distance, nearest = nearest_centres(
-            unit.gaussians.means[t], foreground, points, config.pstudio.max_attach_distance_m
+def camera_input(opened: LoadedSequence, camera: int) -> UnitInput:
+    """One camera's unit of an opened sequence (its frames read now)."""
+    views = opened.views
+    if camera not in views.camera_ids:
+        raise InputError(
+            f"{opened.name}: camera {camera} is not in train_meta.json (cameras "
+            f"{views.camera_ids.tolist()}); held-out test cameras have no training masks"
         )
-        close = nearest_distance <= config.pstudio.max_attach_distance_m
-        gaussian[picked[surface][close]] = foreground[nearest[close]]
-        distance[picked[surface][close]] = nearest_distance[close]
-    hit = np.nonzero(gaussian >= 0)[0]
-    _, first = np.unique(gaussian[hit], return_index=True)
-    keep = hit[np.sort(first)]
-    return frames[keep], gaussian[keep], distance[keep]
+    view = views.index(camera)
+    frames = [opened.files.image(view, t) for t in range(opened.frames)]
+    return UnitInput(opened.name, camera, views, opened.gaussians, frames, opened.files.mask)
 
 
-def match_given_queries(unit: UnitInput, queries: np.ndarray, config: RunConfig) -> np.ndarray:
-    """The foreground Gaussian behind each given query [N, 3] (x, y, t): among the centres that
-    project within half a pixel of (x, y) at t, the one whose depth is nearest the rendered
-    depth there (the release moved each query onto its centre's projection); failing that, the
-    centre nearest the unprojected query point. Returns Gaussian indices [N]."""
-    view = unit.views.index(unit.camera_id)
-    intrinsics = unit.views.fx_fy_cx_cy[view]
-    world_from_cam = invert_se3(unit.views.w2c[view])
-    foreground = np.nonzero(unit.gaussians.foreground)[0]
-    frames = given_query_frames(queries, unit.gaussians.num_frames, unit.clip_name)
-    chosen = np.empty(len(queries), np.int64)
-    for t in np.unique(frames):
-        rows = np.nonzero(frames == t)[0]
-        pixels = queries[rows, :2]
-        depth, surface = render_depth_at(splats_in_view(unit, view, int(t), pixels), pixels)
-        centres = transform_points(
-            unit.views.w2c[view], unit.gaussians.means[t, foreground].astype(np.float64)
-        )
-        projected = project(centres, intrinsics)
-        for row, pixel, z, hit in zip(rows, pixels, depth, surface, strict=True):
-            near = np.nonzero((centres[:, 2] > 0) & (np.linalg.norm(projected - pixel, axis=1) <= 0.5))[0]
-            if len(near) and hit:
-                chosen[row] = foreground[near[np.argmin(np.abs(centres[near, 2] - z))]]
-            elif hit:
-                point = transform_points(world_from_cam, unproject(pixel[None], np.array([z]), intrinsics))
-                chosen[row] = foreground[nearest_centres(unit.gaussians.means[t], foreground, point)[1][0]]
-            else:
-                raise InputError(
-                    f"{unit.clip_name}: given query {row} at ({pixel[0]:.1f}, {pixel[1]:.1f}, t={t}) "
-                    "has no splat surface and no foreground centre within half a pixel"
-                )
-    return chosen
-
-
-def track_visibility(
-    unit: UnitInput, gaussians: np.ndarray, config: RunConfig
-) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
-    """Tracks [T, K, 3] (camera frame) of Gaussian centres [K] and their visibility [T, K]; with
-    ``export_depth``, also each frame's full depth map as uint16 millimetres [H, W], 0 where
-    there is no surface (else [])."""
-    view = unit.views.index(unit.camera_id)
-    intrinsics = unit.views.fx_fy_cx_cy[view]
-    frames = unit.gaussians.num_frames
-    tracks = np.empty((frames, len(gaussians), 3))
-    visible = np.zeros((frames, len(gaussians)), bool)
-    depth_maps = []
-    for t in range(frames):
-        tracks[t] = transform_points(
-            unit.views.w2c[view], unit.gaussians.means[t, gaussians].astype(np.float64)
-        )
-        seen = in_view(tracks[t], intrinsics, unit.views.width, unit.views.height)
-        pixels = project(tracks[t, seen], intrinsics)
-        # Where no splat takes the transmittance below 0.5 the depth is the 15 m background:
-        # nothing is seen there, whatever the track's depth. A median depth beyond z + delta fails
-        # the test whatever it is, so no splat deeper than that is projected or composited (the
-        # limit's micrometre covers rounding).
-        z, delta = tracks[t, seen, 2], config.pstudio.depth_delta_m
-        limits = z + delta + 1e-6
-        if config.export_depth:  # every splat, for the full frame; the same projection serves the tracks
-            splats = splats_in_view(unit, view, t)
-            depth_image, surface_image = render_depth_image(splats)
-            depth_maps.append(dense_depth_mm(np.where(surface_image, depth_image, np.nan)))
-        elif seen.any():
-            splats = splats_in_view(unit, view, t, pixels, limits)
-        if seen.any():
-            depth, surface = render_depth_at(splats, pixels, limits)
-            visible[t, seen] = surface & (np.abs(z - depth) < delta)
-    return tracks, visible, depth_maps
-
-
-def track_first_visible(
-    unit: UnitInput, query_frames: np.ndarray, gaussians: np.ndarray, wanted: int, config: RunConfig
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[np.ndarray]]:
-    """``track_visibility`` of the first ``wanted`` candidates (query frames [A], Gaussians [A],
-    in draw order) that are visible at their own query frame.
-
-    A track's visibility does not depend on the tracks computed with it, so the candidates are
-    tracked a batch at a time: the number still wanted and a margin (nearly every attached centre
-    is seen at its query frame: 705 of 709 on the bench's dome), more only if that fell short.
-    The candidates past the batches (there 276 of 709) are never tracked.
-
-    Returns (kept [V] indices into the candidates, V <= wanted, tracks [T, V, 3], visible
-    [T, V], the depth maps of ``track_visibility``, from the first batch).
-    """
-    kept, tracks, visible, depth_maps = [], [], [], None
-    done = found = 0
-    while depth_maps is None or (found < wanted and done < len(gaussians)):
-        short = wanted - found
-        batch = np.arange(done, min(len(gaussians), done + short + short // 16 + 8))
-        batch_config = config if depth_maps is None else dataclasses.replace(config, export_depth=False)
-        batch_tracks, batch_visible, maps = track_visibility(unit, gaussians[batch], batch_config)
-        depth_maps = maps if depth_maps is None else depth_maps
-        seen = np.nonzero(batch_visible[query_frames[batch], np.arange(len(batch))])[0][:short]
-        kept.append(batch[seen])
-        tracks.append(batch_tracks[:, seen])
-        visible.append(batch_visible[:, seen])
-        done, found = done + len(batch), found + len(seen)
-    return np.concatenate(kept), np.concatenate(tracks, axis=1), np.concatenate(visible, axis=1), depth_maps
-
-
-@numba.njit(cache=True, nogil=True)
-def camera_pixel(x, y, z, w2c, fx_fy_cx_cy):
-    """(u, v, depth) of the world point (x, y, z) in a camera (w2c [4, 4], fx_fy_cx_cy [4]):
-    ``transform_points`` then ``project``, bit for bit (each row's products summed as NumPy's
-    einsum sums them, (x + z) + y, then the translation; u = fx x / z + cx; NumPy 2.4's order,
-    tests/test_pstudio_pixels.py compares with those functions). u and v are meaningless where
-    the depth is not positive."""
-    depth = ((w2c[2, 0] * x + w2c[2, 2] * z) + w2c[2, 1] * y) + w2c[2, 3]
-    if not depth > 0:
-        return 0.0, 0.0, depth
-    px = ((w2c[0, 0] * x + w2c[0, 2] * z) + w2c[0, 1] * y) + w2c[0, 3]
-    py = ((w2c[1, 0] * x + w2c[1, 2] * z) + w2c[1, 1] * y) + w2c[1, 3]
-    return fx_fy_cx_cy[0] * px / depth + fx_fy_cx_cy[2], fx_fy_cx_cy[1] * py / depth + fx_fy_cx_cy[3], depth
-
-
-@numba.njit(cache=True, nogil=True)
-def _add_view(centres, w2c, fx_fy_cx_cy, width, height, mask, on_mask, seen_count):
-    """One camera's share of ``multiview_mask_fraction`` at one frame: for each centre [K, 3] in
-    front of it and inside its image [H, W] (``camera_pixel``), seen_count += 1 and on_mask +=
-    the mask at pixel (floor(u), floor(v))."""
-    for k in range(centres.shape[0]):
-        u, v, depth = camera_pixel(centres[k, 0], centres[k, 1], centres[k, 2], w2c, fx_fy_cx_cy)
-        if depth > 0 and u >= 0 and u < width and v >= 0 and v < height:
-            seen_count[k] += 1
-            on_mask[k] += mask[int(np.floor(v)), int(np.floor(u))]
-
-
-def multiview_mask_fraction(unit: UnitInput, gaussians: np.ndarray) -> np.ndarray:
-    """[K] fraction of (frame, camera) pairs with the centre in the image whose pixel
-    (floor(u), floor(v)) is on that camera's foreground mask (NaN when never in any image)."""
-    views = unit.views
-    w2c = np.ascontiguousarray(views.w2c, dtype=np.float64)
-    intrinsics = np.ascontiguousarray(views.fx_fy_cx_cy, dtype=np.float64)
-    on_mask = np.zeros(len(gaussians), np.int64)
-    seen_count = np.zeros(len(gaussians), np.int64)
-    for t in range(unit.gaussians.num_frames):
-        centres = unit.gaussians.means[t, gaussians].astype(np.float64)
-        for view in range(len(views.camera_ids)):
-            mask = unit.mask(view, t)
-            _add_view(
-                centres, w2c[view], intrinsics[view], views.width, views.height, mask, on_mask, seen_count
-            )
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(seen_count > 0, on_mask / seen_count, np.nan)
-
-
-def annotate_unit(unit: UnitInput, config: RunConfig) -> list[ClipRecord]:
-    """One candidate clip (oversampled tracks with their statistics) for the unit."""
-    settings = config.pstudio
-    wanted = settings.tracks_per_clip * settings.oversample
-    queries = given_queries(config.queries_from, "pstudio", unit.clip_name) if config.queries_from else None
-    if config.queries_from and queries is None:
-        return []
-    if queries is not None:
-        gaussians = match_given_queries(unit, queries, config)
-        query_frames, distance = queries[:, 2].astype(np.int64), np.full(len(queries), np.nan)
-        tracks, visible, depth_maps = track_visibility(unit, gaussians, config)
-        valid = np.arange(len(gaussians))
-    else:
-        query_frames, gaussians, distance = attach_queries(unit, 2 * wanted, config)
-        valid, tracks, visible, depth_maps = track_first_visible(
-            unit, query_frames, gaussians, wanted, config
-        )
-    query_frames, gaussians, distance = query_frames[valid], gaussians[valid], distance[valid]
-    view = unit.views.index(unit.camera_id)
-    intrinsics = unit.views.fx_fy_cx_cy[view]
-    query_xy = project(tracks[query_frames, np.arange(len(valid))], intrinsics)
-    frame_ids = np.arange(unit.gaussians.num_frames, dtype=np.int64)
-    clip = ClipRecord(
-        source="pstudio",
-        name=unit.clip_name,
-        unit=f"{unit.sequence}/camera_{unit.camera_id}",
-        images_jpeg=unit.frames_jpeg,
-        fx_fy_cx_cy=intrinsics,
-        image_size=(unit.views.width, unit.views.height),
-        extrinsics_w2c=None,
-        tracks_xyz=tracks,
-        visibility=visible,
-        queries_xyt=np.concatenate([query_xy, query_frames[:, None].astype(np.float64)], axis=1),
-        frame_ids=frame_ids,
-        track_stats={
-            "mask_agreement": multiview_mask_fraction(unit, gaussians),
-            "attach_distance_m": distance,
-            "gaussian_index": gaussians.astype(np.int64),
-        },
-        target_tracks=settings.tracks_per_clip,
-        given_queries=queries is not None,
-        depth_export=dense_record(depth_maps, frame_ids) if config.export_depth else None,
-    )
-    return [clip]
+def annotate_sequence(
+    input_root: str, units: list[tuple[str, int]], config: RunConfig, wanted: list[Wanted] | None = None
+) -> Iterator[UnitClips | Exception]:
+    """The cameras of one sequence annotated together: its Gaussians read once, each mask decoded
+    once (the multi-view mask statistic reads every camera's); per unit, as soon as it is made, its
+    clip or the exception that failed it (a bad train_meta.json or params.npz fails them all)."""
+    sequences = {sequence for sequence, _ in units}
+    if len(sequences) != 1:
+        raise ValueError(f"annotate_sequence takes the units of one sequence, got {sorted(sequences)}")
+    try:
+        opened = load_sequence(input_root, units[0][0], config)
+    except Exception as error:  # noqa: BLE001 - becomes each unit's failure
+        yield from [error] * len(units)
+        return
+    for _, camera in units:
+        try:
+            result = UnitClips(tuple(annotate_unit(camera_input(opened, camera), config)))
+        except Exception as error:  # noqa: BLE001 - this camera's failure only
+            result = error
+        yield result

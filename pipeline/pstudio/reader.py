@@ -15,8 +15,8 @@ from pipeline.core.errors import InputError
 from pipeline.core.images import check_jpeg
 from pipeline.io.files import open_binary, read_input
 from pipeline.io.npz_reader import NpzArchive, NpzError
-from pipeline.pstudio.annotate import Gaussians, Views
 from pipeline.pstudio.masks import MASKS, unpack_mask
+from pipeline.pstudio.records import Gaussians, Views
 from pipeline.pstudio.settings import PstudioConfig
 
 # More Gaussians than any Dynamic 3D Gaussians scene holds (a few hundred thousand): a header claiming

@@ -5,11 +5,10 @@ from __future__ import annotations
 
 from pipeline.adt.annotate import annotate_chunks
 from pipeline.core.clip import ClipRecord
-from pipeline.drivetrack.annotate import annotate_cameras
-from pipeline.drivetrack.source import load_units
-from pipeline.drivetrack.unit_input import UnitInput as DriveTrackInput
-from pipeline.pstudio.annotate import UnitInput as StudioInput
-from pipeline.pstudio.source import camera_input, open_sequence
+from pipeline.drivetrack.annotate import annotate_cameras, load_units
+from pipeline.drivetrack.records import UnitInput as DriveTrackInput
+from pipeline.pstudio.annotate import camera_input, load_sequence
+from pipeline.pstudio.tracks import UnitInput as StudioInput
 from pipeline.settings import RunConfig
 
 
@@ -31,7 +30,7 @@ def drivetrack_clips(unit: DriveTrackInput, config: RunConfig) -> list[ClipRecor
 
 def pstudio_input(input_root: str, sequence: str, camera: int, config: RunConfig) -> StudioInput:
     """What the (sequence, camera) unit reads."""
-    return camera_input(open_sequence(input_root, sequence, config), camera)
+    return camera_input(load_sequence(input_root, sequence, config), camera)
 
 
 def adt_clips(input_root: str, unit: tuple[str, int], config: RunConfig) -> list[ClipRecord]:

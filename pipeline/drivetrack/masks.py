@@ -14,9 +14,9 @@ from scipy.spatial import cKDTree
 from pipeline.core.geometry import in_image, transform_points
 from pipeline.core.images import decode_image
 from pipeline.drivetrack.camera_model import UnitCamera
-from pipeline.drivetrack.evidence import LidarEvidence
+from pipeline.drivetrack.lidar import LidarEvidence
 from pipeline.drivetrack.objects import ObjectRun
-from pipeline.drivetrack.unit_input import UnitInput
+from pipeline.drivetrack.records import UnitInput
 from pipeline.io.files import read_input
 
 if TYPE_CHECKING:

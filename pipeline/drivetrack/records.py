@@ -36,3 +36,8 @@ class UnitInput:
     @property
     def name(self) -> str:
         return f"{self.segment}/camera_{self.camera}"
+
+
+def clip_name(segment: str, camera: int, object_id: str) -> str:
+    """The release's DriveTrack clip name."""
+    return f"tapvid3d_{segment}_{camera}_{object_id}"

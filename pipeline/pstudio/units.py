@@ -1,0 +1,107 @@
+"""Panoptic Studio's units: (sequence, camera), their names and groups, listed from Dynamic 3D
+Gaussians' ``train_meta.json`` files (on a release run, only the pairs the release names)."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from pipeline.core.errors import InputError
+from pipeline.pstudio.reader import list_sequences, read_views
+from pipeline.pstudio.records import clip_name
+from pipeline.sources import UnitPlan
+
+if TYPE_CHECKING:
+    from pipeline.settings import RunConfig
+
+# The camera of the one unit listed for a sequence whose train_meta.json cannot be read: that
+# unit fails with the reason, and the other sequences still run.
+ALL_CAMERAS = -1
+# Cameras annotated together (by camera id: 0-2, 3-5, ...). A group reads params.npz once (1.7 GiB
+# for 150 frames of 300,000 Gaussians) and each mask once (a worker's mask cache then serves the
+# sequence's other groups); but a group is one worker's, and a benchmark has a handful of
+# sequences: a whole sequence per group left one worker of two idle (0.88x from 1 to 2 workers on
+# one sequence's units through the DirectRunner), groups of 3 keep ~9 per sequence to share out.
+CAMERAS_PER_GROUP = 3
+# The cameras Dynamic 3D Gaussians holds out for testing (its test_meta.json): no training masks.
+HELD_OUT_CAMERAS = (0, 10, 15, 30)
+
+
+def list_units(input_root: str, config: RunConfig, release: frozenset[str] | None = None) -> UnitPlan:
+    """Every (sequence, camera) pair: the cameras of train_meta.json, or ``pstudio.cameras``; on a
+    release run, only the pairs the release names (``<sequence>_<camera>``)."""
+    units, listed = [], {}
+    for sequence in list_sequences(input_root):
+        try:
+            listed[sequence] = [int(c) for c in read_views(input_root, sequence)[0].camera_ids]
+        except InputError:
+            listed[sequence] = None
+        cameras = config.pstudio.cameras or listed[sequence] or [ALL_CAMERAS]
+        units += [(sequence, camera) for camera in sorted(cameras)]
+    if release is None:
+        return UnitPlan(units)
+    return release_plan(units, listed, release, config)
+
+
+def _pair(name: str) -> tuple[str, int] | None:
+    """(sequence, camera id) of a Panoptic Studio clip name ``<sequence>_<camera>``, or None."""
+    sequence, sep, camera = name.rpartition("_")
+    return (sequence, int(camera)) if sep and sequence and camera.isdigit() else None
+
+
+def release_plan(
+    units: list[tuple[str, int]], listed: dict[str, list[int] | None], release: frozenset[str], config
+) -> UnitPlan:
+    """The units of ``units`` whose clip the release names, and why the other names make no clip.
+
+    listed: sequence of --input -> its train_meta.json cameras (None when it cannot be read: then
+    each named camera is a unit, which fails with the reason).
+    """
+    kept, absent, not_made = [], {}, {}
+    for name in sorted(release):
+        pair = _pair(name)
+        if pair is None:
+            absent[name] = "not a Panoptic Studio clip name (<sequence>_<camera id>)"
+            continue
+        sequence, camera = pair
+        if sequence not in listed:
+            absent[name] = f"sequence {sequence} is not in --input"
+        elif listed[sequence] is None:
+            kept.append((sequence, camera))
+        elif camera not in listed[sequence]:
+            held_out = " (a held-out test camera: no training masks)" if camera in HELD_OUT_CAMERAS else ""
+            absent[name] = (
+                f"camera {camera} is not among {sequence}'s train_meta.json cameras "
+                f"({_ranges(listed[sequence])}){held_out}"
+            )
+        elif (sequence, camera) not in units:
+            cameras = ",".join(str(c) for c in config.pstudio.cameras)
+            not_made[name] = f"camera {camera} is not in pstudio.cameras={cameras}"
+        else:
+            kept.append((sequence, camera))
+    kept.sort()
+    expected = {unit_name(unit): (clip_name(*unit),) for unit in kept}
+    return UnitPlan(kept, expected=expected, absent=absent, not_made=not_made)
+
+
+def _ranges(values: list[int]) -> str:
+    """``[0, 1, 2, 5]`` as ``0-2, 5``."""
+    parts, ordered = [], sorted(values)
+    start = previous = ordered[0]
+    for value in [*ordered[1:], None]:
+        if value is not None and value == previous + 1:
+            previous = value
+            continue
+        parts.append(f"{start}-{previous}" if previous > start else f"{start}")
+        if value is not None:
+            start = previous = value
+    return ", ".join(parts)
+
+
+def group_of(unit: tuple[str, int]) -> str:
+    """The group of a (sequence, camera) unit: its sequence and camera id // CAMERAS_PER_GROUP."""
+    sequence, camera = unit
+    return f"{sequence}/cameras_{camera // CAMERAS_PER_GROUP}"
+
+
+def unit_name(unit: tuple[str, int]) -> str:
+    return f"{unit[0]}/all_cameras" if unit[1] == ALL_CAMERAS else f"{unit[0]}/camera_{unit[1]}"
