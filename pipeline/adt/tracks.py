@@ -212,6 +212,146 @@ def check_given_queries(chunk, index, xy, depth, ids, instances: Instances, fram
         )
 
 
+@dataclasses.dataclass(frozen=True)
+class Queries:
+    """A chunk's queries, attached: pixel (x, y) [Q, 2], frame index [Q], the point in its object's
+    frame [Q, 3] and the object's id [Q] (in the given queries' order, or in draw order)."""
+
+    xy: np.ndarray
+    t: np.ndarray
+    points_object: np.ndarray
+    object_ids: np.ndarray
+
+
+@dataclasses.dataclass
+class FirstPass:
+    """What one read of a chunk's frames keeps: JPEGs [T], world-to-camera [T] x [4, 4], each frame
+    (ids as runs) with its human ids, exported depth [T] (``--export-depth``), and the queries."""
+
+    jpegs: list[bytes]
+    extrinsics: list[np.ndarray]
+    kept: list[tuple[Frame, frozenset[int]]]
+    depth_maps: list[np.ndarray]
+    queries: Queries
+
+
+def query_frames_of(chunk: Chunk, given: np.ndarray | None, config: RunConfig) -> np.ndarray:
+    """The frame index [Q] of each query: the given queries', or drawn uniformly (seeded)."""
+    num_frames = len(chunk.timestamps)
+    if given is not None:
+        return given_query_frames(given, num_frames, f"{chunk.unit} ({chunk.name})")
+    total = config.adt.oversample * config.adt.tracks_per_clip
+    return rng_for(config.seed, f"{chunk.name}/query_frames").integers(0, num_frames, total)
+
+
+def frame_queries(
+    chunk: Chunk,
+    t: int,
+    count: int,
+    frame: Frame,
+    runs: IdRuns,
+    instances: Instances,
+    given,
+    query_frames,
+    config,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Frame t's ``count`` queries: (x, y) [K, 2], depth [K] (metres), object id [K], and each one's
+    index among the given queries (or its draw order) [K]."""
+    rules = config.adt
+    if given is not None:
+        index = np.nonzero(query_frames == t)[0]
+        xy = given[index, :2]
+        rows, cols = pixel_at(xy, rules.image_size)
+        depth = sample_depth(frame.depth_m(), xy, max_spread=rules.depth_delta_m)
+        check_given_queries(chunk, index, xy, depth, frame.ids[rows, cols], instances, frame)
+    else:
+        dynamic_pool, static_pool = query_pixel_pools(frame, runs, instances)
+        rng = rng_for(config.seed, f"{chunk.name}/query_pixels/{t}")
+        flat = draw_query_pixels(dynamic_pool, static_pool, count, rules.dynamic_share, rng)
+        rows, cols = np.divmod(flat, rules.image_size)
+        xy = pixel_centres(rows, cols)
+        depth = frame.depth_mm[rows, cols].astype(np.float64) / 1000.0
+        index = np.arange(len(flat))
+    return xy, depth, frame.ids[rows, cols], index
+
+
+def object_poses(frame: Frame, ids: np.ndarray) -> np.ndarray:
+    """World-from-object poses [K, 4, 4] of the objects ``ids`` [K] (each looked up once)."""
+    if not len(ids):
+        return np.zeros((0, 4, 4))
+    posed, which = np.unique(ids, return_inverse=True)
+    return np.stack([frame.world_from_object[i] for i in posed.tolist()])[which]
+
+
+def first_pass(
+    chunk: Chunk, read_frame, read_jpeg, instances_of, given: np.ndarray | None, config: RunConfig
+) -> FirstPass:
+    """Read each frame once: encode it, keep it (ids as runs), draw (or match) its queries and
+    attach them to their objects."""
+    intrinsics = stored_intrinsics(config.adt.image_size, config.adt.focal)
+    query_frames = query_frames_of(chunk, given, config)
+    per_frame = np.bincount(query_frames, minlength=len(chunk.timestamps))
+    made = FirstPass([], [], [], [], Queries(*(np.zeros(0),) * 4))
+    q_xy, q_t, q_points, q_ids, q_index = [], [], [], [], []
+    for t, timestamp in enumerate(chunk.timestamps.tolist()):
+        made.jpegs.append(read_jpeg(timestamp))
+        frame = read_frame(timestamp)
+        made.extrinsics.append(frame.cam_from_world)
+        runs = IdRuns.of(frame.ids)
+        present = runs.unique()
+        instances = instances_of(present)
+        check_object_poses(frame, present, instances, chunk.unit)
+        made.kept.append((dataclasses.replace(frame, ids=runs), instances.human))
+        if config.export_depth:
+            made.depth_maps.append(dense_depth_mm(frame.depth_m()))
+        if not per_frame[t]:
+            continue
+        xy, depth, ids, index = frame_queries(
+            chunk, t, int(per_frame[t]), frame, runs, instances, given, query_frames, config
+        )
+        q_points.append(attach(xy, depth, intrinsics, frame.cam_from_world, object_poses(frame, ids)))
+        q_xy.append(xy)
+        q_t.append(np.full(len(xy), t, dtype=np.int64))
+        q_ids.append(ids)
+        q_index.append(index)
+    if not q_xy or not sum(len(x) for x in q_xy):
+        raise InputError(f"{chunk.unit}: no pixel with depth on an object in any frame; no query")
+    order = np.argsort(np.concatenate(q_index), kind="stable") if given is not None else slice(None)
+    made.queries = Queries(
+        np.concatenate(q_xy)[order],
+        np.concatenate(q_t)[order],
+        np.concatenate(q_points)[order],
+        np.concatenate(q_ids)[order],
+    )
+    return made
+
+
+def carry_tracks(
+    chunk: Chunk, kept: list[tuple[Frame, frozenset[int]]], queries: Queries, config: RunConfig
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every track through every kept frame: points [T, N, 3], visibility [T, N], and per track the
+    visible frames on its own object's pixels [N]."""
+    rules = config.adt
+    intrinsics = stored_intrinsics(rules.image_size, rules.focal)
+    count = len(queries.xy)
+    tracks = np.zeros((len(kept), count, 3))
+    visibility = np.zeros((len(kept), count), bool)
+    agree = np.zeros(count, np.int64)
+    unique_ids, track_object = np.unique(queries.object_ids, return_inverse=True)
+    for t, (frame, human) in enumerate(kept):
+        missing = [i for i in unique_ids.tolist() if i not in frame.world_from_object]
+        if missing:
+            raise InputError(f"{chunk.unit}: object {missing[0]} has no pose at t={frame.timestamp} ns")
+        poses = np.stack([frame.world_from_object[i] for i in unique_ids.tolist()])[track_object]
+        points = carry(queries.points_object, frame.cam_from_world, poses)
+        visible, on_own = frame_visibility(
+            points, queries.object_ids, frame.depth_m(), frame.ids, human, intrinsics, rules.depth_delta_m
+        )
+        tracks[t], visibility[t] = points, visible
+        agree += visible & on_own
+    return tracks, visibility, agree
+
+
 def annotate_chunk(
     chunk: Chunk,
     read_frame: Callable[[int], Frame],
@@ -227,109 +367,36 @@ def annotate_chunk(
       instances_of: the ids present in a frame [K] -> which are human / dynamic.
     """
     rules: AdtConfig = config.adt
-    size = rules.image_size
-    intrinsics = stored_intrinsics(size, rules.focal)
-    num_frames = len(chunk.timestamps)
     given = given_queries(config.queries_from, "adt", chunk.name) if config.queries_from else None
-    if given is not None:
-        query_frames = given_query_frames(given, num_frames, f"{chunk.unit} ({chunk.name})")
-    else:
-        total = rules.oversample * rules.tracks_per_clip
-        query_frames = rng_for(config.seed, f"{chunk.name}/query_frames").integers(0, num_frames, total)
-    per_frame = np.bincount(query_frames, minlength=num_frames)
-
-    # Pass 1: frames, queries, attachment; each frame kept (ids as runs, with its human ids).
-    jpegs, extrinsics, kept, depth_maps = [], [], [], []
-    q_xy, q_t, q_obj_points, q_ids, q_index = [], [], [], [], []
-    for t, timestamp in enumerate(chunk.timestamps.tolist()):
-        jpegs.append(read_jpeg(timestamp))
-        frame = read_frame(timestamp)
-        extrinsics.append(frame.cam_from_world)
-        runs = IdRuns.of(frame.ids)
-        present = runs.unique()
-        instances = instances_of(present)
-        check_object_poses(frame, present, instances, chunk.unit)
-        kept.append((dataclasses.replace(frame, ids=runs), instances.human))
-        if config.export_depth:
-            depth_maps.append(dense_depth_mm(frame.depth_m()))
-        if not per_frame[t]:
-            continue
-        if given is not None:
-            index = np.nonzero(query_frames == t)[0]
-            xy = given[index, :2]
-            rows, cols = pixel_at(xy, size)
-            depth = sample_depth(frame.depth_m(), xy, max_spread=rules.depth_delta_m)
-            check_given_queries(chunk, index, xy, depth, frame.ids[rows, cols], instances, frame)
-        else:
-            dynamic_pool, static_pool = query_pixel_pools(frame, runs, instances)
-            rng = rng_for(config.seed, f"{chunk.name}/query_pixels/{t}")
-            flat = draw_query_pixels(dynamic_pool, static_pool, int(per_frame[t]), rules.dynamic_share, rng)
-            rows, cols = np.divmod(flat, size)
-            xy = pixel_centres(rows, cols)
-            depth = frame.depth_mm[rows, cols].astype(np.float64) / 1000.0
-            index = np.arange(len(flat))
-        ids = frame.ids[rows, cols]
-        posed, which = np.unique(ids, return_inverse=True)  # each object's pose looked up once
-        poses = (
-            np.stack([frame.world_from_object[i] for i in posed.tolist()])[which]
-            if len(ids)
-            else np.zeros((0, 4, 4))
-        )
-        q_obj_points.append(attach(xy, depth, intrinsics, frame.cam_from_world, poses))
-        q_xy.append(xy)
-        q_t.append(np.full(len(xy), t, dtype=np.int64))
-        q_ids.append(ids)
-        q_index.append(index)
-    if not q_xy or not sum(len(x) for x in q_xy):
-        raise InputError(f"{chunk.unit}: no pixel with depth on an object in any frame; no query")
-    order = np.argsort(np.concatenate(q_index), kind="stable") if given is not None else slice(None)
-    xy, t_q = np.concatenate(q_xy)[order], np.concatenate(q_t)[order]
-    points_object, object_ids = np.concatenate(q_obj_points)[order], np.concatenate(q_ids)[order]
-    count = len(xy)
-
-    # Pass 2: every track through every kept frame.
-    tracks = np.zeros((num_frames, count, 3))
-    visibility = np.zeros((num_frames, count), bool)
-    agree = np.zeros(count, np.int64)
-    unique_ids, track_object = np.unique(object_ids, return_inverse=True)
-    for t, (frame, human) in enumerate(kept):
-        missing = [i for i in unique_ids.tolist() if i not in frame.world_from_object]
-        if missing:
-            raise InputError(f"{chunk.unit}: object {missing[0]} has no pose at t={frame.timestamp} ns")
-        poses = np.stack([frame.world_from_object[i] for i in unique_ids.tolist()])[track_object]
-        points = carry(points_object, frame.cam_from_world, poses)
-        visible, on_own = frame_visibility(
-            points, object_ids, frame.depth_m(), frame.ids, human, intrinsics, rules.depth_delta_m
-        )
-        tracks[t], visibility[t] = points, visible
-        agree += visible & on_own
-
+    made = first_pass(chunk, read_frame, read_jpeg, instances_of, given, config)
+    queries = made.queries
+    tracks, visibility, agree = carry_tracks(chunk, made.kept, queries, config)
     visible_frames = visibility.sum(axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
         agreement = np.where(visible_frames > 0, agree / np.maximum(visible_frames, 1), np.nan)
-    instances_all = instances_of(unique_ids)
+    dynamic_ids = instances_of(np.unique(queries.object_ids)).dynamic
     dynamic = (
-        np.isin(object_ids, list(instances_all.dynamic)) if instances_all.dynamic else np.zeros(count, bool)
+        np.isin(queries.object_ids, list(dynamic_ids)) if dynamic_ids else np.zeros(len(queries.xy), bool)
     )
     return ClipRecord(
         source="adt",
         name=chunk.name,
         unit=chunk.unit,
-        images_jpeg=jpegs,
-        fx_fy_cx_cy=intrinsics,
-        image_size=(size, size),
-        extrinsics_w2c=np.stack(extrinsics),
+        images_jpeg=made.jpegs,
+        fx_fy_cx_cy=stored_intrinsics(rules.image_size, rules.focal),
+        image_size=(rules.image_size, rules.image_size),
+        extrinsics_w2c=np.stack(made.extrinsics),
         tracks_xyz=tracks,
         visibility=visibility,
-        queries_xyt=np.concatenate([xy, t_q[:, None].astype(np.float64)], axis=1),
+        queries_xyt=np.concatenate([queries.xy, queries.t[:, None].astype(np.float64)], axis=1),
         frame_ids=np.asarray(chunk.timestamps, dtype=np.int64),
         track_stats={
             "mask_agreement": agreement,
             "visible_frames": visible_frames.astype(np.int64),
-            "object_id": object_ids.astype(np.uint64),
+            "object_id": queries.object_ids.astype(np.uint64),
             "dynamic": dynamic,
         },
         target_tracks=rules.tracks_per_clip,
         given_queries=given is not None,
-        depth_export=dense_record(depth_maps, chunk.timestamps) if config.export_depth else None,
+        depth_export=dense_record(made.depth_maps, chunk.timestamps) if config.export_depth else None,
     )

@@ -45,6 +45,49 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 
+def object_visibility(
+    unit: UnitInput, run: ObjectRun, evidence: LidarEvidence, camera: UnitCamera, seen, normals, config
+) -> np.ndarray:
+    """Visibility [T, N] of tracks seen as ``seen`` (one Projection per clip frame) whose box-frame
+    normals are ``normals`` [N, 3]: in view, facing the camera, not occluded in the lidar's depth."""
+    rules = config.drivetrack
+    frames = range(run.start, run.stop)
+    # Normals turn with the frame's pose (the camera turns by under a milliradian during a readout).
+    cam_from_box = camera.cam_from_world[run.start : run.stop] @ run.world_from_box
+    return track_visibility(
+        np.stack([s.points for s in seen]),
+        np.stack([s.pixels for s in seen]),
+        np.stack([s.in_view for s in seen]),
+        transform_directions_batch(cam_from_box, normals) if rules.facing_test else None,
+        [evidence.depth_uv[t] for t in frames],
+        [evidence.depth_z[t] for t in frames],
+        [evidence.depth_tree(t) for t in frames],
+        (unit.calibration.width, unit.calibration.height),
+        rules.occlusion_margin,
+    )
+
+
+def mask_agreement(
+    unit: UnitInput,
+    run: ObjectRun,
+    name: str,
+    evidence,
+    camera: UnitCamera,
+    uv: np.ndarray,
+    visibility,
+    config,
+) -> np.ndarray:
+    """Per track [N], the share of its visible frames on the object's mask (NaN without a mask)."""
+    masks, has_mask = object_masks(unit, run, name, evidence, camera, config)
+    on_object = np.stack(
+        [
+            on_mask(mask, uv[i]) if mask is not None else np.zeros(uv.shape[1], bool)
+            for i, mask in enumerate(masks)
+        ]
+    )
+    return agreement(on_object, visibility, has_mask)
+
+
 def track_object(
     unit: UnitInput,
     run: ObjectRun,
@@ -71,52 +114,30 @@ def track_object(
         return "--queries-from holds no clip of this name"  # it re-annotates only the clips it holds
     count = rules.oversample * rules.tracks_per_clip
     chosen = choose_points(pool.points, keys, given, run, camera, name, count)
-    world = transform_points_batch(run.world_from_box, pool.points[chosen])
-    seen = camera.project_frames(frames, world)
-    tracks = np.stack([s.points for s in seen])
+    seen = camera.project_frames(frames, transform_points_batch(run.world_from_box, pool.points[chosen]))
     uv = np.stack([s.pixels for s in seen])
-    # Normals turn with the frame's pose (the camera turns by under a milliradian during a readout).
-    cam_from_box = camera.cam_from_world[run.start : run.stop] @ run.world_from_box
-    depth_uv, depth_z = [evidence.depth_uv[t] for t in frames], [evidence.depth_z[t] for t in frames]
-    visibility = track_visibility(
-        tracks,
-        uv,
-        np.stack([s.in_view for s in seen]),
-        transform_directions_batch(cam_from_box, pool.normals[chosen]) if rules.facing_test else None,
-        depth_uv,
-        depth_z,
-        [evidence.depth_tree(t) for t in frames],
-        (unit.calibration.width, unit.calibration.height),
-        rules.occlusion_margin,
-    )
-    masks, has_mask = object_masks(unit, run, name, evidence, camera, config)
-    on_object = np.stack(
-        [
-            on_mask(mask, uv[i]) if mask is not None else np.zeros(len(chosen), bool)
-            for i, mask in enumerate(masks)
-        ]
-    )
-    calibration = unit.calibration
+    visibility = object_visibility(unit, run, evidence, camera, seen, pool.normals[chosen], config)
     frame_ids = unit.frames.timestamps[run.start : run.stop]
+    depth = [evidence.depth_uv[t] for t in frames], [evidence.depth_z[t] for t in frames]
     return ClipRecord(
         source="drivetrack",
         name=name,
         unit=unit.name,
         images_jpeg=[stored_jpegs[t] for t in frames],
-        fx_fy_cx_cy=calibration.fx_fy_cx_cy.copy(),
-        image_size=(calibration.width, calibration.height),
+        fx_fy_cx_cy=unit.calibration.fx_fy_cx_cy.copy(),
+        image_size=(unit.calibration.width, unit.calibration.height),
         extrinsics_w2c=camera.cam_from_world[run.start : run.stop].copy(),
-        tracks_xyz=tracks,
+        tracks_xyz=np.stack([s.points for s in seen]),
         visibility=visibility,
         queries_xyt=clip_queries(uv, visibility, given, query_draws(keys[chosen])),
         frame_ids=frame_ids.copy(),
         track_stats={
             "visible_frames": visibility.sum(axis=0).astype(np.int64),
-            "mask_agreement": agreement(on_object, visibility, has_mask),
+            "mask_agreement": mask_agreement(unit, run, name, evidence, camera, uv, visibility, config),
         },
         target_tracks=rules.tracks_per_clip,
         given_queries=given is not None,
-        depth_export=sparse_record(depth_uv, depth_z, frame_ids) if config.export_depth else None,
+        depth_export=sparse_record(*depth, frame_ids) if config.export_depth else None,
         track_keys=keys[chosen],
     )
 

@@ -459,44 +459,9 @@ def project_splats(
     wanted = wanted_blocks(points_uv, width, height)
     depth_limits = None if limits is None else block_limits(points_uv, limits, width, height)
     max_depth = np.inf if depth_limits is None else depth_limits[0, 0].max()
-    c = constants
-    flags = np.empty(len(means), np.bool_)
-    xs, ys, zs = np.ascontiguousarray(means.T)  # each contiguous, as the vectorised bounds want them
-    _candidates(
-        xs,
-        ys,
-        zs,
-        c.opacity,
-        c.reach,
-        c.max_variance,
-        w2c,
-        intrinsics,
-        int(width),
-        int(height),
-        float(max_depth),
-        wanted,
-        flags,
-    )
-    candidates = np.flatnonzero(flags)
-    out = np.empty((len(candidates), 10))
-    keep = np.empty(len(candidates), np.bool_)
-    _preprocess(
-        candidates,
-        means,
-        np.ascontiguousarray(quaternions),
-        c.scales,
-        c.opacity,
-        c.reach,
-        c.cutoff,
-        w2c,
-        intrinsics,
-        int(width),
-        int(height),
-        wanted,
-        depth_limits,
-        out,
-        keep,
-    )
+    view = (w2c, intrinsics, int(width), int(height))
+    candidates = cull(means, constants, view, float(max_depth), wanted)
+    out, keep = preprocess(candidates, means, quaternions, constants, view, wanted, depth_limits)
     rows = np.flatnonzero(keep)
     rows = rows[front_to_back(out[rows, 5])]
     kept = np.take(out, rows, axis=0)
@@ -511,6 +476,68 @@ def project_splats(
         width=int(width),
         height=int(height),
     )
+
+
+def cull(
+    means: np.ndarray, constants: GaussianConstants, view: tuple, max_depth: float, wanted: np.ndarray | None
+) -> np.ndarray:
+    """Indices [K] of the Gaussians (centres [N, 3]) that can touch the image of ``view`` (w2c,
+    fx_fy_cx_cy, width, height), no deeper than ``max_depth``, within the ``wanted`` blocks."""
+    w2c, intrinsics, width, height = view
+    c = constants
+    flags = np.empty(len(means), np.bool_)
+    xs, ys, zs = np.ascontiguousarray(means.T)  # each contiguous, as the vectorised bounds want them
+    _candidates(
+        xs,
+        ys,
+        zs,
+        c.opacity,
+        c.reach,
+        c.max_variance,
+        w2c,
+        intrinsics,
+        width,
+        height,
+        max_depth,
+        wanted,
+        flags,
+    )
+    return np.flatnonzero(flags)
+
+
+def preprocess(
+    candidates: np.ndarray,
+    means: np.ndarray,
+    quaternions: np.ndarray,
+    constants: GaussianConstants,
+    view: tuple,
+    wanted: np.ndarray | None,
+    depth_limits: np.ndarray | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The candidates' splats in the image: rows [K, 10] (x, y, conic a b c, depth, extent x y,
+    opacity, cutoff) and which are kept [K] (those that reach a wanted block, within its limit)."""
+    w2c, intrinsics, width, height = view
+    c = constants
+    out = np.empty((len(candidates), 10))
+    keep = np.empty(len(candidates), np.bool_)
+    _preprocess(
+        candidates,
+        means,
+        np.ascontiguousarray(quaternions),
+        c.scales,
+        c.opacity,
+        c.reach,
+        c.cutoff,
+        w2c,
+        intrinsics,
+        width,
+        height,
+        wanted,
+        depth_limits,
+        out,
+        keep,
+    )
+    return out, keep
 
 
 def inside_image(points_uv: np.ndarray, width: int, height: int) -> np.ndarray:
