@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from collections.abc import Mapping
+from typing import TYPE_CHECKING
 
 from pipeline import sources
 from pipeline.core.outcomes import FILTER_ORDER, Failure, UnitOutcome
@@ -29,14 +31,38 @@ from pipeline.resume import outcome_of, read_unit_record
 from pipeline.sources import UnitPlan
 from pipeline.unit import UnitJob
 
+if TYPE_CHECKING:
+    from pipeline.prepare import Provenance
+
 
 @dataclasses.dataclass(frozen=True)
-class FinishedRun:
-    """What ``finish_run`` wrote: the run record's summary and, on a release run, the verdict
-    counts (``release.tally``)."""
+class RunSummary:
+    """A run's totals over every planned unit, finished earlier ones included: units (resumed, failed),
+    clips (annotated, written, written below their target track count), tracks (candidates, dropped
+    per filter, passing every filter, written), failures, the manifests' entries per split and, on a
+    release run, the verdict counts (``release.tally``)."""
 
-    summary: dict
-    release: dict | None
+    units: int
+    units_resumed: int
+    units_failed: int
+    clips_annotated: int
+    clips_written: int
+    clips_below_target: int
+    candidate_tracks: int
+    dropped_by_filter: Mapping[str, int]
+    tracks_passing_filters: int
+    tracks_written: int
+    failures: int
+    manifests: Mapping[str, int] = dataclasses.field(default_factory=dict)
+    release: Mapping[str, int] | None = None
+
+    def to_json(self) -> dict:
+        record = dataclasses.asdict(self) | {"dropped_by_filter": dict(self.dropped_by_filter)}
+        if self.release is None:
+            del record["release"]
+        else:
+            record["release"] = {**self.release, "line": summary_line(self.release)}
+        return record
 
 
 def unit_outcomes(job: UnitJob, names: list[str]) -> dict[str, UnitOutcome | None]:
@@ -61,24 +87,24 @@ def all_failures(outcomes: dict[str, UnitOutcome | None]) -> list[Failure]:
     return sorted(found, key=lambda f: (f.unit, f.stage, f.clip, f.error))
 
 
-def summarize(outcomes: dict[str, UnitOutcome | None], failures: list[Failure]) -> dict:
+def summarize(outcomes: dict[str, UnitOutcome | None], failures: list[Failure]) -> RunSummary:
     """Run totals: units, clips, tracks kept and dropped by each filter, failures."""
     done = [outcome for outcome in outcomes.values() if outcome is not None]
     reports = [report for outcome in done for report in outcome.reports]
     written = [r for r in reports if r.written]
-    return {
-        "units": len(outcomes),
-        "units_resumed": sum(outcome.resumed for outcome in done),
-        "units_failed": sum(outcome is None or outcome.failed for outcome in outcomes.values()),
-        "clips_annotated": len(reports),
-        "clips_written": len(written),
-        "clips_below_target": sum(r.written_tracks < r.target_tracks for r in written),
-        "candidate_tracks": sum(r.candidates for r in reports),
-        "dropped_by_filter": {name: sum(r.dropped[name] for r in reports) for name in FILTER_ORDER},
-        "tracks_passing_filters": sum(r.passed for r in reports),
-        "tracks_written": sum(r.written_tracks for r in reports),
-        "failures": len(failures),
-    }
+    return RunSummary(
+        units=len(outcomes),
+        units_resumed=sum(outcome.resumed for outcome in done),
+        units_failed=sum(outcome is None or outcome.failed for outcome in outcomes.values()),
+        clips_annotated=len(reports),
+        clips_written=len(written),
+        clips_below_target=sum(r.written_tracks < r.target_tracks for r in written),
+        candidate_tracks=sum(r.candidates for r in reports),
+        dropped_by_filter={name: sum(r.dropped[name] for r in reports) for name in FILTER_ORDER},
+        tracks_passing_filters=sum(r.passed for r in reports),
+        tracks_written=sum(r.written_tracks for r in reports),
+        failures=len(failures),
+    )
 
 
 def write_manifests(output: str, config, release: Release | None, restricted: bool) -> dict[str, int]:
@@ -98,11 +124,11 @@ def write_manifests(output: str, config, release: Release | None, restricted: bo
 def finish_run(
     job: UnitJob,
     plan: UnitPlan,
-    provenance: dict,
+    provenance: Provenance,
     release: Release | None,
     restricted: bool,
     metrics: dict[str, int] | str,
-) -> FinishedRun:
+) -> RunSummary:
     """Write the failures, the release verdicts (a release run), the manifests and the run record.
 
     release: the release's clips (``--release``, or ``splits_file`` for the manifests alone).
@@ -116,7 +142,6 @@ def finish_run(
         failures_path(output, source),
         "".join(json.dumps(f.to_json(), sort_keys=True) + "\n" for f in failures).encode(),
     )
-    summary = summarize(outcomes, failures)
     counts = None
     if restricted and release is not None:
         rows = verdicts(
@@ -129,8 +154,8 @@ def finish_run(
         )
         write_atomic(release_verdicts_path(output, source), verdict_lines(rows))
         counts = tally(rows)
-        summary["release"] = counts | {"line": summary_line(counts)}
-    summary["manifests"] = write_manifests(output, job.config, release, restricted)
-    record = dict(provenance, summary=summary, metrics=metrics)
+    manifests = write_manifests(output, job.config, release, restricted)
+    summary = dataclasses.replace(summarize(outcomes, failures), manifests=manifests, release=counts)
+    record = dict(provenance.to_json(), summary=summary.to_json(), metrics=metrics)
     write_atomic(run_record_path(output, source), json.dumps(record, indent=2, sort_keys=True).encode())
-    return FinishedRun(summary, counts)
+    return summary

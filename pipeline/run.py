@@ -16,49 +16,44 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import dataclasses
 import logging
 import os
-import platform
 import sys
 import time
 import uuid
 
 import apache_beam as beam
-import numpy as np
 from apache_beam.metrics.metric import MetricsFilter
-from apache_beam.options.pipeline_options import DirectOptions, PipelineOptions, StandardOptions
 
-import pipeline
 from pipeline import graph, sources
 from pipeline.commandline import StrictParser, UsageError, check_beam_args
-from pipeline.core.config import SettingsError, with_overrides
+from pipeline.core.config import SettingsError
 from pipeline.core.errors import InputError, OutputError, root_cause
 from pipeline.core.outcomes import FILTER_ORDER
 from pipeline.core.progress import quiet_worker_logs, set_verbose, workers_silenced
-from pipeline.core.sizes import format_bytes
-from pipeline.export.layout import failures_path, release_verdicts_path, run_record_path, sample_folder
-from pipeline.finish import FinishedRun, finish_run
-from pipeline.io import storage
-from pipeline.io.files import is_local, remove_quietly, write_atomic
+from pipeline.export.layout import failures_path, release_verdicts_path, run_record_path
+from pipeline.finish import RunSummary, finish_run
 from pipeline.monitor import OUTPUT_CLOSED as OUTPUT_WENT_AWAY
 from pipeline.monitor import RunMonitor, watch_output_pipes
-from pipeline.release import Release, read_release
+from pipeline.prepare import (
+    CannotStart,
+    PreparedRun,
+    plan_units,
+    prepare_run,
+    provenance,
+    runner_args,
+    sample_input,
+    scratch_line,
+)
+from pipeline.release import summary_line
 from pipeline.resume import remove_partial_files
 from pipeline.settings import RunConfig
-from pipeline.sources import NoSample, Source, UnitPlan
+from pipeline.sources import NoSample, UnitPlan
 from pipeline.unit import UnitJob
 
-DASK_RUNNER = "apache_beam.runners.dask.dask_runner.DaskRunner"
-PROBE_BYTES = 4 << 20
 NOTHING_PRODUCED, INTERRUPTED, OUTPUT_CLOSED = 3, 130, 141
 
 log = logging.getLogger("pipeline")
-
-
-class CannotStart(Exception):
-    """The run cannot start (a bad option or setting, a missing input, an unwritable output); the
-    message is one line, printed as ``cannot start: <message>`` with exit status 2."""
 
 
 def command_parser() -> StrictParser:
@@ -119,170 +114,12 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
     return args, beam_args
 
 
-@dataclasses.dataclass(frozen=True)
-class PreparedRun:
-    """Everything checked before any work: the source, settings, paths, release and Beam options."""
-
-    source: Source
-    config: RunConfig
-    input_root: str | None
-    output: str
-    release: Release | None
-    restricted: bool
-    overwrite: bool
-    beam_args: list[str]
-    options: PipelineOptions
-
-
 def configure_logging(verbose: bool) -> None:
     logging.basicConfig(
         level=logging.INFO, force=True, format="%(asctime)s %(levelname)s %(message)s", datefmt="%H:%M:%S"
     )
     set_verbose(verbose)
     quiet_worker_logs()
-
-
-def runner_args(beam_args: list[str]) -> list[str]:
-    """Beam options with our defaults: the DirectRunner when none is named; ``DaskRunner`` as a
-    short name for Beam's Dask runner, whose units go one per partition unless told otherwise (its
-    default packs 128 elements in a partition, i.e. the whole run on one worker)."""
-    args = [a.replace("DaskRunner", DASK_RUNNER) if a.endswith("DaskRunner") else a for a in beam_args]
-    if not any(a.startswith("--runner") for a in args):
-        args = ["--runner", "DirectRunner", *args]
-    on_dask = DASK_RUNNER in args or f"--runner={DASK_RUNNER}" in args
-    if on_dask and not any(a.startswith(("--dask_npartitions", "--dask_partition_size")) for a in args):
-        args.append("--dask_partition_size=1")
-    return args
-
-
-def absolute(path: str) -> str:
-    """A local path made absolute (workers may run elsewhere); remote URLs unchanged."""
-    return os.path.abspath(path) if path and is_local(path) else path
-
-
-def check_writable(output: str) -> None:
-    """CannotStart unless ``output`` takes a real write of PROBE_BYTES (a full disk fails here, not
-    after hours of work), which is then removed."""
-    if is_local(output) and os.path.isfile(output):
-        raise CannotStart(f"--output {output} is a file, not a folder")
-    probe = f"{output}/.write_probe-{os.getpid()}"
-    try:
-        write_atomic(probe, os.urandom(PROBE_BYTES))
-    except OSError as error:
-        raise CannotStart(f"output folder {output} is not writable ({error.strerror or error})") from None
-    remove_quietly([probe])
-
-
-def check_inputs(input_root: str | None, config: RunConfig) -> None:
-    """CannotStart unless every local path the run will read exists."""
-    paths = {
-        "--input": input_root,
-        "--queries-from": config.queries_from,
-        "pstudio.params_dir": config.pstudio.params_dir,
-        "drivetrack.masks_dir": config.drivetrack.masks_dir,
-        "splits_file": config.splits_file,
-    }
-    for what, path in paths.items():
-        if path:
-            storage.check_scheme(path)
-        if path and is_local(path) and not os.path.exists(path):
-            raise CannotStart(f"{what} {path} does not exist")
-
-
-def settings(args: argparse.Namespace) -> tuple[RunConfig, Release | None]:
-    """The run's config (defaults, ``--set``, the command's flags) and the release it follows."""
-    config = with_overrides(RunConfig(), args.overrides)
-    splits = absolute(args.release or "") or absolute(config.splits_file)
-    if args.release and config.splits_file and absolute(config.splits_file) != splits:
-        raise CannotStart("--release and --set splits_file name different files; give one")
-    config = dataclasses.replace(
-        config,
-        export_depth=config.export_depth or args.export_depth,
-        queries_from=absolute(args.queries_from or ""),
-        splits_file=splits,
-    )
-    check_inputs(args.input, config)
-    return config, read_release(splits, "--release" if args.release else "splits_file") if splits else None
-
-
-def prepare_run(args: argparse.Namespace, beam_args: list[str]) -> PreparedRun:
-    """Check everything before any work; CannotStart (or SettingsError, InputError) says what is
-    wrong."""
-    source = sources.get(args.source)
-    options = PipelineOptions(beam_args)
-    storage.use_options(options)
-    output = absolute(args.output)
-    storage.check_scheme(output)
-    config, release = settings(args)
-    check_writable(output)
-    if args.input is None and not is_local(output):
-        raise CannotStart(
-            f"the embedded sample world is written under a local --output; with {output} pass --input "
-            "(a copy of the sample uploaded there works)"
-        )
-    input_root = args.input if args.input is None or "://" in args.input else os.path.abspath(args.input)
-    return PreparedRun(
-        source, config, input_root, output, release, bool(args.release), args.overwrite, beam_args, options
-    )
-
-
-def sample_input(prepared: PreparedRun) -> str:
-    """The run's input root: ``--input``, or the embedded sample world (written once, announced)."""
-    if prepared.input_root is not None:
-        return prepared.input_root
-    folder = sample_folder(prepared.output, prepared.source.name)
-    print(f"no --input given: using the embedded sample world in {folder} (written once)", flush=True)
-    return prepared.source.sample_input(folder)
-
-
-def plan_units(prepared: PreparedRun, input_root: str) -> UnitPlan:
-    """The source's units (on a release run, those its clips need); CannotStart when unlistable."""
-    names = prepared.release.names(prepared.source.name) if prepared.restricted else None
-    try:
-        return prepared.source.list_units(input_root, prepared.config, names)
-    except (InputError, OSError) as error:
-        raise CannotStart(str(error)) from None
-
-
-def concurrent_workers(options: PipelineOptions) -> int | None:
-    """How many units run at once on the DirectRunner (its worker count in a multi-process or
-    multi-thread mode, else one); None for other runners (their cluster decides)."""
-    direct = options.view_as(DirectOptions)
-    if options.view_as(StandardOptions).runner not in (None, "DirectRunner"):
-        return None
-    if direct.direct_running_mode in ("multi_processing", "multi_threading"):
-        return direct.direct_num_workers or os.cpu_count() or 1
-    return 1
-
-
-def scratch_line(per_worker: int, options: PipelineOptions) -> str:
-    """The most scratch disk the run takes at once: concurrent workers x one worker's most."""
-    workers = concurrent_workers(options)
-    if workers is None:
-        return f"peak scratch: {format_bytes(per_worker)} per concurrent worker"
-    total = format_bytes(workers * per_worker)
-    return f"peak scratch: {workers} worker(s) x {format_bytes(per_worker)} = {total}"
-
-
-def provenance(prepared: PreparedRun, input_root: str, plan: UnitPlan) -> dict:
-    """The run record's account of where the run came from."""
-    return {
-        "package": "tapvid3d-pipeline",
-        "version": pipeline.__version__,
-        "source": prepared.source.name,
-        "input": input_root,
-        "output": prepared.output,
-        "config": prepared.config.to_dict(),
-        "release": prepared.release.path if prepared.restricted else None,
-        "units": [prepared.source.unit_name(unit) for unit in plan.units],
-        "beam_options": prepared.beam_args,
-        "environment": {
-            "python": platform.python_version(),
-            "numpy": np.__version__,
-            "apache_beam": beam.__version__,
-        },
-        "started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-    }
 
 
 def beam_counters(result) -> dict[str, int] | str:
@@ -321,11 +158,10 @@ def run_pipeline(prepared: PreparedRun, job: UnitJob, plan: UnitPlan):
     return result
 
 
-def print_summary(finished: FinishedRun, metrics, output: str, source: str) -> None:
+def print_summary(summary: RunSummary, metrics, output: str, source: str) -> None:
     """The closing lines: what this run did (its Beam counters, when the runner reports them), then
     the totals over every unit (finished-earlier ones included), the manifests, where things are."""
-    summary = finished.summary
-    dropped = ", ".join(f"{name} {summary['dropped_by_filter'][name]}" for name in FILTER_ORDER)
+    dropped = ", ".join(f"{name} {summary.dropped_by_filter[name]}" for name in FILTER_ORDER)
     if isinstance(metrics, dict):
         print(
             f"\nthis run (Beam counters): {metrics['units_read']} unit(s) read, "
@@ -335,21 +171,20 @@ def print_summary(finished: FinishedRun, metrics, output: str, source: str) -> N
             + ", ".join(f"{name} {metrics[f'tracks_dropped_{name}']}" for name in FILTER_ORDER)
         )
     print(
-        f"\n{source}: {summary['units']} unit(s), {summary['units_resumed']} finished earlier, "
-        f"{summary['units_failed']} failed; "
-        f"{summary['clips_written']} clip(s) written ({summary['clips_below_target']} below "
-        f"their target track count)\n"
-        f"tracks: {summary['candidate_tracks']} candidates, dropped by filter: {dropped}; "
-        f"{summary['tracks_passing_filters']} passed, {summary['tracks_written']} written\n"
-        f"manifests: minival {summary['manifests']['minival']}, full_test "
-        f"{summary['manifests']['full_test']} clip(s)\n"
+        f"\n{source}: {summary.units} unit(s), {summary.units_resumed} finished earlier, "
+        f"{summary.units_failed} failed; {summary.clips_written} clip(s) written "
+        f"({summary.clips_below_target} below their target track count)\n"
+        f"tracks: {summary.candidate_tracks} candidates, dropped by filter: {dropped}; "
+        f"{summary.tracks_passing_filters} passed, {summary.tracks_written} written\n"
+        f"manifests: minival {summary.manifests['minival']}, "
+        f"full_test {summary.manifests['full_test']} clip(s)\n"
         f"clips in {output}/{source}/, manifests in {output}/manifests/, "
         f"provenance in {run_record_path(output, source)}"
     )
-    if finished.release is not None:
-        print(f"{summary['release']['line']} (one row each in {release_verdicts_path(output, source)})")
-    if summary["failures"]:
-        print(f"{summary['failures']} failure(s): see {failures_path(output, source)}", file=sys.stderr)
+    if summary.release is not None:
+        print(f"{summary_line(summary.release)} (one row each in {release_verdicts_path(output, source)})")
+    if summary.failures:
+        print(f"{summary.failures} failure(s): see {failures_path(output, source)}", file=sys.stderr)
 
 
 class _ReportedByUs(logging.Filter):
@@ -360,39 +195,37 @@ class _ReportedByUs(logging.Filter):
         return not (kind and issubclass(kind, (KeyboardInterrupt, OSError, OutputError)))
 
 
-def why_nothing(summary: dict, config: RunConfig) -> str:
+def why_nothing(summary: RunSummary, config: RunConfig) -> str:
     """Why a run wrote no clip, in one line."""
-    resumed = summary["units_resumed"]
+    resumed = summary.units_resumed
     earlier = f" ({resumed} of them finished by an earlier run with these settings)" if resumed else ""
     return _why_nothing(summary, config) + earlier
 
 
-def _why_nothing(summary: dict, config: RunConfig) -> str:
-    if not summary["units"]:
+def _why_nothing(summary: RunSummary, config: RunConfig) -> str:
+    if not summary.units:
         return "no clip written: no unit to annotate (nothing in --input for this run)"
-    if summary["units_failed"] == summary["units"]:
-        return f"no clip written: all {summary['units']} unit(s) failed"
-    if not summary["clips_annotated"]:
+    if summary.units_failed == summary.units:
+        return f"no clip written: all {summary.units} unit(s) failed"
+    if not summary.clips_annotated:
         given = (
             f"; --queries-from {config.queries_from} holds none of their clips" if config.queries_from else ""
         )
-        return f"no clip written: the {summary['units']} unit(s) made no clip{given}"
-    if not summary["candidate_tracks"]:
-        return f"no clip written: the {summary['clips_annotated']} clip(s) made had no candidate track"
-    if not summary["tracks_passing_filters"]:
-        dropped = ", ".join(
-            f"{name} {count}" for name, count in summary["dropped_by_filter"].items() if count
-        )
-        candidates = summary["candidate_tracks"]
+        return f"no clip written: the {summary.units} unit(s) made no clip{given}"
+    if not summary.candidate_tracks:
+        return f"no clip written: the {summary.clips_annotated} clip(s) made had no candidate track"
+    if not summary.tracks_passing_filters:
+        dropped = ", ".join(f"{name} {count}" for name, count in summary.dropped_by_filter.items() if count)
+        candidates = summary.candidate_tracks
         return f"no clip written: every one of the {candidates} candidate tracks was dropped ({dropped})"
     return f"no clip written: no clip kept min_tracks={config.min_tracks} tracks"
 
 
-def exit_status(summary: dict) -> int:
+def exit_status(summary: RunSummary) -> int:
     """0 done, 1 some unit failed, 3 nothing produced and nothing resumed."""
-    if summary["failures"]:
+    if summary.failures:
         return 1
-    nothing = summary["clips_written"] == 0 and summary["units_resumed"] == 0
+    nothing = summary.clips_written == 0 and summary.units_resumed == 0
     return NOTHING_PRODUCED if nothing else 0
 
 
@@ -485,7 +318,7 @@ def run(prepared: PreparedRun, started: float) -> int:
     try:
         result = run_pipeline(prepared, job, plan)
         metrics = beam_counters(result)
-        finished = finish_run(
+        summary = finish_run(
             job, plan, provenance(prepared, input_root, plan), prepared.release, prepared.restricted, metrics
         )
     except Exception as error:  # noqa: BLE001 - Beam wraps a step's error; say the cause in one line
@@ -496,11 +329,11 @@ def run(prepared: PreparedRun, started: float) -> int:
             raise
         print(f"cannot finish: {cause}", file=sys.stderr)
         return 2
-    print_summary(finished, metrics, output, source.name)
+    print_summary(summary, metrics, output, source.name)
     print(f"finished in {time.monotonic() - started:.1f} s")
-    if finished.summary["clips_written"] == 0:
-        print(why_nothing(finished.summary, prepared.config))
-    return exit_status(finished.summary)
+    if summary.clips_written == 0:
+        print(why_nothing(summary, prepared.config))
+    return exit_status(summary)
 
 
 def stop_workers() -> None:

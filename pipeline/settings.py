@@ -12,7 +12,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from pipeline import sources
-from pipeline.core.config import FlickerConfig, not_in_clips, ranged, sections, settings_dict
+from pipeline.core.config import FlickerConfig, not_in_clips, path_setting, ranged, sections, settings_dict
 
 
 def default_sections() -> dict[str, Any]:
@@ -38,8 +38,8 @@ class RunConfig:
     """
 
     seed: int = ranged(0, "[0, 4294967295]")
-    splits_file: str = not_in_clips("")
-    queries_from: str = ""
+    splits_file: str = path_setting("", "splits_file", clip_bytes=False)
+    queries_from: str = path_setting("", "--queries-from")
     export_depth: bool = not_in_clips(False)
     minival_per_source: int = not_in_clips(50, "[0, 1000000]")
     min_tracks: int = ranged(1, "[1, 100000]")

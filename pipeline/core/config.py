@@ -91,6 +91,25 @@ class FlickerConfig:
     max_fraction: float = ranged(0.10, "[0, 1]")
 
 
+def path_setting(default: str = "", label: str = "", clip_bytes: bool = True):
+    """A string field naming a file or folder the run reads, checked to exist before any work
+    (``path_settings``); ``label`` names it in messages (default: its key)."""
+    metadata = {"path": label or True, **({} if clip_bytes else {"clip_bytes": False})}
+    return dataclasses.field(default=default, metadata=metadata)
+
+
+def path_settings(config, prefix: str = "") -> dict[str, str]:
+    """The paths the run reads: label (or key) -> value of every set ``path_setting`` of ``config``."""
+    declared = {field.name: field.metadata for field in dataclasses.fields(config)}
+    found = {}
+    for name, value, _ in settings_items(config):
+        if dataclasses.is_dataclass(value):
+            found.update(path_settings(value, f"{prefix}{name}."))
+        elif value and (label := declared.get(name, {}).get("path")):
+            found[label if isinstance(label, str) else prefix + name] = value
+    return found
+
+
 def sections(default_factory):
     """A field holding named sections (name -> settings dataclass), each addressed like a field of
     its own (``--set <name>.<field>=...``): the sources' sections of the run's settings."""

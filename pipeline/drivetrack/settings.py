@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from pipeline.core.config import ranged
+from pipeline.core.config import path_setting, ranged
 
 
 @dataclasses.dataclass(frozen=True)
@@ -44,7 +44,7 @@ class DriveTrackConfig:
     tracks_per_clip: int = ranged(256, "[1, 100000]")
     oversample: int = ranged(4, "[1, 10000]")
     mask_min_agreement: float = ranged(0.5, "[0, 1]")
-    masks_dir: str = ""
+    masks_dir: str = path_setting()
     mask_closing_px: int = ranged(0, "[0, 1000]")
     undistort_frames: bool = True
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from pipeline.core.config import ranged
+from pipeline.core.config import path_setting, ranged
 
 
 @dataclasses.dataclass(frozen=True)
@@ -30,7 +30,7 @@ class PstudioConfig:
       fraction of the (frame, camera) pairs where it projects into the image.
     """
 
-    params_dir: str = ""
+    params_dir: str = path_setting()
     cameras: tuple[int, ...] = ranged((), "[0, 999]")
     depth_delta_m: float = ranged(0.05, "(0, 10]")
     max_attach_distance_m: float = ranged(0.03, "(0, 10]")

@@ -1,0 +1,212 @@
+"""Preparing a run, before any work: every option, setting and path checked (``CannotStart`` says
+what is wrong, in one line), the sample world or the input, the units to annotate, and the run's
+provenance."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import platform
+import time
+
+import apache_beam as beam
+import numpy as np
+from apache_beam.options.pipeline_options import DirectOptions, PipelineOptions, StandardOptions
+
+import pipeline
+from pipeline import sources
+from pipeline.core.config import path_settings, with_overrides
+from pipeline.core.errors import InputError
+from pipeline.core.sizes import format_bytes
+from pipeline.export.layout import sample_folder
+from pipeline.io import storage
+from pipeline.io.files import is_local, remove_quietly, write_atomic
+from pipeline.release import Release, read_release
+from pipeline.settings import RunConfig
+from pipeline.sources import Source, UnitPlan
+
+DASK_RUNNER = "apache_beam.runners.dask.dask_runner.DaskRunner"
+PROBE_BYTES = 4 << 20
+
+
+class CannotStart(Exception):
+    """The run cannot start (a bad option or setting, a missing input, an unwritable output); the
+    message is one line, printed as ``cannot start: <message>`` with exit status 2."""
+
+
+@dataclasses.dataclass(frozen=True)
+class PreparedRun:
+    """Everything checked before any work: the source, settings, paths, release and Beam options."""
+
+    source: Source
+    config: RunConfig
+    input_root: str | None
+    output: str
+    release: Release | None
+    restricted: bool
+    overwrite: bool
+    beam_args: list[str]
+    options: PipelineOptions
+
+
+def runner_args(beam_args: list[str]) -> list[str]:
+    """Beam options with our defaults: the DirectRunner when none is named; ``DaskRunner`` as a
+    short name for Beam's Dask runner, whose units go one per partition unless told otherwise (its
+    default packs 128 elements in a partition, i.e. the whole run on one worker)."""
+    args = [a.replace("DaskRunner", DASK_RUNNER) if a.endswith("DaskRunner") else a for a in beam_args]
+    if not any(a.startswith("--runner") for a in args):
+        args = ["--runner", "DirectRunner", *args]
+    on_dask = DASK_RUNNER in args or f"--runner={DASK_RUNNER}" in args
+    if on_dask and not any(a.startswith(("--dask_npartitions", "--dask_partition_size")) for a in args):
+        args.append("--dask_partition_size=1")
+    return args
+
+
+def absolute(path: str) -> str:
+    """A local path made absolute (workers may run elsewhere); remote URLs unchanged."""
+    return os.path.abspath(path) if path and is_local(path) else path
+
+
+def check_writable(output: str) -> None:
+    """CannotStart unless ``output`` takes a real write of PROBE_BYTES (a full disk fails here, not
+    after hours of work), which is then removed."""
+    if is_local(output) and os.path.isfile(output):
+        raise CannotStart(f"--output {output} is a file, not a folder")
+    probe = f"{output}/.write_probe-{os.getpid()}"
+    try:
+        write_atomic(probe, os.urandom(PROBE_BYTES))
+    except OSError as error:
+        raise CannotStart(f"output folder {output} is not writable ({error.strerror or error})") from None
+    remove_quietly([probe])
+
+
+def check_inputs(input_root: str | None, config: RunConfig) -> None:
+    """CannotStart unless every local path the run will read exists: ``--input`` and every setting
+    declared a path (``core.config.path_setting``) that is set."""
+    paths = {"--input": input_root, **path_settings(config)}
+    for what, path in paths.items():
+        if path:
+            storage.check_scheme(path)
+        if path and is_local(path) and not os.path.exists(path):
+            raise CannotStart(f"{what} {path} does not exist")
+
+
+def settings(args: argparse.Namespace) -> tuple[RunConfig, Release | None]:
+    """The run's config (defaults, ``--set``, the command's flags) and the release it follows."""
+    config = with_overrides(RunConfig(), args.overrides)
+    splits = absolute(args.release or "") or absolute(config.splits_file)
+    if args.release and config.splits_file and absolute(config.splits_file) != splits:
+        raise CannotStart("--release and --set splits_file name different files; give one")
+    config = dataclasses.replace(
+        config,
+        export_depth=config.export_depth or args.export_depth,
+        queries_from=absolute(args.queries_from or ""),
+        splits_file=splits,
+    )
+    check_inputs(args.input, config)
+    return config, read_release(splits, "--release" if args.release else "splits_file") if splits else None
+
+
+def prepare_run(args: argparse.Namespace, beam_args: list[str]) -> PreparedRun:
+    """Check everything before any work; CannotStart (or SettingsError, InputError) says what is
+    wrong."""
+    source = sources.get(args.source)
+    options = PipelineOptions(beam_args)
+    storage.use_options(options)
+    output = absolute(args.output)
+    storage.check_scheme(output)
+    config, release = settings(args)
+    check_writable(output)
+    if args.input is None and not is_local(output):
+        raise CannotStart(
+            f"the embedded sample world is written under a local --output; with {output} pass --input "
+            "(a copy of the sample uploaded there works)"
+        )
+    input_root = args.input if args.input is None or "://" in args.input else os.path.abspath(args.input)
+    return PreparedRun(
+        source, config, input_root, output, release, bool(args.release), args.overwrite, beam_args, options
+    )
+
+
+def sample_input(prepared: PreparedRun) -> str:
+    """The run's input root: ``--input``, or the embedded sample world (written once, announced)."""
+    if prepared.input_root is not None:
+        return prepared.input_root
+    folder = sample_folder(prepared.output, prepared.source.name)
+    print(f"no --input given: using the embedded sample world in {folder} (written once)", flush=True)
+    return prepared.source.sample_input(folder)
+
+
+def plan_units(prepared: PreparedRun, input_root: str) -> UnitPlan:
+    """The source's units (on a release run, those its clips need); CannotStart when unlistable."""
+    names = prepared.release.names(prepared.source.name) if prepared.restricted else None
+    try:
+        return prepared.source.list_units(input_root, prepared.config, names)
+    except (InputError, OSError) as error:
+        raise CannotStart(str(error)) from None
+
+
+def concurrent_workers(options: PipelineOptions) -> int | None:
+    """How many units run at once on the DirectRunner (its worker count in a multi-process or
+    multi-thread mode, else one); None for other runners (their cluster decides)."""
+    direct = options.view_as(DirectOptions)
+    if options.view_as(StandardOptions).runner not in (None, "DirectRunner"):
+        return None
+    if direct.direct_running_mode in ("multi_processing", "multi_threading"):
+        return direct.direct_num_workers or os.cpu_count() or 1
+    return 1
+
+
+def scratch_line(per_worker: int, options: PipelineOptions) -> str:
+    """The most scratch disk the run takes at once: concurrent workers x one worker's most."""
+    workers = concurrent_workers(options)
+    if workers is None:
+        return f"peak scratch: {format_bytes(per_worker)} per concurrent worker"
+    total = format_bytes(workers * per_worker)
+    return f"peak scratch: {workers} worker(s) x {format_bytes(per_worker)} = {total}"
+
+
+@dataclasses.dataclass(frozen=True)
+class Provenance:
+    """Where a run came from, as its record keeps it: the package and version, the source, input and
+    output, every setting, the release it was restricted to, its units, the Beam options, the
+    libraries' versions and when it started."""
+
+    source: str
+    input: str
+    output: str
+    config: dict
+    release: str | None
+    units: tuple[str, ...]
+    beam_options: tuple[str, ...]
+    environment: dict
+    started: str
+    package: str = "tapvid3d-pipeline"
+    version: str = pipeline.__version__
+
+    def to_json(self) -> dict:
+        return {
+            **dataclasses.asdict(self),
+            "units": list(self.units),
+            "beam_options": list(self.beam_options),
+        }
+
+
+def provenance(prepared: PreparedRun, input_root: str, plan: UnitPlan) -> Provenance:
+    """The run record's account of where the run came from."""
+    return Provenance(
+        source=prepared.source.name,
+        input=input_root,
+        output=prepared.output,
+        config=prepared.config.to_dict(),
+        release=prepared.release.path if prepared.restricted else None,
+        units=tuple(prepared.source.unit_name(unit) for unit in plan.units),
+        beam_options=tuple(prepared.beam_args),
+        environment={
+            "python": platform.python_version(),
+            "numpy": np.__version__,
+            "apache_beam": beam.__version__,
+        },
+        started=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+    )
