@@ -185,6 +185,8 @@ def main(argv: list[str]) -> int:
     args = parser.parse_args(argv)
     if args.thumbnails < 0:
         parser.error(f"--thumbnails {args.thumbnails}: must be 0 or more")
+    if os.path.isdir(args.out):
+        parser.error(f"--out {args.out} is a folder: name the HTML file to write")
     output = os.path.abspath(args.output) if "://" not in args.output else args.output
     try:
         found = page_data(output, args.source or list(sources.names()))
@@ -192,8 +194,6 @@ def main(argv: list[str]) -> int:
             raise ValueError(f"no audit tables in {output}/audit/: run python -m pipeline.run first")
         parts = [source_json(output, data, args.thumbnails) for data in found]
         page = page_html(output, [part for part, _ in parts]).encode()
-        if os.path.isdir(args.out):
-            raise ValueError(f"--out {args.out} is a folder: name the HTML file to write")
         write_atomic(args.out, page)
     except (ValueError, KeyError, OSError, pa.ArrowException, InputError) as error:
         print(f"report: {error}", file=sys.stderr)

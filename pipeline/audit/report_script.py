@@ -205,7 +205,7 @@ function buildHistograms(src, view) {
   const v = histogram("never_visible: visible frames", vis, vis.map((_, k) => `${k} visible frames`),
     "a track visible in no frame is dropped (red); log scale");
   v.axis("0", v.x(0.5), "middle");
-  v.axis(String(last), v.x(last + 0.5), "middle");
+  v.axis(String(last), v.x(last + 1), "end");
   v.line.setAttribute("x1", v.x(1));
   v.line.setAttribute("x2", v.x(1));
   v.bars.forEach((bar, k) => bar.setAttribute("fill", k > 0 ? KEPT : DROPPED));
