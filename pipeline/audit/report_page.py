@@ -79,9 +79,10 @@ def about(data: dict) -> str:
     text = f"The run's thresholds: {run}."
     if data["named"] is not None:
         named = ", ".join(f"{split} {count}" for split, count in data["named"].items())
+        splits = f" ({data['release_path']})" if data["release_path"] else ""
         text += (
-            f" Release run ({data['release_path']}): only the release's clips count; release clips named: "
-            f"{named}. A release clip survives when it is written (a clip the run could not make never does)."
+            f" Release run{splits}: only the release's clips count; release clips named: {named}. "
+            "A release clip survives when it is written (a clip the run could not make never does)."
         )
     return text
 
@@ -190,6 +191,9 @@ def main(argv: list[str]) -> int:
     output = os.path.abspath(args.output) if "://" not in args.output else args.output
     try:
         found = page_data(output, args.source or list(sources.names()))
+        absent = sorted(set(args.source or []) - {data["name"] for data in found})
+        if absent:
+            raise ValueError(f"--source {absent[0]}: no audit tables in {output}/audit/{absent[0]}/")
         if not found:
             raise ValueError(f"no audit tables in {output}/audit/: run python -m pipeline.run first")
         parts = [source_json(output, data, args.thumbnails) for data in found]

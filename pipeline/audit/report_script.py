@@ -1,5 +1,5 @@
 """The audit page's style and script (plain JavaScript, no library): it reads the page's JSON data
-(``report_page.page_json``), builds one section per source and recounts on every slider move.
+(``report_page.page_html`` embeds it), builds one section per source and recounts on every slider move.
 
 The recount is ``report_data.counts_at`` in JavaScript: per clip, the (flicker bucket, mask bucket)
 pair counts with flicker bucket <= the flicker slider's index and mask bucket > the mask slider's
