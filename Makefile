@@ -14,10 +14,13 @@ export ADT_EXCERPT
 setup: $(VENV)/.installed
 
 $(VENV)/.installed: pyproject.toml
-	@# open3d needs the system library libusb-1.0 (and libgomp); install them when missing.
-	@if ! ldconfig -p | grep -q 'libusb-1.0.so.0' || ! ldconfig -p | grep -q 'libgomp.so.1'; then \
-	  if [ "$$(id -u)" = 0 ]; then apt-get update -qq && apt-get install -y -qq libusb-1.0-0 libgomp1 >/dev/null; \
-	  else sudo apt-get update -qq && sudo apt-get install -y -qq libusb-1.0-0 libgomp1 >/dev/null; fi; \
+	@# open3d needs the system library libusb-1.0 (and libgomp); the audit page's tests need headless
+	@# Chromium and its driver (/usr/bin/chromium, /usr/bin/chromedriver); install them when missing.
+	@if ! ldconfig -p | grep -q 'libusb-1.0.so.0' || ! ldconfig -p | grep -q 'libgomp.so.1' \
+	  || [ ! -x /usr/bin/chromium ] || [ ! -x /usr/bin/chromedriver ]; then \
+	  PACKAGES="libusb-1.0-0 libgomp1 chromium chromium-driver"; \
+	  if [ "$$(id -u)" = 0 ]; then apt-get update -qq && apt-get install -y -qq $$PACKAGES >/dev/null; \
+	  else sudo apt-get update -qq && sudo apt-get install -y -qq $$PACKAGES >/dev/null; fi; \
 	fi
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip

@@ -1,9 +1,10 @@
-"""``python -m pipeline.audit {sweep,release,compare} ...``: audit a run's thresholds, its verdicts on
-the release's clips, or compare clips.
+"""``python -m pipeline.audit {sweep,release,compare,report} ...``: audit a run's thresholds, its verdicts
+on the release's clips, or compare clips.
 
 sweep    replay the filter stage at other thresholds from the recorded statistics
 release  the verdict on every release clip of a --release run, per source and split, with reasons
 compare  TAPVid-3D metrics of one folder of clips against another (e.g. the release)
+report   one self-contained HTML page: the filter funnel, histograms, a slider per threshold
 
 ``python -m pipeline.audit <command> --help`` describes each.
 """
@@ -19,6 +20,7 @@ COMMANDS = {
     "sweep": "pipeline.audit.sweep",
     "release": "pipeline.audit.release",
     "compare": "pipeline.audit.compare",
+    "report": "pipeline.audit.report_page",
 }
 
 

@@ -1,0 +1,222 @@
+"""The audit page's data: per source, the filter stage's statistics folded so that the page recounts,
+at every slider position it offers, exactly what ``python -m pipeline.audit sweep`` counts there.
+
+A slider offers a grid of values (``flicker.max_fraction`` and ``<source>.mask_min_agreement``: 0 to
+1 in steps of 0.01, plus the run's own value; ``min_tracks``: every integer from 1 to the most
+candidates of a clip). Each candidate track that passes ``never_visible`` gets two bucket numbers:
+
+flicker bucket f: how many flicker values of the grid reject it (``passes_flicker`` is monotone in
+  the threshold, so it passes at grid index k exactly when k >= f);
+mask bucket m: how many mask values of the grid it passes (no mask evidence: all of them), so it
+  passes at grid index k exactly when k < m.
+
+Per clip, the page gets the sparse counts of tracks per (f, m) pair and the count of never-visible
+tracks; survivors at (k_flicker, k_mask) are the counts with f <= k_flicker and m > k_mask, compared
+with ``min_tracks`` and the clip's target as ``evaluate`` compares them.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from pipeline import sources
+from pipeline.audit.release import read_verdicts
+from pipeline.audit.sweep import run_record
+from pipeline.core.config import RunConfig, config_from_dict
+from pipeline.core.outcomes import FILTER_ORDER
+from pipeline.export.files import list_files
+from pipeline.export.layout import audit_path
+from pipeline.filters.flicker import passes_flicker
+from pipeline.release import SPLITS
+from pipeline.sources import Source
+
+GRID_STEPS = 100  # fractions: 0, 0.01, ..., 1
+COLUMNS = ("clip", "num_frames", "target_tracks", "visible_frames", "visibility_flips", "mask_agreement")
+
+
+def fraction_grid(run_value: float) -> list[float]:
+    """0, 0.01, ..., 1 and the run's own value, ascending (k / 100 is the double nearest to the decimal
+    ``0.0k``, the value ``--grid`` parses)."""
+    return sorted({k / GRID_STEPS for k in range(GRID_STEPS + 1)} | {float(run_value)})
+
+
+def flicker_buckets(flips: np.ndarray, num_frames: int, grid: list[float]) -> np.ndarray:
+    """Per track [N] int: how many values of ``grid`` (ascending) ``passes_flicker`` rejects it at."""
+    passes = passes_flicker(np.asarray(flips)[:, None], num_frames, np.asarray(grid)[None, :])
+    return (~passes).sum(axis=1)
+
+
+def mask_buckets(agreement: np.ndarray | None, count: int, grid: list[float]) -> np.ndarray:
+    """Per track [N] int: how many values of ``grid`` (ascending) the mask filter passes it at (NaN
+    agreement, or none recorded: every one)."""
+    if agreement is None:
+        return np.full(count, len(grid), np.int64)
+    score = np.asarray(agreement, dtype=np.float64)[:, None]
+    return (np.isnan(score) | (score >= np.asarray(grid)[None, :])).sum(axis=1)
+
+
+def read_clip_table(path: str) -> dict:
+    """The columns of one audit table the filters read, as ``load_statistics`` reads them."""
+    try:
+        names = pq.read_schema(path).names
+        table = pq.read_table(path, columns=[name for name in COLUMNS if name in names])
+    except (pa.ArrowException, OSError) as error:
+        raise ValueError(f"audit table {path} is unreadable ({error})") from error
+    missing = {"clip", "num_frames", "target_tracks", "visible_frames"} - set(table.column_names)
+    if missing:
+        raise ValueError(f"audit table {path} lacks column(s) {sorted(missing)}")
+    columns = {name: table.column(name).to_numpy(zero_copy_only=False) for name in table.column_names}
+    rows = len(columns["clip"])
+    return {
+        "clip": str(columns["clip"][0]) if rows else os.path.basename(path)[: -len(".parquet")],
+        "num_frames": int(columns["num_frames"][0]) if rows else 0,
+        "target_tracks": int(columns["target_tracks"][0]) if rows else 0,
+        "visible_frames": columns["visible_frames"],
+        "visibility_flips": columns.get("visibility_flips"),
+        "mask_agreement": columns.get("mask_agreement"),
+    }
+
+
+def fold_clip(table: dict, flicker_grid: list[float], mask_grid: list[float]) -> dict:
+    """One clip's counts: candidates, never-visible tracks and the sparse (flicker bucket, mask bucket)
+    pairs [P] of the others, with their counts [P]."""
+    seen = np.asarray(table["visible_frames"]) > 0
+    flips = np.asarray(table["visibility_flips"])[seen]
+    agreement = None if table["mask_agreement"] is None else np.asarray(table["mask_agreement"])[seen]
+    flicker = flicker_buckets(flips, table["num_frames"], flicker_grid)
+    mask = mask_buckets(agreement, len(flips), mask_grid)
+    pairs, counts = np.unique(flicker * (len(mask_grid) + 1) + mask, return_counts=True)
+    return {
+        "clip": table["clip"],
+        "num_frames": table["num_frames"],
+        "target_tracks": table["target_tracks"],
+        "candidates": len(seen),
+        "never_visible": int((~seen).sum()),
+        "flicker": (pairs // (len(mask_grid) + 1)).astype(np.int64),
+        "mask": (pairs % (len(mask_grid) + 1)).astype(np.int64),
+        "count": counts.astype(np.int64),
+    }
+
+
+def histogram_counts(table: dict, flicker_grid: list[float], mask_grid: list[float]) -> dict:
+    """One clip's histograms over all its candidates: per flicker bucket [len(grid) + 1], per mask
+    bucket [len(grid) + 1] (tracks with agreement only), tracks without mask evidence, visible frames
+    per count [T + 1]."""
+    flicker = flicker_buckets(table["visibility_flips"], table["num_frames"], flicker_grid)
+    agreement = table["mask_agreement"]
+    scored = np.zeros(0) if agreement is None else np.asarray(agreement, np.float64)[~np.isnan(agreement)]
+    mask = mask_buckets(scored, len(scored), mask_grid)
+    visible = np.clip(np.asarray(table["visible_frames"]), 0, table["num_frames"])
+    return {
+        "flicker": np.bincount(flicker, minlength=len(flicker_grid) + 1),
+        "mask": np.bincount(mask, minlength=len(mask_grid) + 1),
+        "no_mask_evidence": len(table["visible_frames"]) - len(scored),
+        "visible_frames": np.bincount(visible, minlength=table["num_frames"] + 1),
+    }
+
+
+def add_histograms(total: dict, part: dict) -> dict:
+    """``total`` + ``part``, bins of different lengths padded with zeros."""
+    out = {"no_mask_evidence": total.get("no_mask_evidence", 0) + part["no_mask_evidence"]}
+    for name in ("flicker", "mask", "visible_frames"):
+        a, b = total.get(name, np.zeros(0, np.int64)), part[name]
+        size = max(len(a), len(b))
+        out[name] = np.pad(a, (0, size - len(a))) + np.pad(b, (0, size - len(b)))
+    return out
+
+
+def run_config(record: dict | None) -> RunConfig:
+    """The run's own config (the defaults when it left no record)."""
+    return RunConfig() if record is None else config_from_dict(RunConfig, record["config"])
+
+
+def source_data(output: str, source: Source) -> dict | None:
+    """Everything the page shows of one source, None when ``output`` holds no audit table of it.
+
+    On a release run (``release_<source>.jsonl``) only the release's clips count, as in the sweep.
+    """
+    paths = list_files(audit_path(output, source.name, "*"))
+    if not paths:
+        return None
+    record = run_record(output, source.name)
+    config = run_config(record)
+    verdicts = read_verdicts(output, source.name)
+    splits = None if verdicts is None else {row["clip"]: row["split"] for row in verdicts}
+    flicker_grid = fraction_grid(config.flicker.max_fraction)
+    mask_grid = fraction_grid(source.mask_min_agreement(config))
+    clips, histograms = [], {}
+    for path in sorted(paths):
+        table = read_clip_table(path)
+        if splits is not None and table["clip"] not in splits:
+            continue
+        if table["visibility_flips"] is None:
+            raise ValueError(f"audit table {path} lacks column(s) ['visibility_flips']")
+        clips.append(fold_clip(table, flicker_grid, mask_grid))
+        histograms = add_histograms(histograms, histogram_counts(table, flicker_grid, mask_grid))
+    clips.sort(key=lambda clip: clip["clip"])
+    most = max([clip["candidates"] for clip in clips] + [config.min_tracks, 1])
+    return {
+        "name": source.name,
+        "thresholds": {
+            "flicker.max_fraction": config.flicker.max_fraction,
+            f"{source.name}.mask_min_agreement": source.mask_min_agreement(config),
+            "min_tracks": config.min_tracks,
+        },
+        "grids": {
+            "flicker.max_fraction": flicker_grid,
+            f"{source.name}.mask_min_agreement": mask_grid,
+            "min_tracks": list(range(1, most + 1)),
+        },
+        "clips": clips,
+        "histograms": {name: np.asarray(v).tolist() for name, v in histograms.items()},
+        "summary": None if record is None else record["summary"],
+        "release_path": None if record is None else record.get("release"),
+        "verdicts": verdicts,
+        "named": None if splits is None else {split: list(splits.values()).count(split) for split in SPLITS},
+    }
+
+
+def counts_at(data: dict, flicker_index: int, mask_index: int, min_tracks: int) -> dict:
+    """The totals ``evaluate`` reports at grid positions (``flicker_index``, ``mask_index``) and
+    ``min_tracks``, from the folded clips alone (the page's own rule), plus the tracks written (at
+    most the target per clip)."""
+    dropped = dict.fromkeys(FILTER_ORDER, 0)
+    candidates = passed = written = below = tracks_written = 0
+    splits = {row["clip"]: row["split"] for row in data["verdicts"] or []}
+    release = dict.fromkeys(SPLITS, 0)
+    for clip in data["clips"]:
+        flicker_ok = clip["flicker"] <= flicker_index
+        mask_ok = clip["mask"] > mask_index
+        survivors = int(clip["count"][flicker_ok & mask_ok].sum())
+        dropped["never_visible"] += clip["never_visible"]
+        dropped["flicker"] += int(clip["count"][~flicker_ok].sum())
+        dropped["mask"] += int(clip["count"][flicker_ok & ~mask_ok].sum())
+        candidates += clip["candidates"]
+        passed += survivors
+        kept = survivors >= min_tracks
+        written += kept
+        below += kept and survivors < clip["target_tracks"]
+        tracks_written += min(survivors, clip["target_tracks"]) if kept else 0
+        if kept and clip["clip"] in splits:
+            release[splits[clip["clip"]]] += 1
+    result = {
+        "candidates": candidates,
+        "dropped": dropped,
+        "passed": passed,
+        "clips_written": written,
+        "clips_below_target": below,
+        "tracks_written": tracks_written,
+    }
+    if data["verdicts"] is not None:
+        result["release"] = release
+    return result
+
+
+def page_data(output: str, names: list[str]) -> list[dict]:
+    """``source_data`` of each named source that has audit tables in ``output``."""
+    found = (source_data(output, sources.get(name)) for name in names)
+    return [data for data in found if data is not None]
