@@ -33,9 +33,9 @@ import pyarrow.parquet as pq
 from pipeline import sources
 from pipeline.audit.sweep import evaluate, load_statistics
 from pipeline.commandline import StrictParser
-from pipeline.core.config import RunConfig
 from pipeline.export.layout import audit_path, clip_path, release_verdicts_path, run_record_path
 from pipeline.release import read_release
+from pipeline.settings import RunConfig
 
 CHROMIUM, CHROMEDRIVER = "/usr/bin/chromium", "/usr/bin/chromedriver"
 FLAGS = (

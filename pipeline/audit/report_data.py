@@ -26,12 +26,13 @@ import pyarrow.parquet as pq
 from pipeline import sources
 from pipeline.audit.release import read_verdicts
 from pipeline.audit.sweep import run_record
-from pipeline.core.config import RunConfig, config_from_dict
+from pipeline.core.config import config_from_dict
 from pipeline.core.outcomes import FILTER_ORDER
-from pipeline.export.files import list_files
 from pipeline.export.layout import audit_path
 from pipeline.filters.flicker import passes_flicker
+from pipeline.io.files import list_files
 from pipeline.release import SPLITS
+from pipeline.settings import RunConfig
 from pipeline.sources import Source
 
 GRID_STEPS = 100  # fractions: 0, 0.01, ..., 1

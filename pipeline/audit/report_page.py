@@ -28,7 +28,7 @@ from pipeline.audit.report_thumbs import MAX_TRACKS, thumbnails
 from pipeline.audit.sweep import matches_run
 from pipeline.commandline import StrictParser
 from pipeline.core.errors import InputError
-from pipeline.export.files import write_atomic
+from pipeline.io.files import write_atomic
 
 THUMBNAILS = 12  # per source, by default
 SUMMARY_KEYS = ("candidate_tracks", "dropped_by_filter", "tracks_passing_filters", "clips_below_target")

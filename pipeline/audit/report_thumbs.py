@@ -9,8 +9,8 @@ import os
 import cv2
 
 from pipeline.core.images import jpeg_size
-from pipeline.export.files import list_files
 from pipeline.export.layout import clip_path
+from pipeline.io.files import list_files
 from pipeline.viz.clip_figure import IMAGES_KEY, load_clip, render_clip, select_tracks
 
 WIDTH = 320  # pixels
