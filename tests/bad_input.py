@@ -28,23 +28,23 @@ def partial_files(out: str) -> list[str]:
     return sorted(path for path in found if ".partial" in os.path.basename(path))
 
 
-def assert_isolated_failures(
+def assert_only_these_units_failed(
     result: subprocess.CompletedProcess, out: str, source: str, expected: dict[str, list[str]]
 ) -> dict[str, str]:
-    """Check a run over good and bad units.
-
-    ``expected`` maps each bad unit's name to substrings its error must contain (case-sensitive).
-    Every failure must be an InputError (a clear message, not a crash), no unit outside
-    ``expected`` may fail, every written clip must validate, and no partial file may remain.
-    Returns the failures by unit for further checks.
-    """
+    """A run over good and bad units: it exits 1, exactly the units of ``expected`` (unit name ->
+    substrings of its error) failed, every written clip validates, and no partial file remains.
+    Returns the failures by unit, for each case's own check (``assert_case_error``)."""
     assert result.returncode == 1, result.stderr[-3000:]
     errors = failures_by_unit(out, source)
     assert set(errors) == set(expected), f"failed units {sorted(errors)} != expected {sorted(expected)}"
-    for unit, needles in expected.items():
-        assert errors[unit].startswith("InputError"), f"{unit}: {errors[unit]}"
-        for needle in needles:
-            assert needle in errors[unit], f"{unit}: {needle!r} not in {errors[unit]!r}"
     assert partial_files(out) == []
     assert validate_main([out]) == 0
     return errors
+
+
+def assert_case_error(errors: dict[str, str], unit: str, needles: list[str]) -> None:
+    """Unit ``unit`` failed with an InputError (a clear message, not a crash) holding every needle."""
+    assert unit in errors, f"{unit} did not fail; failures: {sorted(errors)}"
+    assert errors[unit].startswith("InputError"), f"{unit}: {errors[unit]}"
+    for needle in needles:
+        assert needle in errors[unit], f"{unit}: {needle!r} not in {errors[unit]!r}"

@@ -216,7 +216,8 @@ def test_a_truncated_body_is_an_error(layout, server, scratch, fault, tail):
     message = fetch_error(layout.url_file, scratch)
     assert message.startswith(f"{SEQUENCE}: data group depth: truncated: got ")
     got = int(message.split("got ")[1].split(" of ")[0])
-    assert 0 < got < size and message.endswith(f" of {size} bytes{tail}")
+    assert 0 < got < size
+    assert message.endswith(f" of {size} bytes{tail}")
     assert server.requests(layout.filename("depth")) == 1
 
 
@@ -282,7 +283,8 @@ def test_a_zip_member_leaving_the_folder_is_refused(layout, server, scratch, tmp
     assert "unsafe member '/tmp/evil'" in fetch_error(
         layout.variant("abs", "main_groundtruth", absolute), scratch
     )
-    assert not (tmp_path / "evil").exists() and not list(tmp_path.rglob("evil"))
+    assert not (tmp_path / "evil").exists()
+    assert not list(tmp_path.rglob("evil"))
 
 
 def test_a_zip_declaring_absurd_sizes_is_refused(layout, server, scratch):
@@ -376,7 +378,9 @@ def test_malformed_url_files_are_one_line_errors(tmp_path, case):
     with pytest.raises(InputError) as caught:
         read_url_file(str(path))
     message = str(caught.value)
-    assert message.startswith(f"{path}: ") and expected in message and "\n" not in message
+    assert message.startswith(f"{path}: ")
+    assert expected in message
+    assert "\n" not in message
 
 
 def test_an_oversized_url_file_is_refused_unread(tmp_path, monkeypatch):

@@ -113,10 +113,12 @@ def test_a_bad_download_fails_the_sequence_and_a_rerun_completes(served, local_c
     (failure,) = failures(out)
     assert failure["unit"] == f"{SEQUENCE}/all_chunks"
     assert failure["error"].startswith(f"InputError: {SEQUENCE}/all_chunks: data group segmentation: {cause}")
-    assert os.listdir(scratch) == [] and not (out / "adt").exists()
+    assert os.listdir(scratch) == []
+    assert not (out / "adt").exists()
     rerun = fetch_run(layout.url_file, out, scratch)
     assert rerun.returncode == 0, rerun.stderr[-3000:]
-    assert clip_bytes(str(out), "adt") == local_clips and os.listdir(scratch) == []
+    assert clip_bytes(str(out), "adt") == local_clips
+    assert os.listdir(scratch) == []
 
 
 def test_the_server_gone_fails_the_sequence_and_a_rerun_completes(served, local_clips, tmp_path):
@@ -126,13 +128,15 @@ def test_the_server_gone_fails_the_sequence_and_a_rerun_completes(served, local_
     result = fetch_run(layout.url_file, out, scratch)
     assert result.returncode == 1
     (failure,) = failures(out)
-    assert "data group " in failure["error"] and "connection refused after 3 tries" in failure["error"]
+    assert "data group " in failure["error"]
+    assert "connection refused after 3 tries" in failure["error"]
     assert os.listdir(scratch) == []
     with serve(layout.folder) as again:  # back, on another port: the JSON names it
         url_file = write_layout(SAMPLE, SEQUENCE, layout.folder, again.base_url).url_file
         rerun = fetch_run(url_file, out, scratch)
     assert rerun.returncode == 0, rerun.stderr[-3000:]
-    assert clip_bytes(str(out), "adt") == local_clips and os.listdir(scratch) == []
+    assert clip_bytes(str(out), "adt") == local_clips
+    assert os.listdir(scratch) == []
 
 
 def test_a_release_run_fetches_only_the_sequences_it_names(served, local_clips, tmp_path):

@@ -53,7 +53,8 @@ def test_rotate_cw_moves_pixels_clockwise():
     image[10, 300] = 1  # row 10, column 300: near the top edge
     rotated = rotate_cw(image)
     # Clockwise: the top edge becomes the right edge; (row v, col u) -> (row u, col S-1-v).
-    assert rotated[300, S - 1 - 10] == 1 and rotated.sum() == 1
+    assert rotated[300, S - 1 - 10] == 1
+    assert rotated.sum() == 1
     corners = np.zeros((4, 4), int)
     corners[0, 0] = 1  # top-left goes to top-right under a clockwise quarter turn
     assert rotate_cw(corners)[0, 3] == 1
@@ -198,11 +199,14 @@ def test_query_draw_honours_the_dynamic_share():
     rng = np.random.default_rng(0)
     dynamic, static = np.arange(1000), np.arange(1000, 3000)
     chosen = draw_query_pixels(dynamic, static, 100, 0.25, rng)
-    assert len(set(chosen.tolist())) == 100 and (chosen < 1000).sum() == 25
+    assert len(set(chosen.tolist())) == 100
+    assert (chosen < 1000).sum() == 25
     few = draw_query_pixels(np.arange(10), static, 100, 0.5, rng)
-    assert (few < 10).sum() == 10 and len(few) == 100
+    assert (few < 10).sum() == 10
+    assert len(few) == 100
     none = draw_query_pixels(np.arange(0), static, 100, 0.5, rng)
-    assert (none >= 1000).all() and len(none) == 100
+    assert (none >= 1000).all()
+    assert len(none) == 100
 
 
 class CardWorld:
@@ -249,7 +253,8 @@ def test_annotate_chunk_matches_the_card_world():
     )
     assert reads == [0, 1, 2, 3]  # each frame's depth and ids are read once
     n = clip.num_tracks
-    assert n == 200 and clip.tracks_xyz.shape == (4, n, 3)
+    assert n == 200
+    assert clip.tracks_xyz.shape == (4, n, 3)
     np.testing.assert_array_equal(clip.fx_fy_cx_cy, [280.0, 280.0, 255.5, 256.5])
     t_q = clip.queries_xyt[:, 2].astype(int)
     object_ids = clip.track_stats["object_id"]

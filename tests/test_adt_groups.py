@@ -39,18 +39,24 @@ def _count_openings_and_closings(monkeypatch) -> tuple[list, list]:
 def test_a_group_opens_its_sequence_once_and_makes_each_chunks_own_clip(monkeypatch):
     config = with_overrides(RunConfig(), list(ONE_FRAME_CHUNKS))
     units = adt_units.list_units(str(SAMPLE), config).units
-    assert len(units) == 2 and len({adt_units.group_of(unit) for unit in units}) == 1
+    assert len(units) == 2
+    assert len({adt_units.group_of(unit) for unit in units}) == 1
     opened, closed = _count_openings_and_closings(monkeypatch)
     alone = [list(annotate.annotate_chunks(str(SAMPLE), [unit], config))[0].clips for unit in units]
-    assert len(opened) == 2 and closed == opened  # a unit alone opens and closes its sequence
+    assert len(opened) == 2
+    assert closed == opened  # a unit alone opens and closes its sequence
     del opened[:], closed[:]
     made = annotate.annotate_chunks(str(SAMPLE), units, config)
     together = [next(made)]
-    assert len(opened) == 1 and not closed  # still open for the group's next chunk
+    assert len(opened) == 1
+    assert not closed  # still open for the group's next chunk
     together += list(made)
-    assert len(opened) == 1 and closed == opened and opened[0].frames.reader.provider is None
+    assert len(opened) == 1
+    assert closed == opened
+    assert opened[0].frames.reader.provider is None
     for (one,), (grouped,) in zip(alone, [made.clips for made in together], strict=True):
-        assert grouped.name == one.name and grouped.images_jpeg == one.images_jpeg
+        assert grouped.name == one.name
+        assert grouped.images_jpeg == one.images_jpeg
         for field in ("tracks_xyz", "visibility", "queries_xyt", "extrinsics_w2c", "frame_ids"):
             np.testing.assert_array_equal(getattr(grouped, field), getattr(one, field))
 
@@ -62,7 +68,8 @@ def test_a_group_stopped_early_still_closes_its_sequence(monkeypatch):
     made = annotate.annotate_chunks(str(SAMPLE), adt_units.list_units(str(SAMPLE), config).units, config)
     next(made)
     made.close()  # the caller stops after the first chunk (a Ctrl-C, a failed write)
-    assert len(opened) == 1 and closed == opened
+    assert len(opened) == 1
+    assert closed == opened
 
 
 def test_an_unreadable_sequence_fails_each_chunk_under_its_own_name(tmp_path):

@@ -62,7 +62,8 @@ def test_remap_is_the_librarys_rendering(source, source_shape, target, target_sh
     src = camera(*source, source_shape[1], source_shape[0], 40.0 if source[0] == "FISHEYE624" else None)
     dst = camera(*target, target_shape[1], target_shape[0])
     points = source_points(src, dst)
-    assert points.shape == (*target_shape, 2) and points.dtype == np.float32
+    assert points.shape == (*target_shape, 2)
+    assert points.dtype == np.float32
     missing = np.isnan(points[..., 0])
     assert 0 < missing.sum() < missing.size / 2  # some target pixels see nothing
     remap = Remap(points, source_shape)
@@ -83,7 +84,8 @@ def test_remap_is_the_librarys_rendering(source, source_shape, target, target_sh
         np.testing.assert_array_equal(
             remap.labels(ids), calibration.distort_label_by_calibration(ids, dst, src)
         )
-        assert (remap.rgb(rgb)[missing] == 0).all() and (remap.labels(ids)[missing] == 0).all()
+        assert (remap.rgb(rgb)[missing] == 0).all()
+        assert (remap.labels(ids)[missing] == 0).all()
 
 
 def test_shifted_camera_samples_edges_and_half_pixels():
@@ -92,7 +94,9 @@ def test_shifted_camera_samples_edges_and_half_pixels():
     points = source_points(src, dst)
     u, v = points[..., 0], points[..., 1]
     found = np.isfinite(u)
-    assert set(np.unique(u[found] % 1).tolist()) == {0.5} and np.nanmax(v) == 29 and np.nanmin(v) == 0
+    assert set(np.unique(u[found] % 1).tolist()) == {0.5}
+    assert np.nanmax(v) == 29
+    assert np.nanmin(v) == 0
     # Nearest-neighbour ties round up (int(p + 0.5)), as the library.
     labels = np.tile(np.arange(40, dtype=np.uint64), (30, 1))
     remapped = Remap(points, (30, 40)).labels(labels)

@@ -153,7 +153,8 @@ def test_clip_is_valid_and_named_after_the_v1_sequence(sample_run):
     assert clip["tracks_XYZ"].shape == (2, 1024, 3)
     np.testing.assert_array_equal(clip["fx_fy_cx_cy"], [280, 280, 255.5, 256.5])
     record = json.loads((out / "run_adt.json").read_text())
-    assert record["config"]["adt"]["depth_delta_m"] == 0.02 and record["summary"]["failures"] == 0
+    assert record["config"]["adt"]["depth_delta_m"] == 0.02
+    assert record["summary"]["failures"] == 0
 
 
 def test_extrinsics_match_the_trajectory_csv(sample_run, truth):
@@ -187,7 +188,8 @@ def dynamic_tracks(clip, truth):
         ids = truth.ids(t)
         mine = t_q == t
         object_ids[mine] = ids[np.floor(queries[mine, 1]).astype(int), np.floor(queries[mine, 0]).astype(int)]
-    assert object_ids.all() and not set(object_ids.tolist()) & truth.human
+    assert object_ids.all()
+    assert not set(object_ids.tolist()) & truth.human
     dynamic = np.array(
         [
             "DYNAMIC" in str(truth.provider.get_instance_info_by_id(int(i)).motion_type).upper()
@@ -247,5 +249,6 @@ def test_tracks_sit_on_their_objects_and_overlay(sample_run, truth, tmp_path):
 def test_without_input_explains_how_to_get_adt(tmp_path, capsys):
     assert run_main(["--source", "adt", "--output", str(tmp_path)]) == 2
     message = capsys.readouterr().err
-    assert "no embedded ADT sample" in message and "aria_dataset_downloader" in message
+    assert "no embedded ADT sample" in message
+    assert "aria_dataset_downloader" in message
     assert "adt.chunk_frames=2" in message

@@ -56,7 +56,8 @@ def test_known_offsets_fall_within_some_thresholds():
     result = score(gt, vis, pred, vis, "none")
     assert [result[f"pts_within_{d}"] for d in PIXEL_THRESHOLDS] == [0.25, 0.5, 0.5, 0.75, 0.75]
     assert result["average_pts_within"] == pytest.approx(0.55)
-    assert result["jaccard_1"] == pytest.approx(1 / 7) and result["jaccard_8"] == pytest.approx(3 / 5)
+    assert result["jaccard_1"] == pytest.approx(1 / 7)
+    assert result["jaccard_8"] == pytest.approx(3 / 5)
     assert result["average_jaccard"] == pytest.approx(0.401905, abs=1e-6)
     assert result["occlusion_accuracy"] == 1.0
     # Median of the unscaled errors 0, 0.03, 0.1, 0.5 -> (0.03 + 0.1) / 2.
@@ -180,7 +181,8 @@ def test_compare_a_folder_with_itself_scores_one_and_never_unpickles(ref_dir, tm
     for row in report["clips"] + report["sources"]:
         for key in SCORE_KEYS:
             assert row[key] == 1.0, (row, key)
-        assert row["oa"] == 1.0 and row["median_error_m"] == 0.0
+        assert row["oa"] == 1.0
+        assert row["median_error_m"] == 0.0
     assert "| adt | a_0.npz | scored | 10 | 200 | 1.0000" in out.with_suffix(".md").read_text()
 
 
@@ -191,15 +193,20 @@ def test_mismatched_and_missing_predictions_count_zero_and_unmatched_clips_are_l
     write_clip(new, "drivetrack", "extra.npz", synthetic_clip(3))
     report = compare_dirs(str(ref_dir), str(new))
     first, second, third = report["clips"]
-    assert first["status"] == "zero" and "shapes differ" in first["error"] and first["aj_median"] == 0.0
-    assert second["status"] == "scored" and second["aj_median"] == 1.0
-    assert third["status"] == "zero" and third["error"] == "no prediction file"
+    assert first["status"] == "zero"
+    assert "shapes differ" in first["error"]
+    assert first["aj_median"] == 0.0
+    assert second["status"] == "scored"
+    assert second["aj_median"] == 1.0
+    assert third["status"] == "zero"
+    assert third["error"] == "no prediction file"
     assert report["only_in_new"] == ["drivetrack/extra.npz"]
     # adt: (0 + 1) / 2; pstudio: 0; all: the mean of the two source means.
     adt, pstudio, overall = report["sources"]
     assert (adt["clips"], adt["zero"], adt["aj_median"]) == (2, 1, 0.5)
     assert (pstudio["clips"], pstudio["zero"], pstudio["aj_median"]) == (1, 1, 0.0)
-    assert overall["aj_median"] == 0.25 and overall["median_error_m"] == 0.0
+    assert overall["aj_median"] == 0.25
+    assert overall["median_error_m"] == 0.0
     assert main([str(ref_dir), str(tmp_path / "absent")]) == 2
     (tmp_path / "empty").mkdir()
     assert main([str(ref_dir), str(tmp_path / "empty")]) == 1

@@ -128,9 +128,8 @@ def test_folded_counts_equal_the_sweeps_at_every_slider_value(out, source):
         assert got == expected, (fgrid[f], mgrid[m], t)
         passed.add(expected["passed"])
     assert len(passed) > 20  # the grids do move the counts
-    assert len(fgrid) == len(mgrid) == 101 and len(tgrid) == max(
-        len(c["stats"]["visible_frames"]) for c in clips
-    )
+    assert len(fgrid) == len(mgrid) == 101
+    assert len(tgrid) == max(len(c["stats"]["visible_frames"]) for c in clips)
 
 
 @pytest.mark.parametrize("source", ["pstudio", "drivetrack"])
@@ -153,7 +152,8 @@ def test_a_run_value_between_steps_is_a_slider_value_counted_exactly(out, tmp_pa
     (copy / "run_pstudio.json").write_text(json.dumps(record))
     data = source_data(str(copy), sources.get("pstudio"))
     fgrid, mgrid, _ = data["grids"].values()
-    assert len(fgrid) == len(mgrid) == 102 and fgrid == sorted(fgrid)
+    assert len(fgrid) == len(mgrid) == 102
+    assert fgrid == sorted(fgrid)
     clips, splits, base = sweep_clips(copy, "pstudio")
     counts = set()
     for m in range(mgrid.index(0.9), mgrid.index(0.91) + 1):
@@ -174,14 +174,18 @@ def test_a_run_value_between_steps_is_a_slider_value_counted_exactly(out, tmp_pa
 def test_help_and_one_line_refusals(out, tmp_path, capsys):
     with pytest.raises(SystemExit) as stop:
         audit_main(["report", "--help"])
-    assert stop.value.code == 0 and "--thumbnails" in capsys.readouterr().out
+    assert stop.value.code == 0
+    assert "--thumbnails" in capsys.readouterr().out
     with pytest.raises(SystemExit) as stop:
         audit_main(["report", str(out), "--out", str(tmp_path / "p.html"), "--thumbnail", "3"])
     error = capsys.readouterr().err
-    assert stop.value.code == 2 and "did you mean --thumbnails?" in error and error.count("\n") == 1
+    assert stop.value.code == 2
+    assert "did you mean --thumbnails?" in error
+    assert error.count("\n") == 1
     assert audit_main(["report", str(tmp_path), "--out", str(tmp_path / "p.html")]) == 2
     error = capsys.readouterr().err
-    assert error.startswith("report: no audit tables") and error.count("\n") == 1
+    assert error.startswith("report: no audit tables")
+    assert error.count("\n") == 1
     assert not (tmp_path / "p.html").exists()
 
 
@@ -199,11 +203,12 @@ def test_writes_only_its_page_with_evenly_spaced_thumbnails(out, tmp_path):
     before = tree(out)
     page = tmp_path / "page.html"
     assert audit_main(["report", str(out), "--out", str(page), "--thumbnails", "2"]) == 0
-    assert tree(out) == before and os.listdir(tmp_path) == ["page.html"]
+    assert tree(out) == before
+    assert os.listdir(tmp_path) == ["page.html"]
     text = page.read_text()
-    assert (
-        "<script src" not in text and "<link" not in text and not re.search(r'(src|href)="(https?:)?//', text)
-    )
+    assert "<script src" not in text
+    assert "<link" not in text
+    assert not re.search(r'(src|href)="(https?:)?//', text)
     pages = {s["name"]: s for s in embedded(page)["sources"]}
     assert set(pages["pstudio"]["thumbnails"]) == {"dome_16", "dome_8"}  # first and last by name
     assert set(pages["drivetrack"]["thumbnails"]) == {CROSSING, PARKED}
@@ -214,7 +219,9 @@ def test_writes_only_its_page_with_evenly_spaced_thumbnails(out, tmp_path):
     jpeg = np.frombuffer(base64.b64decode(pages["pstudio"]["thumbnails"]["dome_8"]), np.uint8)
     thumb = cv2.cvtColor(cv2.imdecode(jpeg, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
     expected = cv2.resize(drawn[:height, :width], thumb.shape[1::-1], interpolation=cv2.INTER_AREA)
-    assert thumb.shape[1] == 320 and np.abs(thumb.astype(int) - expected).mean() < 3 and thumb.std() > 10
+    assert thumb.shape[1] == 320
+    assert np.abs(thumb.astype(int) - expected).mean() < 3
+    assert thumb.std() > 10
 
 
 # ------------------------------------------------------------------------------- in the browser
@@ -260,7 +267,8 @@ def test_the_page_loads_offline_without_errors(loaded, tmp_path):
     )
     shot = tmp_path / "page.png"
     assert loaded.save_screenshot(str(shot))
-    assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and shot.stat().st_size > 20_000
+    assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert shot.stat().st_size > 20_000
 
 
 def move(driver, source: str, slider: str, index: int, last: int) -> str:
@@ -315,5 +323,6 @@ def test_sliders_show_the_sweeps_counts(loaded, out, source, tmp_path):
                 assert shown(loaded, f"{source}-release-{split}") == row[f"release_{split}"], row
         table = loaded.find_element(By.ID, f"{source}-table-body")
         assert len(table.find_elements(By.CSS_SELECTOR, "tr.dropped")) == clips - row["clips_written"]
-    assert len({row["passed"] for row in rows}) > 4 and len({row["clips_written"] for row in rows}) > 1
+    assert len({row["passed"] for row in rows}) > 4
+    assert len({row["clips_written"] for row in rows}) > 1
     assert severe(loaded) == []

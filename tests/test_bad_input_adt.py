@@ -36,8 +36,10 @@ import functools
 import os
 import pathlib
 
+import pytest
+
 from tests.adt_excerpt import SAMPLE, SETTINGS, needs_excerpt
-from tests.bad_input import assert_isolated_failures
+from tests.bad_input import assert_case_error, assert_only_these_units_failed
 from tests.cli import run_in_process
 
 VIDEO, DEPTH, IDS = "video.vrs", "depth_images_with_skeleton.vrs", "segmentations_with_skeleton.vrs"
@@ -186,19 +188,38 @@ CASES = [
 ]
 
 
-def test_each_bad_sequence_fails_alone_with_its_error(tmp_path):
-    root = tmp_path / "adt"
+@pytest.fixture(scope="module")
+def bad_run(tmp_path_factory):
+    """(output folder, failures by unit) of one run over the good sequence and one broken copy per
+    case (symbolic links to the excerpt's files, the broken one replaced)."""
+    root = tmp_path_factory.mktemp("bad_adt") / "adt"
     for name, make in [("good_M1292", None), *((case, make) for case, make, _ in CASES)]:
         (root / name).mkdir(parents=True)
         for entry in SAMPLE.iterdir():
             (root / name / entry.name).symlink_to(entry)
         if make:
             make(root / name)
-    out = tmp_path / "out"
+    out = root.parent / "out"
     result = run_in_process("adt", "--input", str(root), "--output", str(out), *SETTINGS)
     expected = {f"{case}/chunk_0": needles for case, _, needles in CASES}
-    errors = assert_isolated_failures(result, str(out), "adt", expected)
+    return out, assert_only_these_units_failed(result, str(out), "adt", expected)
+
+
+@pytest.mark.parametrize(
+    "case, needles", [(case, needles) for case, _, needles in CASES], ids=[c[0] for c in CASES]
+)
+def test_a_bad_sequence_fails_alone_with_its_error(bad_run, case, needles):
+    _, errors = bad_run
+    assert_case_error(errors, f"{case}/chunk_0", needles)
+
+
+def test_a_missing_pose_names_the_object(bad_run):
+    _, errors = bad_run
     assert f"object {centre_object()} has no pose at t=" in errors["no_pose/chunk_0"]
-    # Only the good sequence wrote a clip (its v1 name drops the serial suffix M1292).
+
+
+def test_only_the_good_sequence_writes_a_clip(bad_run):
+    out, _ = bad_run
+    # Its v1 name drops the serial suffix M1292.
     assert sorted(os.listdir(out / "adt")) == ["good_0.npz"]
     assert sorted(os.listdir(out / "audit" / "adt")) == ["good_0.parquet"]

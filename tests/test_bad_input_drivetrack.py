@@ -56,7 +56,7 @@ import pytest
 from pipeline.drivetrack import columns as C
 from pipeline.drivetrack.reader import SegmentReader
 from pipeline.samples.waymo_world import SEGMENT, timestamp
-from tests.bad_input import assert_isolated_failures
+from tests.bad_input import assert_case_error, assert_only_these_units_failed, failures_by_unit
 from tests.cli import run_in_process
 
 T = timestamp(5)
@@ -369,15 +369,28 @@ def bad_run(sample_split, tmp_path_factory):
     return split, out, run_in_process("drivetrack", "--input", split, "--output", out)
 
 
-def test_each_case_fails_only_its_units_with_a_clear_error(bad_run):
-    _, out, result = bad_run
-    expected = {
+def expected_failures() -> dict[str, list[str]]:
+    """Failing unit -> substrings of its error, every case's."""
+    return {
         f"{case.segment}/camera_{camera}": [needle.format(seg=case.segment) for needle in case.expected]
         for case in CASES
         for camera in case.cameras
     }
-    assert_isolated_failures(result, out, "drivetrack", expected)
+
+
+def test_only_the_cases_units_fail_and_every_clip_validates(bad_run):
+    _, out, result = bad_run
+    assert_only_these_units_failed(result, out, "drivetrack", expected_failures())
     assert "failure(s): see" in result.stderr
+
+
+@pytest.mark.parametrize("case", CASES, ids=lambda case: case.name)
+def test_a_case_fails_its_units_with_a_clear_error(bad_run, case):
+    _, out, _ = bad_run
+    errors, expected = failures_by_unit(out, "drivetrack"), expected_failures()
+    for camera in case.cameras:
+        unit = f"{case.segment}/camera_{camera}"
+        assert_case_error(errors, unit, expected[unit])
 
 
 def test_good_units_write_all_their_clips(bad_run):
@@ -403,4 +416,6 @@ def test_an_exact_copy_of_a_row_is_dropped(bad_run):
     for field in dataclasses.fields(clean):
         a, b = getattr(clean, field.name), getattr(copied, field.name)
         same = a.tolist() == b.tolist() if a.dtype == object else a.tobytes() == b.tobytes()
-        assert a.dtype == b.dtype and a.shape == b.shape and same, field.name
+        assert a.dtype == b.dtype, field.name
+        assert a.shape == b.shape, field.name
+        assert same, field.name

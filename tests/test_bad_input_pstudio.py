@@ -31,10 +31,12 @@ import shutil
 
 import cv2
 import numpy as np
+import pytest
 
 from pipeline.samples.dynamic3dgs_files import EXPERIMENT, SEQUENCE
-from tests.bad_input import assert_isolated_failures
+from tests.bad_input import assert_case_error, assert_only_these_units_failed
 from tests.cli import run_in_process
+from tests.conftest import link_tree
 
 CAMERA, OTHER = 0, 1  # columns of cameras 3 and 8 in train_meta.json
 
@@ -190,10 +192,53 @@ def make_cases(root: str, count: int) -> dict[str, list[str]]:
     return {f"{name}/camera_3": needles for name, (_, needles) in cases.items()}
 
 
-def test_each_bad_sequence_fails_alone_with_its_error(pstudio_sample, pstudio_links, tmp_path):
-    root = pstudio_links  # hard links to the shared sample, never written: see Sequence
+CASE_NAMES = (
+    "pickled_member",
+    "npy_not_npz",
+    "mismatched_shapes",
+    "truncated_params",
+    "missing_params",
+    "string_member",
+    "nan_means",
+    "zero_gaussians",
+    "bad_json",
+    "absent_camera",
+    "singular_w2c",
+    "nan_intrinsics",
+    "zero_focal",
+    "escaping_fn",
+    "corrupt_jpeg",
+    "missing_mask",
+    "wrong_mask_size",
+)
+
+
+@pytest.fixture(scope="module")
+def bad_run(pstudio_sample, tmp_path_factory):
+    """(expected unit -> needles, failures by unit) of one run over the good sequence and one corrupted
+    copy per case (hard links to the shared sample, never written: see Sequence)."""
+    root = str(tmp_path_factory.mktemp("bad_pstudio") / "root")
+    link_tree(pstudio_sample[0], root)
     expected = make_cases(root, len(pstudio_sample[1].part_of_gaussian))
-    out = str(tmp_path / "out")
+    out = root + "_out"
     result = run_in_process("pstudio", "--input", root, "--output", out, "--set", "pstudio.cameras=3")
-    assert_isolated_failures(result, out, "pstudio", expected)
+    errors = assert_only_these_units_failed(result, out, "pstudio", expected)
+    return expected, errors, out
+
+
+def test_the_cases_are_the_table():
+    assert set(CASE_NAMES) == {
+        row.split("|")[1].strip() for row in __doc__.splitlines()[4:] if row.startswith("| ")
+    }
+
+
+@pytest.mark.parametrize("case", CASE_NAMES)
+def test_a_bad_sequence_fails_alone_with_its_error(bad_run, case):
+    expected, errors, _ = bad_run
+    assert_case_error(errors, f"{case}/camera_3", expected[f"{case}/camera_3"])
+
+
+def test_only_the_good_unit_writes_a_clip(bad_run):
+    expected, _, out = bad_run
+    assert {unit.split("/")[0] for unit in expected} == set(CASE_NAMES)
     assert os.listdir(os.path.join(out, "pstudio")) == ["dome_3.npz"]  # the good unit's, and only it

@@ -64,9 +64,12 @@ def test_drivetrack_object_id_with_path_separators_fails_its_clip_only(split_cop
     errors = failures_by_unit(out, "drivetrack")
     unit = f"{SEGMENT}/camera_1 (tapvid3d_{SEGMENT}_1_../escape)"
     assert set(errors) == {unit}
-    assert errors[unit].startswith("InputError") and UNSAFE in errors[unit] and "['/']" in errors[unit]
+    assert errors[unit].startswith("InputError")
+    assert UNSAFE in errors[unit]
+    assert "['/']" in errors[unit]
     written = sorted(os.listdir(os.path.join(out, "drivetrack")))
-    assert len(written) == 3 and not any("escape" in name for name in written)  # the other 3 clips
+    assert len(written) == 3
+    assert not any("escape" in name for name in written)  # the other 3 clips
     assert not os.path.exists(os.path.join(tmp_path, "escape.npz"))
     assert partial_files(out) == []
 
@@ -129,7 +132,9 @@ def test_adt_unsafe_sequence_name_fails_its_unit_only(tmp_path):
     errors = failures_by_unit(out, "adt")
     assert len(errors) == 1
     ((unit, error),) = errors.items()
-    assert unit.startswith("seq\\evil") and UNSAFE in error and "['\\\\']" in error
+    assert unit.startswith("seq\\evil")
+    assert UNSAFE in error
+    assert "['\\\\']" in error
     assert os.listdir(os.path.join(out, "adt")) == ["good_0.npz"]
     assert partial_files(out) == []
 
@@ -151,12 +156,14 @@ def blocked_run(source: str, source_input: str, out: str, *args: str) -> dict[st
     result = run_in_process(source, "--input", source_input, "--output", out, *args)
     assert result.returncode == 1, result.stderr[-3000:]
     errors = failures_by_unit(out, source)
-    assert errors and all(
+    assert errors
+    assert all(
         error.startswith(f"OutputError: cannot write {out}/{source}/") and f"'{out}/{source}'" in error
         for error in errors.values()
     )
     summary = json.load(open(os.path.join(out, f"run_{source}.json")))["summary"]
-    assert summary["clips_written"] == 0 and summary["failures"] == len(errors)
+    assert summary["clips_written"] == 0
+    assert summary["failures"] == len(errors)
     # A unit with a failed clip is not recorded as finished, so a rerun once the folder is fixed
     # redoes it (a unit with no clip at all is finished).
     folder = os.path.join(out, "units", source)

@@ -58,9 +58,11 @@ def test_a_typo_is_refused_with_the_nearest_option_before_any_work(tmp_path):
 def test_bad_beam_options_are_one_line_before_the_sample_world(tmp_path, option, message):
     out = tmp_path / "out"
     result = command("pipeline.run", "--source", "drivetrack", "--output", str(out), option)
-    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert result.returncode == 2
+    assert "Traceback" not in result.stderr
     (line,) = result.stderr.splitlines()
-    assert line.startswith("python -m pipeline.run: ") and message in line
+    assert line.startswith("python -m pipeline.run: ")
+    assert message in line
     assert not out.exists()
 
 
@@ -104,7 +106,8 @@ COMMANDS = [
 def test_help_goes_to_stdout_with_exit_0(words):
     result = command(*words, "--help")
     assert result.returncode == 0, result.stderr
-    assert result.stdout.strip() and result.stderr == ""
+    assert result.stdout.strip()
+    assert result.stderr == ""
 
 
 @pytest.mark.parametrize("words", COMMANDS, ids=" ".join)
@@ -160,7 +163,8 @@ def test_validate_takes_one_clip_and_says_what_is_missing(reference_run, tmp_pat
         f"validate: {tmp_path / 'absent'} does not exist",
     )
     empty = command("pipeline.validate", str(tmp_path))
-    assert empty.returncode == 2 and "no .npz clips in" in empty.stderr
+    assert empty.returncode == 2
+    assert "no .npz clips in" in empty.stderr
 
 
 # ------------------------------------------------------------------------------------- progress
@@ -233,7 +237,9 @@ def test_a_terminal_gets_a_live_progress_bar(pstudio_sample, tmp_path):
     os.close(leader)
     assert result.returncode == 0
     text = shown.decode(errors="replace")
-    assert "\r" in text and "4/4" in text and "unit/s" in text  # tqdm's bar, redrawn in place
+    assert "\r" in text
+    assert "4/4" in text
+    assert "unit/s" in text  # tqdm's bar, redrawn in place
     assert "unit dome/camera_3: 1 of 1 clip(s) written" in text
 
 
@@ -251,8 +257,10 @@ def test_workers_are_as_quiet_as_the_main_process(pstudio_sample, tmp_path):
     )
     assert result.returncode == 0, result.stderr[-3000:]
     lines = result.stderr.splitlines()
-    assert len(lines) == 4 and all(line.startswith("[") for line in lines), result.stderr[-3000:]
-    assert "apitools" not in result.stderr and "INFO" not in result.stderr
+    assert len(lines) == 4, result.stderr[-3000:]
+    assert all(line.startswith("[") for line in lines), result.stderr[-3000:]
+    assert "apitools" not in result.stderr
+    assert "INFO" not in result.stderr
 
 
 @pytest.mark.parametrize("mode", [[], ["--direct_running_mode=multi_processing", "--direct_num_workers=2"]])
@@ -332,7 +340,8 @@ def test_manifest_settings_resume_every_unit_and_rewrite_the_manifests(finished,
     result = run_in_process(
         "drivetrack", "--input", source_input, "--output", out, "--set", "minival_per_source=2"
     )
-    assert result.returncode == 0 and result.stderr.count(RESUMED) == 3
+    assert result.returncode == 0
+    assert result.stderr.count(RESUMED) == 3
     assert len(open(os.path.join(out, "manifests", "minival.txt")).read().splitlines()) == 2
     names = sorted(before)
     splits = tmp_path / "splits.json"
@@ -342,7 +351,8 @@ def test_manifest_settings_resume_every_unit_and_rewrite_the_manifests(finished,
     result = run_in_process(
         "drivetrack", "--input", source_input, "--output", out, "--set", f"splits_file={splits}"
     )
-    assert result.returncode == 0 and result.stderr.count(RESUMED) == 3
+    assert result.returncode == 0
+    assert result.stderr.count(RESUMED) == 3
     assert open(os.path.join(out, "manifests", "minival.txt")).read() == f"drivetrack/{names[0]}\n"
     assert clip_bytes(out, "drivetrack") == before
 
@@ -357,7 +367,8 @@ def test_a_release_run_resumes_a_plain_runs_units(finished, tmp_path):
     release = tmp_path / "release.json"
     splits = {"minival": {"drivetrack": names[:2]}, "full_eval": {"drivetrack": [names[3], other_camera]}}
     release.write_text(json.dumps(splits))
-    assert other_camera not in names and parse_release(release.read_text()).names("drivetrack")
+    assert other_camera not in names
+    assert parse_release(release.read_text()).names("drivetrack")
     result = run_in_process("drivetrack", "--input", source_input, "--output", out, "--release", str(release))
     assert result.returncode == 0, result.stderr[-3000:]
     assert result.stderr.count(RESUMED) == 2  # the units of cameras 1 and 3, each named
@@ -375,5 +386,6 @@ def test_a_release_run_resumes_a_plain_runs_units(finished, tmp_path):
 def test_an_annotation_setting_redoes_every_unit(finished):
     source_input, out = finished
     result = run_in_process("drivetrack", "--input", source_input, "--output", out, "--set", "seed=7")
-    assert result.returncode == 0 and result.stderr.count(RESUMED) == 0
+    assert result.returncode == 0
+    assert result.stderr.count(RESUMED) == 0
     assert result.stderr.count(" clip(s) written") == 3

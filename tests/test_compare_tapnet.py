@@ -82,13 +82,16 @@ def test_nan_predictions_are_misses_and_leave_only_the_predictions_median(tmp_pa
     # pts_within = 0, 3/4, 3/4, 3/4, 3/4 -> APD 0.6. jaccard: 1 px 0 / (4 + 4 false positives) = 0,
     # then 3 / (4 + 1) = 0.6 -> AJ 0.48. (Dropping track 0 from both medians gives scale 3 / 6,
     # every track 1-3 exact and APD 0.75; a plain median gives a NaN scale and 0.)
-    assert row["apd_median"] == pytest.approx(0.6) and row["aj_median"] == pytest.approx(0.48)
+    assert row["apd_median"] == pytest.approx(0.6)
+    assert row["aj_median"] == pytest.approx(0.48)
     # none: errors z = 2, 3, 4 m within only at 16 px (radius 1.6 z) -> pts_within_16 = 3/4,
     # APD 0.75 / 5 = 0.15; jaccard_16 = 3/5, the others 0 -> AJ 0.12.
-    assert row["apd_none"] == pytest.approx(0.15) and row["aj_none"] == pytest.approx(0.12)
+    assert row["apd_none"] == pytest.approx(0.15)
+    assert row["aj_none"] == pytest.approx(0.12)
     # per_trajectory: track 0's scale is NaN (a miss), tracks 1-3 scale by 1/2 and are exact:
     # pts_within 3/4 at every threshold, jaccard 3 / (4 + 1).
-    assert row["apd_per_trajectory"] == pytest.approx(0.75) and row["aj_per_trajectory"] == pytest.approx(0.6)
+    assert row["apd_per_trajectory"] == pytest.approx(0.75)
+    assert row["aj_per_trajectory"] == pytest.approx(0.6)
     assert row["oa"] == 1.0
     # Unscaled errors inf (NaN), 2, 3, 4 -> median (3 + 4) / 2.
     assert row["median_error_m"] == 3.5
@@ -147,7 +150,9 @@ def test_a_pickled_prediction_is_refused_unread_and_counts_zero(tmp_path, monkey
     monkeypatch.setattr(pickle, "load", refuse)
     monkeypatch.setattr(pickle, "loads", refuse)
     row = compare_dirs(str(ref), str(new))["clips"][0]
-    assert row["status"] == "zero" and "pickle" in row["error"] and row["aj_median"] == 0.0
+    assert row["status"] == "zero"
+    assert "pickle" in row["error"]
+    assert row["aj_median"] == 0.0
 
 
 def test_a_prediction_only_file_is_scored(tmp_path):
@@ -177,7 +182,8 @@ def test_prediction_members_are_capped_by_the_ref_clips_size(tmp_path):
     write_prediction(new, "adt/a.npz", at_2m(50, 4))
     row = compare_dirs(str(ref), str(new))["clips"][0]
     assert row["status"] == "zero"
-    assert "REF's clip has T = 1 frames and N = 4 tracks" in row["error"] and "refused" in row["error"]
+    assert "REF's clip has T = 1 frames and N = 4 tracks" in row["error"]
+    assert "refused" in row["error"]
 
 
 def test_clips_of_different_lengths_weigh_one_each_and_sources_one_each(tmp_path):
@@ -203,12 +209,16 @@ def test_clips_of_different_lengths_weigh_one_each_and_sources_one_each(tmp_path
     adt, pstudio, overall = report["sources"]
     # adt: each clip weighs 1 whatever its length: APD (1/4 + 1 + 0) / 3 = 5/12, AJ (1/7 + 1 + 0) / 3
     # = 8/21, OA (1 + 1 + 0) / 3 = 2/3. (Pooling adt's points would give APD (1 + 2 + 0) / 9 = 1/3.)
-    assert adt["apd_none"] == pytest.approx(5 / 12) and adt["aj_none"] == pytest.approx(8 / 21)
+    assert adt["apd_none"] == pytest.approx(5 / 12)
+    assert adt["aj_none"] == pytest.approx(8 / 21)
     assert adt["oa"] == pytest.approx(2 / 3)
-    assert pstudio["apd_none"] == 0.0 and pstudio["aj_none"] == 0.0 and pstudio["oa"] == 1.0
+    assert pstudio["apd_none"] == 0.0
+    assert pstudio["aj_none"] == 0.0
+    assert pstudio["oa"] == 1.0
     # all: the mean of the source means, APD (5/12 + 0) / 2 = 5/24, AJ 4/21, OA (2/3 + 1) / 2 = 5/6
     # (the mean over the 4 clips would give APD 5/16).
-    assert overall["apd_none"] == pytest.approx(5 / 24) and overall["aj_none"] == pytest.approx(4 / 21)
+    assert overall["apd_none"] == pytest.approx(5 / 24)
+    assert overall["aj_none"] == pytest.approx(4 / 21)
     assert overall["oa"] == pytest.approx(5 / 6)
     assert (overall["clips"], overall["zero"]) == (4, 1)
 
@@ -222,7 +232,9 @@ def test_a_nan_clip_metric_makes_the_mean_nan_as_in_tapnet(tmp_path):
     for name in ("a", "b"):
         write_prediction(new, f"adt/{name}.npz", at_2m(1, 2))
     adt = compare_dirs(str(ref), str(new))["sources"][0]
-    assert np.isnan(adt["apd_none"]) and adt["aj_none"] == 0.5 and adt["oa"] == 0.5
+    assert np.isnan(adt["apd_none"])
+    assert adt["aj_none"] == 0.5
+    assert adt["oa"] == 0.5
 
 
 def test_query_frames_outside_the_clip_zero_the_per_trajectory_scores_only(tmp_path):
@@ -247,13 +259,15 @@ def test_a_clip_list_picks_the_benchmark_and_a_missing_ref_clip_is_left_out(tmp_
     listing.write_text("adt/a.npz\n\n")
     assert main([str(ref), str(new), "--clips", str(listing), "--out", str(out)]) == 0
     report = json.loads(out.with_suffix(".json").read_text())
-    assert [row["clip"] for row in report["clips"]] == ["a.npz"] and report["sources"][-1]["aj_median"] == 1.0
+    assert [row["clip"] for row in report["clips"]] == ["a.npz"]
+    assert report["sources"][-1]["aj_median"] == 1.0
     # A listed clip REF lacks is named and left out of the means (tapnet would stop); a is scored.
     listing.write_text("adt/a.npz\nadt/zz.npz\n")
     assert main([str(ref), str(new), "--clips", str(listing), "--out", str(out)]) == 0
     assert "not scored: adt/zz.npz: not in REF (REF unreadable" in capsys.readouterr().err
     report = json.loads(out.with_suffix(".json").read_text())
-    assert report["sources"][-1]["aj_median"] == 1.0 and report["sources"][-1]["ref_errors"] == 1
+    assert report["sources"][-1]["aj_median"] == 1.0
+    assert report["sources"][-1]["ref_errors"] == 1
     listing.write_text("adt/zz.npz\n")  # nothing scorable
     assert main([str(ref), str(new), "--clips", str(listing), "--out", str(out)]) == 1
     listing.write_text("a.npz\n")

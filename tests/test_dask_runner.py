@@ -47,7 +47,8 @@ def test_dask_runner_writes_the_direct_runners_bytes(source, cluster, reference_
     assert result.returncode == 0, result.stderr[-3000:]
     after = tasks_per_worker(client)
     # Both worker processes ran tasks of this pipeline (the submitting process runs none).
-    assert set(after) == set(before) and len(after) == 2
+    assert set(after) == set(before)
+    assert len(after) == 2
     assert all(after[worker] > before[worker] for worker in after), (before, after)
     # The run closed the client Beam's runner opened (left open, it would try to reconnect once
     # the cluster is gone).

@@ -48,7 +48,8 @@ def matched_tracks(a: dict, b: dict) -> tuple[np.ndarray, np.ndarray]:
 
 def test_same_clips_tracks_queries_and_visibility(clips):
     base, moved = clips["base"], clips["moved"]
-    assert list(base) == list(moved) and len(base) == 4
+    assert list(base) == list(moved)
+    assert len(base) == 4
     tracks = unmatched = flips = pairs = other_query_frames = 0
     worst = 0.0
     for name in base:
@@ -74,4 +75,5 @@ def test_same_clips_tracks_queries_and_visibility(clips):
         f"decisions flipped, {other_query_frames} query frames changed without a flip"
     )
     assert unmatched <= 0.01 * tracks
-    assert flips <= 1e-3 * pairs and other_query_frames == 0
+    assert flips <= 1e-3 * pairs
+    assert other_query_frames == 0

@@ -119,7 +119,8 @@ def test_a_segments_cameras_share_one_lidar_read_and_make_the_same_clips(clips, 
 
     monkeypatch.setattr(SegmentReader, "top_lidar_frames", counted)
     grouped = annotate_segment(sample_split[0], [(SEGMENT, camera) for camera in (1, 2, 3)], RunConfig())
-    assert len(streamed) == 1 and len(set(streamed[0])) == len(streamed[0])
+    assert len(streamed) == 1
+    assert len(set(streamed[0])) == len(streamed[0])
     needed = {int(t) for camera_clips in clips.values() for clip in camera_clips for t in clip.frame_ids}
     assert set(streamed[0]) == needed  # the frames of cameras 1 and 3's clips, in one pass
     for camera, alone in zip((1, 2, 3), [made.clips for made in grouped], strict=True):

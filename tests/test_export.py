@@ -50,7 +50,8 @@ def test_npz_round_trip_and_bytes_are_reproducible():
     assert sorted(loaded) == sorted(arrays)
     np.testing.assert_array_equal(loaded["tracks_XYZ"], arrays["tracks_XYZ"])
     assert list(loaded["images_jpeg_bytes"]) == list(arrays["images_jpeg_bytes"])
-    assert loaded["images_jpeg_bytes"].dtype.kind == "S" and loaded["fx_fy_cx_cy"].dtype == np.float64
+    assert loaded["images_jpeg_bytes"].dtype.kind == "S"
+    assert loaded["fx_fy_cx_cy"].dtype == np.float64
     assert check_clip_bytes(data) == []
 
 
@@ -92,7 +93,8 @@ FRAME_LISTS = [[], [b""], [b"ab", b"c", b"\xff\xd9"], [b"\x00x\x00", b"y\x00"], 
 def test_frames_array_is_what_numpy_makes_of_the_list(items):
     """The release's frames array: what ``np.savez`` makes of a list of bytes, byte for byte."""
     ours, numpys = FixedWidthBytes(items).array(), np.array(items, dtype=np.bytes_)
-    assert ours.dtype == numpys.dtype and ours.shape == numpys.shape
+    assert ours.dtype == numpys.dtype
+    assert ours.shape == numpys.shape
     assert ours.tobytes() == numpys.tobytes()
 
 
@@ -190,13 +192,16 @@ def test_manifests_follow_official_membership_when_names_match():
         json.dumps({"minival": {"drivetrack": ["b.npz"]}, "full_eval": {"drivetrack": ["a.npz", "c.npz"]}})
     )
     minival, full_test = split_clips({"drivetrack": ["a.npz", "b.npz", "c.npz"]}, 50, 0, official.clips)
-    assert minival == ["drivetrack/b.npz"] and full_test == ["drivetrack/a.npz", "drivetrack/c.npz"]
+    assert minival == ["drivetrack/b.npz"]
+    assert full_test == ["drivetrack/a.npz", "drivetrack/c.npz"]
 
 
 def test_manifests_draw_a_deterministic_minival_otherwise():
     names = [f"clip{i:03d}.npz" for i in range(120)]
     minival, full_test = split_clips({"drivetrack": names}, 50, 0)
-    assert len(minival) == 50 and len(full_test) == 70 and not set(minival) & set(full_test)
+    assert len(minival) == 50
+    assert len(full_test) == 70
+    assert not set(minival) & set(full_test)
     assert split_clips({"drivetrack": list(reversed(names))}, 50, 0) == (minival, full_test)
     assert split_clips({"drivetrack": names}, 50, 1)[0] != minival
 
@@ -206,8 +211,10 @@ def test_config_overrides_are_typed_and_checked():
         RunConfig(),
         ["flicker.max_fraction=0.2", "drivetrack.cameras=1,3", "drivetrack.facing_test=false", "seed=4"],
     )
-    assert config.flicker.max_fraction == 0.2 and config.drivetrack.cameras == (1, 3)
-    assert config.drivetrack.facing_test is False and config.seed == 4
+    assert config.flicker.max_fraction == 0.2
+    assert config.drivetrack.cameras == (1, 3)
+    assert config.drivetrack.facing_test is False
+    assert config.seed == 4
     expected = r"unknown setting; did you mean flicker.max_fraction\? valid keys:.*flicker.max_fraction"
     with pytest.raises(ValueError, match=expected):
         with_overrides(RunConfig(), ["flicker.maxfraction=1"])

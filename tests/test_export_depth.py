@@ -27,7 +27,8 @@ def test_pstudio_dense_depth_matches_ray_cast_truth(pstudio_sample, tmp_path):
     command = ["--source", "pstudio", "--input", root, "--output", str(out), "--export-depth", "--set", only]
     assert run_main(command) == 0
     with np.load(out / "depth" / "pstudio" / f"dome_{camera.camera_id}.npz", allow_pickle=False) as depth:
-        assert str(depth["kind"]) == "dense" and depth["depth_mm"].dtype == np.uint16
+        assert str(depth["kind"]) == "dense"
+        assert depth["depth_mm"].dtype == np.uint16
         depth_mm = depth["depth_mm"]
     assert depth_mm.shape == (40, 360, STUDIO_WIDTH)
     errors = []
@@ -40,7 +41,8 @@ def test_pstudio_dense_depth_matches_ray_cast_truth(pstudio_sample, tmp_path):
         body = (cast["body"] >= 0) & (cast["body"] < len(studio.bodies) - 1)
         errors.append(np.abs(depth_mm[t][body] / 1000.0 - true_z[body]))
     errors = np.concatenate(errors)
-    assert np.median(errors) < 0.01 and np.mean(errors < 0.05) > 0.9
+    assert np.median(errors) < 0.01
+    assert np.mean(errors < 0.05) > 0.9
 
 
 def test_drivetrack_sparse_depth_lies_on_visible_surfaces(sample_split, world, tmp_path):
@@ -73,7 +75,8 @@ def test_drivetrack_sparse_depth_lies_on_visible_surfaces(sample_split, world, t
         total += len(points)
     assert total > 1000
     # Lidar points are captured up to a sweep before the camera exposure: moving cars shift.
-    assert on_surface / total > 0.9 and unobstructed / total > 0.9, (on_surface / total, unobstructed / total)
+    assert on_surface / total > 0.9, (on_surface / total, unobstructed / total)
+    assert unobstructed / total > 0.9, (on_surface / total, unobstructed / total)
 
 
 @needs_excerpt

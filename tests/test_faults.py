@@ -33,7 +33,8 @@ def test_replace_is_atomic_and_never_deletes_first(tmp_path, monkeypatch):
 
     monkeypatch.setattr(os, "replace", replace)
     write_atomic(str(path), b"new")
-    assert seen == [b"old"] and path.read_bytes() == b"new"
+    assert seen == [b"old"]
+    assert path.read_bytes() == b"new"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["clip.npz"]
 
 
@@ -74,7 +75,8 @@ def test_a_file_that_vanishes_during_clean_up_is_no_error(tmp_path):
 def test_over_long_names_get_a_clear_error(tmp_path):
     with pytest.raises(OSError) as raised:
         write_atomic(str(tmp_path / ("x" * 200 + ".npz")), b"data")
-    assert raised.value.errno == errno.ENAMETOOLONG and "at most 180" in str(raised.value)
+    assert raised.value.errno == errno.ENAMETOOLONG
+    assert "at most 180" in str(raised.value)
     assert list(tmp_path.iterdir()) == []
     with pytest.raises(InputError, match="is 161 characters, at most 160"):
         check_clip_name("c" * 161)
@@ -87,12 +89,16 @@ def test_a_bad_splits_file_or_input_stops_the_run_before_any_work(pstudio_sample
     result = run_pipeline(
         "pstudio", "--input", pstudio_sample[0], "--output", str(out), "--set", f"splits_file={splits}"
     )
-    assert result.returncode == 2 and not out.exists()
+    assert result.returncode == 2
+    assert not out.exists()
     assert f"cannot start: splits_file {splits}: not the release's splits JSON" in result.stderr
     assert "must map each source to a list of clip file names" in result.stderr
     result = run_pipeline("pstudio", "--input", str(tmp_path / "absent"), "--output", str(out))
-    assert result.returncode == 2 and "--input" in result.stderr and "does not exist" in result.stderr
-    assert "Traceback" not in result.stderr and not out.exists()
+    assert result.returncode == 2
+    assert "--input" in result.stderr
+    assert "does not exist" in result.stderr
+    assert "Traceback" not in result.stderr
+    assert not out.exists()
 
 
 def test_a_full_disk_is_caught_at_start(pstudio_sample, tmp_path):
@@ -120,7 +126,9 @@ def test_an_output_error_at_the_end_is_one_clear_line(pstudio_sample, tmp_path):
     )
     assert result.returncode == 2
     lines = [line for line in result.stderr.splitlines() if line.startswith("cannot finish:")]
-    assert len(lines) == 1 and "manifests" in lines[0] and "Traceback" not in result.stderr
+    assert len(lines) == 1
+    assert "manifests" in lines[0]
+    assert "Traceback" not in result.stderr
     assert not list(out.rglob(f"*{files.PARTIAL}*"))
 
 
@@ -159,8 +167,10 @@ def test_commands_print_one_line_errors_and_no_beam_import_noise(tmp_path):
     for name, args in runs.items():
         result = subprocess.run([sys.executable, "-m", *args], cwd=REPO, capture_output=True, text=True)
         lines = result.stderr.strip().splitlines()
-        assert result.returncode in (1, 2) and len(lines) == 1, (name, result.stderr)
-        assert "Traceback" not in result.stderr and "apitools" not in result.stderr, name
+        assert result.returncode in (1, 2), (name, result.stderr)
+        assert len(lines) == 1, (name, result.stderr)
+        assert "Traceback" not in result.stderr, name
+        assert "apitools" not in result.stderr, name
     assert (
         "sweep: audit table"
         in subprocess.run(

@@ -36,7 +36,8 @@ def test_silhouette_closes_scan_line_gaps():
     points = np.stack([cols.ravel(), rows.ravel()], 1)
     mask = silhouette_mask(points, 100, 100, closing_px=0)
     assert mask[42:59, 32:68].all()
-    assert not mask[:30].any() and not mask[:, 85:].any()
+    assert not mask[:30].any()
+    assert not mask[:, 85:].any()
     assert on_mask(mask, np.array([[50.5, 50.5], [5.0, 5.0], [-3.0, 50.0]])).tolist() == [True, False, False]
 
 

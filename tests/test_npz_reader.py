@@ -20,9 +20,11 @@ def test_read_returns_the_values_writable_or_read_only(tmp_path, order):
         copy = archive.read("means3D", size)
         view = archive.read("means3D", size, writable=False)
     for array in (copy, view):
-        assert array.dtype == np.float32 and array.shape == (2, 3, 4)
+        assert array.dtype == np.float32
+        assert array.shape == (2, 3, 4)
         np.testing.assert_array_equal(array, values)
-    assert copy.flags.writeable and not view.flags.writeable
+    assert copy.flags.writeable
+    assert not view.flags.writeable
     with pytest.raises(ValueError):
         view[0, 0, 0] = 1.0
     copy[0, 0, 0] = 99.0  # the copy is the caller's own

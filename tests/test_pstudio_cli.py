@@ -29,7 +29,8 @@ def test_run_writes_valid_clips(direct_run):
     assert clip_files(out) == ["dome_16.npz", "dome_21.npz", "dome_3.npz", "dome_8.npz"]
     assert validate_main([out]) == 0
     summary = json.load(open(os.path.join(out, "run_pstudio.json")))["summary"]
-    assert summary["clips_written"] == 4 and summary["clips_below_target"] == 0
+    assert summary["clips_written"] == 4
+    assert summary["clips_below_target"] == 0
     assert summary["dropped_by_filter"]["mask"] > 0  # the floaters
     with np.load(os.path.join(out, "pstudio", "dome_3.npz"), allow_pickle=False) as clip:
         assert "extrinsics_w2c" not in clip.files

@@ -76,7 +76,9 @@ def test_selected_points_render_the_full_frame_bit_for_bit_with_most_splats_cull
     rows, cols = points[centres, 1].astype(int), points[centres, 0].astype(int)
     np.testing.assert_array_equal(depth[centres], image_depth[rows, cols])
     np.testing.assert_array_equal(surface[centres], image_surface[rows, cols])
-    assert np.isnan(depth[~inside]).all() and surface.sum() > 20 and (~surface[inside]).sum() > 3
+    assert np.isnan(depth[~inside]).all()
+    assert surface.sum() > 20
+    assert (~surface[inside]).sum() > 3
     # The culling is exact: kept are precisely the full frame's splats whose footprint box meets
     # a requested block, in the same (depth) order, and that is a small part of the scene.
     blocks = {(int(x // BLOCK), int(y // BLOCK)) for x, y in points[inside]}
@@ -90,7 +92,8 @@ def test_selected_points_render_the_full_frame_bit_for_bit_with_most_splats_cull
             & (high[:, 1] >= by * BLOCK)
         )
     np.testing.assert_array_equal(selected.index, full.index[reaching])
-    assert len(selected) < 0.15 * len(full) and len(full) > 10_000
+    assert len(selected) < 0.15 * len(full)
+    assert len(full) > 10_000
 
 
 def test_splats_at_equal_depth_keep_their_index_order():
@@ -128,7 +131,8 @@ def test_depth_limits_keep_every_depth_within_them_and_every_depth_test():
         limited_surface & (np.abs(z - limited_depth) < delta), surface & (np.abs(z - depth) < delta)
     )
     # The limits did leave splats out: some depths beyond them became "no surface".
-    assert (surface & ~limited_surface).sum() > 100 and within.sum() > 100
+    assert (surface & ~limited_surface).sum() > 100
+    assert within.sum() > 100
     np.testing.assert_array_equal(np.isnan(limited_depth), np.isnan(depth))
     # Projecting only the splats no deeper than the largest limit of a block they reach decides
     # the same (here the left half's points, whose limits keep out the scene's far part).
@@ -164,7 +168,8 @@ def test_depth_limits_keep_every_depth_within_them_and_every_depth_test():
         unscanned += not scanned
         expected.append(not scanned or any(limit_of.get(b, -np.inf) >= reaching.depth[k] for b in covered))
     np.testing.assert_array_equal(near.index, reaching.index[np.array(expected)])
-    assert unscanned > 10 and 0 < np.sum(expected) < 0.5 * len(reaching)
+    assert unscanned > 10
+    assert 0 < np.sum(expected) < 0.5 * len(reaching)
 
 
 def box_meets_a_block(u, v, ext_x, ext_y, blocks) -> bool:

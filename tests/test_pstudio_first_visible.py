@@ -88,7 +88,8 @@ def test_batches_keep_the_first_candidates_seen_at_their_query_frame(unit, seen,
     np.testing.assert_array_equal(kept_visible, visible[:, expected])
     assert sum(batches) <= len(gaussians)
     if wanted == 150:  # about half are seen at their query frame: the first batch falls short
-        assert len(batches) > 1 and sum(batches) < len(gaussians)
+        assert len(batches) > 1
+        assert sum(batches) < len(gaussians)
 
 
 def test_the_depth_maps_come_once_and_with_no_candidates(unit, seen):
@@ -100,6 +101,8 @@ def test_the_depth_maps_come_once_and_with_no_candidates(unit, seen):
     for map_all, map_batched in zip(all_maps, maps, strict=True):
         np.testing.assert_array_equal(map_batched, map_all)
     kept, tracks, visible, maps = track_first_visible(unit, query_frames[:0], gaussians[:0], 100, config)
-    assert kept.shape == (0,) and tracks.shape == (FRAMES, 0, 3) and visible.shape == (FRAMES, 0)
+    assert kept.shape == (0,)
+    assert tracks.shape == (FRAMES, 0, 3)
+    assert visible.shape == (FRAMES, 0)
     for map_none, map_all in zip(maps, all_maps, strict=True):
         np.testing.assert_array_equal(map_none, map_all)

@@ -45,7 +45,8 @@ def test_each_mask_is_decoded_once_per_sequence(pstudio_sample, decoded):
     (clip,) = annotate_unit(unit, config)
     assert clip.num_tracks > 0
     cameras, frames = len(unit.views.camera_ids), unit.gaussians.num_frames
-    assert set(decoded.values()) == {1} and 0 < len(decoded) <= cameras * frames
+    assert set(decoded.values()) == {1}
+    assert 0 < len(decoded) <= cameras * frames
     decoded.clear()
     annotate_unit(pstudio_input(root, *second, config), config)
     assert not decoded

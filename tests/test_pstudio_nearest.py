@@ -50,4 +50,5 @@ def test_nearest_within_a_bound_is_the_kd_trees_answer_cut_at_the_bound():
         first = np.where(tree_distance == tree_distance[:, :1], tree_position, len(candidates)).min(axis=1)
         np.testing.assert_array_equal(position[1:], np.where(near, first, -1))
         np.testing.assert_array_equal(distance[1:], np.where(near, tree_distance[:, 0], np.inf))
-        assert position[0] == -1 and distance[0] == np.inf
+        assert position[0] == -1
+        assert distance[0] == np.inf

@@ -99,7 +99,8 @@ def test_depth_matches_brute_force_reference(frame):
     expected = [reference_depth(reference, pixel) for pixel in pixels]
     np.testing.assert_array_equal(surface, [hit for _, hit in expected])
     np.testing.assert_allclose(depth, [z for z, _ in expected], rtol=0, atol=1e-9)
-    assert surface.sum() >= 60 and (~surface).sum() >= 20
+    assert surface.sum() >= 60
+    assert (~surface).sum() >= 20
 
 
 def test_selected_pixels_equal_the_full_frame(frame):
@@ -227,7 +228,8 @@ def test_pixel_i_j_is_rendered_at_its_centre():
     )
     depth, surface = render_depth_image(splats)
     np.testing.assert_array_equal(np.argwhere(surface), [[50, 100]])
-    assert depth[50, 100] == 2.0 and (depth[~surface] == 15.0).all()
+    assert depth[50, 100] == 2.0
+    assert (depth[~surface] == 15.0).all()
     _, hit = render_depth_at(splats, np.array([[100.0, 50.0], [100.5, 50.5]]))
     np.testing.assert_array_equal(hit, [False, True])
 
@@ -249,7 +251,8 @@ def test_front_to_back_is_the_stable_argsort():
 
 def test_points_outside_the_image_have_no_depth():
     depth, surface = render_depth_at(splats_2d([2.0], [0.9]), np.array([[-0.5, 8.0], [8.0, 32.0]]))
-    assert np.isnan(depth).all() and not surface.any()
+    assert np.isnan(depth).all()
+    assert not surface.any()
 
 
 def test_splats_at_equal_depth_keep_index_order():

@@ -62,7 +62,8 @@ def test_queries_sit_on_the_visible_surface(clips):
         # Attachments farther than pstudio.max_attach_distance_m (blended depth at silhouettes)
         # are refused; most unprojected query points lie within a splat width of their Gaussian.
         distance = clip.track_stats["attach_distance_m"]
-        assert distance.max() <= 0.03 and np.median(distance) < 0.015
+        assert distance.max() <= 0.03
+        assert np.median(distance) < 0.015
         assert kept.num_tracks == 50
 
 
@@ -105,14 +106,16 @@ def test_multiview_fraction_of_planted_tracks(pstudio_sample, clips):
     # Body points seen from behind still project inside that view's silhouette (points on a
     # view's limb may round to a pixel just outside it).
     for body in ("rigid", "deforming"):
-        assert (fractions[body] >= 0.8).all() and fractions[body].mean() >= 0.9
+        assert (fractions[body] >= 0.8).all()
+        assert fractions[body].mean() >= 0.9
     assert (fractions["floaters"] < 0.75).all()
     assert (fractions["floor"] < 0.5).all()  # behind a body, some views see it in its silhouette
 
 
 def test_static_cameras_and_no_extrinsics(clips):
     for camera, _, kept, _, unit_input in clips:
-        assert kept.extrinsics_w2c is None and "extrinsics_w2c" not in clip_arrays(kept)
+        assert kept.extrinsics_w2c is None
+        assert "extrinsics_w2c" not in clip_arrays(kept)
         np.testing.assert_allclose(kept.fx_fy_cx_cy, camera.fx_fy_cx_cy)
         assert kept.name == f"dome_{camera.camera_id}"
         assert kept.images_jpeg == unit_input.frames_jpeg
@@ -146,9 +149,11 @@ def test_a_sequences_cameras_share_one_read_and_make_the_same_clips(clips, pstud
     monkeypatch.setattr(reader, "MASKS", masks.MaskCache())  # cold, as in a fresh worker
     units = list_units(root, RunConfig()).units
     grouped = list(source.annotate_sequence(root, units, RunConfig()))
-    assert len(reads) == 1 and len(decodes) == len(set(decodes)) > 0
+    assert len(reads) == 1
+    assert len(decodes) == len(set(decodes)) > 0
     for (_, alone, _, _, _), (together,) in zip(clips, [made.clips for made in grouped], strict=True):
-        assert together.name == alone.name and together.images_jpeg == alone.images_jpeg
+        assert together.name == alone.name
+        assert together.images_jpeg == alone.images_jpeg
         for field in ("tracks_xyz", "visibility", "queries_xyt", "extrinsics_w2c"):
             np.testing.assert_array_equal(getattr(together, field), getattr(alone, field))
         np.testing.assert_array_equal(

@@ -15,7 +15,8 @@ from tests.adt_excerpt import needs_excerpt
 
 def same_bytes(first: pathlib.Path, second: pathlib.Path, source: str) -> list[str]:
     names = sorted(p.name for p in (first / source).glob("*.npz"))
-    assert names and names == sorted(p.name for p in (second / source).glob("*.npz"))
+    assert names
+    assert names == sorted(p.name for p in (second / source).glob("*.npz"))
     return [n for n in names if (first / source / n).read_bytes() != (second / source / n).read_bytes()]
 
 
@@ -100,5 +101,6 @@ def test_a_query_off_every_surface_fails_its_unit_with_the_reason(pstudio_sample
     command = ["--source", "pstudio", "--input", root, "--output", str(second), "--set", "pstudio.cameras=3"]
     assert run_main(command + ["--queries-from", str(first)]) == 1
     failure = (second / "failures_pstudio.jsonl").read_text()
-    assert "dome/camera_3" in failure and "given query 0" in failure
+    assert "dome/camera_3" in failure
+    assert "given query 0" in failure
     assert not (second / "pstudio").exists() or not list((second / "pstudio").glob("*.npz"))

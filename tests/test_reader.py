@@ -40,11 +40,14 @@ def test_reads_the_sample_segment(sample_split):
     np.testing.assert_allclose(calibration.camera_to_vehicle, camera_to_vehicle(1), atol=1e-6)
     assert (calibration.width, calibration.height) == (480, 320)
     frames = reader.camera_frames(2)
-    assert len(frames.jpegs) == 40 and (np.diff(frames.timestamps) == 100_000).all()
+    assert len(frames.jpegs) == 40
+    assert (np.diff(frames.timestamps) == 100_000).all()
     boxes = reader.box_labels()
-    assert set(boxes.object_ids) and boxes.lidar_boxes.shape[1] == 7
+    assert set(boxes.object_ids)
+    assert boxes.lidar_boxes.shape[1] == 7
     lidar = next(reader.top_lidar_frames([int(frames.timestamps[0])]))
-    assert lidar.range_image.shape == (64, 900) and lidar.pixel_pose.shape == (64, 900, 6)
+    assert lidar.range_image.shape == (64, 900)
+    assert lidar.pixel_pose.shape == (64, 900, 6)
 
 
 def test_missing_file_and_column_and_truncation_are_named(split_copy):
@@ -80,7 +83,8 @@ def test_rolling_shutter_columns_are_read_where_present(split_copy):
     motion = reader.camera_frames(2).motion
     readout = motion.readout_done - motion.trigger - motion.shutter
     np.testing.assert_allclose(readout, 0.030, atol=1e-6)
-    assert motion.linear_velocity.shape == (40, 3) and (motion.angular_velocity[:, 2] > 0).all()
+    assert motion.linear_velocity.shape == (40, 3)
+    assert (motion.angular_velocity[:, 2] > 0).all()
     # A null cell: that frame has no record (global shutter there); the others keep theirs.
     trigger = C.IMAGE_SHUTTER[1]
     values = table.column(trigger).to_pylist()
@@ -88,7 +92,8 @@ def test_rolling_shutter_columns_are_read_where_present(split_copy):
     index = table.schema.get_field_index(trigger)
     pq.write_table(table.set_column(index, trigger, pa.array(values, pa.float64())), path)
     frames = SegmentReader(split_copy, SEGMENT).camera_frames(table.column(C.CAMERA_NAME)[0].as_py())
-    assert np.isnan(frames.motion.trigger[0]) and np.isfinite(frames.motion.trigger[1:]).all()
+    assert np.isnan(frames.motion.trigger[0])
+    assert np.isfinite(frames.motion.trigger[1:]).all()
     # A column missing: no rolling shutter at all.
     pq.write_table(table.drop_columns([trigger]), path)
     assert SegmentReader(split_copy, SEGMENT).camera_frames(2).motion is None

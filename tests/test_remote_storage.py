@@ -74,11 +74,13 @@ def test_s3_round_trip_writes_the_local_runs_bytes(s3, reference_run):
     reference = reference_run("drivetrack")
     clips = {name.split("/", 1)[1]: data for name, data in written.items() if name.startswith("drivetrack/")}
     expected = {name: data for name, data in clip_bytes(reference, "drivetrack").items() if "_000_1_" in name}
-    assert len(clips) == 3 and clips == expected
+    assert len(clips) == 3
+    assert clips == expected
     assert written["manifests/minival.txt"].decode().split() == [
         f"drivetrack/{name}" for name in sorted(expected)
     ]
-    assert written["manifests/full_test.txt"] == b"" and written["failures_drivetrack.jsonl"] == b""
+    assert written["manifests/full_test.txt"] == b""
+    assert written["failures_drivetrack.jsonl"] == b""
     assert b'"clips_written": 3' in written["run_drivetrack.json"]
     assert not [name for name in written if ".partial" in name or ".write_probe" in name]
 
@@ -95,7 +97,8 @@ def test_s3_calls_share_one_boto3_client_and_reads_keep_their_place(s3, sample_s
     storage.use_options(PipelineOptions(s3_options(endpoint)))
     keys = sorted(item["Key"] for item in client.list_objects_v2(Bucket=BUCKET, Prefix="split/")["Contents"])
     names = [key for key in keys if key.endswith(".parquet")][:2]
-    assert len(names) == 2 and all(FileSystems.exists(f"s3://{BUCKET}/{key}") for key in names)
+    assert len(names) == 2
+    assert all(FileSystems.exists(f"s3://{BUCKET}/{key}") for key in names)
     local = [open(os.path.join(sample_split[0], key[len("split/") :]), "rb").read() for key in names]
     files = [FileSystems.open(f"s3://{BUCKET}/{key}") for key in names]
     read = [b"", b""]
@@ -103,7 +106,8 @@ def test_s3_calls_share_one_boto3_client_and_reads_keep_their_place(s3, sample_s
         for i, handle in enumerate(files):
             read[i] += handle.read(4096)
     assert read == local
-    assert len(made) == 1 and made[0]["endpoint_url"] == endpoint
+    assert len(made) == 1
+    assert made[0]["endpoint_url"] == endpoint
 
 
 @pytest.mark.parametrize("scheme", ["gs", "s3"])

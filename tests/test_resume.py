@@ -66,13 +66,15 @@ def test_changed_settings_or_overwrite_redo_every_unit(finished_copy):
     assert changed.returncode == 0, changed.stderr[-3000:]
     assert skipped_units(changed.stderr) == 0
     after = clip_bytes(out, "pstudio")
-    assert set(after) == set(before) and redone < set(before)
+    assert set(after) == set(before)
+    assert redone < set(before)
     assert all((after[name] != before[name]) == (name in redone) for name in before)
 
     again = run_in_process("pstudio", "--input", source_input, "--output", out, *settings)
     assert skipped_units(again.stderr) == 2
     forced = run_in_process("pstudio", "--input", source_input, "--output", out, *settings, "--overwrite")
-    assert forced.returncode == 0 and skipped_units(forced.stderr) == 0
+    assert forced.returncode == 0
+    assert skipped_units(forced.stderr) == 0
     assert clip_bytes(out, "pstudio") == after
 
 

@@ -34,7 +34,8 @@ def test_run_writes_valid_clips_manifests_and_provenance(direct_run):
     assert sorted(minival + full_test) == sorted(f"drivetrack/{n}" for n in npz_files(out))
     record = json.load(open(os.path.join(out, "run_drivetrack.json")))
     assert record["config"]["flicker"]["max_fraction"] == 0.1
-    assert record["summary"]["clips_written"] == 4 and record["summary"]["failures"] == 0
+    assert record["summary"]["clips_written"] == 4
+    assert record["summary"]["failures"] == 0
     assert len(record["units"]) == 3
     assert open(os.path.join(out, "failures_drivetrack.jsonl")).read() == ""
     # the summary printed at the end names the filters
@@ -68,4 +69,5 @@ def test_multiprocessing_runner_writes_identical_bytes(direct_run, sample_split,
 
 def test_unknown_setting_is_refused_before_running(tmp_path):
     result = run_cli("--input", str(tmp_path), "--set", "flicker.bogus=1")
-    assert result.returncode == 2 and "unknown setting" in result.stderr
+    assert result.returncode == 2
+    assert "unknown setting" in result.stderr

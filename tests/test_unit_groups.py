@@ -68,14 +68,16 @@ def test_the_graph_annotates_each_group_in_one_call(grouped, tmp_path, capsys):
         "error": "InputError: b_bad: bad on purpose",
     }
     record = json.loads((out / "run_toy.json").read_text())
-    assert record["metrics"]["units_read"] == 4 and record["metrics"]["units_failed"] == 1
+    assert record["metrics"]["units_read"] == 4
+    assert record["metrics"]["units_failed"] == 1
     capsys.readouterr()
 
 
 def test_resume_annotates_only_a_groups_unfinished_units(grouped, tmp_path):
     job = UnitJob(GROUPED, grouped, RunConfig(), str(tmp_path / "out"))
     first = run_group(job, ["a_1", "a_2"])
-    assert CALLS == [["a_1", "a_2"]] and [o.name for o in first] == ["a_1", "a_2"]
+    assert CALLS == [["a_1", "a_2"]]
+    assert [o.name for o in first] == ["a_1", "a_2"]
     assert all(not o.resumed and not o.failures and o.reports for o in first)
     os.remove(clip_path(job.output, "toy", "toy_a_2"))  # a_2 is no longer finished
     second = run_group(job, ["a_1", "a_2"])
@@ -88,10 +90,13 @@ def test_resume_annotates_only_a_groups_unfinished_units(grouped, tmp_path):
 def test_a_failed_unit_leaves_its_groups_other_units_finished(grouped, tmp_path):
     job = UnitJob(GROUPED, grouped, RunConfig(), str(tmp_path / "out"))
     good, bad = run_group(job, ["b_1", "b_bad"])
-    assert good.reports and not good.failures
+    assert good.reports
+    assert not good.failures
     assert bad.failures == (Failure("b_bad", "annotate", "InputError: b_bad: bad on purpose"),)
     again = run_group(job, ["b_1", "b_bad"])  # the failed unit is redone, its finished neighbour not
-    assert CALLS[-1] == ["b_bad"] and again[0].resumed and again[1].failures == bad.failures
+    assert CALLS[-1] == ["b_bad"]
+    assert again[0].resumed
+    assert again[1].failures == bad.failures
 
 
 def interrupted_in_a_kernel() -> SystemError:
@@ -122,7 +127,8 @@ def test_a_group_finished_earlier_is_not_annotated_again(grouped, tmp_path):
     job = UnitJob(GROUPED, grouped, RunConfig(), str(tmp_path / "out"))
     run_group(job, ["a_1", "a_2"])
     again = run_group(job, ["a_1", "a_2"])
-    assert CALLS == [["a_1", "a_2"]] and all(outcome.resumed for outcome in again)
+    assert CALLS == [["a_1", "a_2"]]
+    assert all(outcome.resumed for outcome in again)
 
 
 def test_a_generator_groups_units_are_written_one_by_one(grouped, tmp_path):

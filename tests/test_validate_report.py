@@ -51,7 +51,8 @@ def write(root, name, arrays):
 def test_jpeg_size_reads_the_frame_header():
     jpeg = cv2.imencode(".jpg", np.zeros((37, 91, 3), np.uint8))[1].tobytes()
     assert jpeg_size(jpeg) == (37, 91)
-    assert jpeg_size(b"\xff\xd8fake") is None and jpeg_size(b"not a jpeg") is None
+    assert jpeg_size(b"\xff\xd8fake") is None
+    assert jpeg_size(b"not a jpeg") is None
 
 
 def test_each_planted_defect_is_counted_once():
@@ -59,7 +60,8 @@ def test_each_planted_defect_is_counted_once():
     assert findings["hidden_queries"] == 1
     assert findings["off_image_visible"] == 1
     assert findings["flickering"] == 1
-    assert findings["tracks"] == TRACKS and findings["image_hw"] == [HEIGHT, WIDTH]
+    assert findings["tracks"] == TRACKS
+    assert findings["image_hw"] == [HEIGHT, WIDTH]
 
 
 def test_a_track_behind_the_camera_while_visible_is_a_finding():
@@ -80,12 +82,14 @@ def test_cli_reports_every_clip_and_keeps_its_exit_code(tmp_path, capsys):
     # The hidden query is also a schema violation, so the run still fails; the other findings do not.
     assert main([str(tmp_path), "--report", str(report_path)]) == 1
     out = capsys.readouterr().out
-    assert "not visible at their query frame" in out and "1 with violations" in out
+    assert "not visible at their query frame" in out
+    assert "1 with violations" in out
     rows = {row["clip"].rsplit("/", 1)[-1]: row for row in json.loads(report_path.read_text())["clips"]}
     keys = ("hidden_queries", "off_image_visible", "flickering")
     assert [rows["defective.npz"][key] for key in keys] == [1, 1, 1]
     assert [rows["clean.npz"][key] for key in keys] == [0, 0, 0]
-    assert rows["clean.npz"]["violations"] == [] and len(rows["defective.npz"]["violations"]) == 1
+    assert rows["clean.npz"]["violations"] == []
+    assert len(rows["defective.npz"]["violations"]) == 1
 
 
 @pytest.mark.parametrize("fraction, flickering", [(0.10, 1), (0.5, 0)])
@@ -96,4 +100,5 @@ def test_flicker_threshold_option(tmp_path, fraction, flickering):
     report_path = tmp_path / "report.json"
     assert main([str(tmp_path), "--flicker-max-fraction", str(fraction), "--report", str(report_path)]) == 0
     report = json.loads(report_path.read_text())
-    assert report["clips"][0]["flickering"] == flickering and report["totals"]["off_image_visible"] == 1
+    assert report["clips"][0]["flickering"] == flickering
+    assert report["totals"]["off_image_visible"] == 1

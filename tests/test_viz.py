@@ -78,7 +78,8 @@ def test_png_marks_visible_large_and_occluded_small_and_grey(clip_path, tmp_path
     assert main([clip_path, "--out", out]) == 0
     image = np.asarray(Image.open(out).convert("RGB")).astype(int)
     colors = track_colors(3).astype(int)
-    assert image.shape[1] > WIDTH and image.shape[0] >= HEIGHT  # frame plus the 3D panel
+    assert image.shape[1] > WIDTH
+    assert image.shape[0] >= HEIGHT  # frame plus the 3D panel
     assert (image[:, WIDTH:] != 255).any()
     radius = marker_radius(HEIGHT, WIDTH)
     col, row = VISIBLE_PIXEL
@@ -177,7 +178,8 @@ def test_nothing_is_unpickled(clip_path, tmp_path):
 def test_select_tracks_is_even_and_distinct():
     chosen = select_tracks(1024, 50)
     assert len(chosen) == len(np.unique(chosen)) == 50
-    assert chosen[0] == 0 and chosen[-1] == 1023
+    assert chosen[0] == 0
+    assert chosen[-1] == 1023
     assert list(select_tracks(7, 50)) == list(range(7))
 
 
@@ -244,7 +246,8 @@ def test_stats_parked_car_is_static_and_moving_cars_are_not(reference_run):
         else:
             moving += 1
             assert share <= 0.05, name
-    assert parked >= 1 and moving >= 1
+    assert parked >= 1
+    assert moving >= 1
 
 
 def test_stats_without_extrinsics_uses_camera_coordinates(clip_path, tmp_path):

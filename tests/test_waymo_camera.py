@@ -59,7 +59,8 @@ def test_lidar_points_appear_where_the_truth_says(sample_split, world, undistort
     print(
         f"undistorted={undistorted}: worst {worst_pixel:.5f} px, {worst_point * 1000:.4f} mm from the truth"
     )
-    assert worst_pixel < 0.01 and worst_point < 1e-4
+    assert worst_pixel < 0.01
+    assert worst_point < 1e-4
 
 
 def test_pinhole_at_the_pose_misses_by_pixels(sample_split, world):
@@ -81,7 +82,8 @@ def test_pinhole_at_the_pose_misses_by_pixels(sample_split, world):
     for name, miss in (("pinhole at the pose", np.concatenate(old)), ("lens alone", np.concatenate(lens))):
         median, p95, worst = np.median(miss), np.percentile(miss, 95), miss.max()
         print(f"{name}: median {median:.3f} p95 {p95:.3f} max {worst:.3f} px")
-    assert np.percentile(np.concatenate(old), 95) > 1.0 and np.concatenate(lens).max() > 2.0
+    assert np.percentile(np.concatenate(old), 95) > 1.0
+    assert np.concatenate(lens).max() > 2.0
 
 
 def test_without_rolling_shutter_columns_frames_are_seen_from_their_pose(split_copy, world, sample_split):
@@ -175,7 +177,8 @@ def test_kept_frames_put_queries_where_the_sensor_saw_them_and_the_validator_rep
 
 def test_undistorted_frames_make_the_pinhole_exact(lead_clips):
     for kept, clip in zip(lead_clips[False], lead_clips[True], strict=True):
-        assert clip.name == kept.name and clip.images_jpeg != kept.images_jpeg
+        assert clip.name == kept.name
+        assert clip.images_jpeg != kept.images_jpeg
         np.testing.assert_array_equal(clip.tracks_xyz, kept.tracks_xyz)
         queried = np.flatnonzero(np.isfinite(clip.queries_xyt[:, 2]))
         arrays = clip_arrays(clip.select_tracks(queried))

@@ -49,7 +49,8 @@ def test_exact_copies_give_the_clean_clips_byte_for_byte(split_copy, reference_r
     camera_1 = f"tapvid3d_{SEGMENT}_1_"
     reference = clip_bytes(reference_run("drivetrack"), "drivetrack")
     clean = {name: data for name, data in reference.items() if name.startswith(camera_1)}
-    assert clean and clip_bytes(out, "drivetrack") == clean
+    assert clean
+    assert clip_bytes(out, "drivetrack") == clean
 
 
 @pytest.mark.parametrize(
@@ -81,7 +82,8 @@ def test_a_copy_is_exact_in_bits(split_copy):
     change(split_copy, C.VEHICLE_POSE, set_cells(nan, frame=frame))
     change(split_copy, C.VEHICLE_POSE, repeat_row(frame=frame))
     poses = SegmentReader(split_copy, SEGMENT).vehicle_poses()  # NaN equals NaN: an exact copy
-    assert len(poses) == 40 and np.isnan(poses[frame]).all()
+    assert len(poses) == 40
+    assert np.isnan(poses[frame]).all()
     negative_zero = lambda m: [-0.0 if i == 12 else v for i, v in enumerate(m)]  # noqa: E731
     change(split_copy, C.VEHICLE_POSE, repeat_row({C.WORLD_FROM_VEHICLE: negative_zero}, frame=T))
     with pytest.raises(InputError, match=f"vehicle_pose/{SEGMENT}.parquet: timestamp {T} appears in 2 rows"):
