@@ -12,21 +12,13 @@ import pathlib
 
 import pytest
 
-from tests.adt_excerpt import SAMPLE, needs_excerpt
+from tests.adt_excerpt import ONE_FRAME_CHUNKS, SAMPLE, needs_excerpt
 from tests.cli import clip_bytes, run_in_process
 from tests.support.adt_server import serve, write_layout
 
 pytestmark = needs_excerpt
 
 SEQUENCE = SAMPLE.name
-ONE_FRAME_CHUNKS = (
-    "--set",
-    "adt.chunk_frames=1",
-    "--set",
-    "adt.min_frames=1",
-    "--set",
-    "adt.max_gt_offset_ms=40",
-)
 FAST_RETRIES = ("--set", "adt.download_retries=2", "--set", "adt.download_backoff_s=0.01")
 
 

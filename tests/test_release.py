@@ -15,7 +15,7 @@ import pytest
 
 from pipeline.audit.__main__ import main as audit_main
 from pipeline.samples.waymo_world import SEGMENT
-from tests.adt_excerpt import SAMPLE, needs_excerpt
+from tests.adt_excerpt import ONE_FRAME_CHUNKS, SAMPLE, needs_excerpt
 from tests.cli import clip_bytes, run_in_process
 
 LEAD = f"tapvid3d_{SEGMENT}_1_lead_car_AAAAAAAAAAAAAAAAAAAAAA"
@@ -24,14 +24,6 @@ PARKED_ON_1 = f"tapvid3d_{SEGMENT}_1_parked_right_DDDDDDDDDDDDDDDDDD"
 NO_OBJECT = f"tapvid3d_{SEGMENT}_2_no_such_object"
 NO_SEGMENT = "tapvid3d_1234567890_0_000_20_000_1_someone"
 ADT = SAMPLE.name  # the excerpt's folder name is its v1 sequence name
-ONE_FRAME_CHUNKS = (
-    "--set",
-    "adt.chunk_frames=1",
-    "--set",
-    "adt.min_frames=1",
-    "--set",
-    "adt.max_gt_offset_ms=40",
-)
 
 RELEASE = {
     "minival": {"drivetrack": [f"{LEAD}.npz"], "pstudio": ["dome_3.npz"], "adt": [f"{ADT}_0.npz"]},

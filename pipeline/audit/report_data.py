@@ -17,17 +17,12 @@ with ``min_tracks`` and the clip's target as ``evaluate`` compares them.
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
-import pyarrow as pa
-import pyarrow.parquet as pq
 
 from pipeline import sources
 from pipeline.audit.release import read_verdicts
-from pipeline.audit.sweep import run_record
+from pipeline.audit.sweep import ClipCount, read_audit_table, run_record, totals
 from pipeline.core.config import config_from_dict
-from pipeline.core.outcomes import FILTER_ORDER
 from pipeline.export.layout import audit_path
 from pipeline.filters.flicker import passes_flicker
 from pipeline.io.files import list_files
@@ -36,7 +31,6 @@ from pipeline.settings import RunConfig
 from pipeline.sources import Source
 
 GRID_STEPS = 100  # fractions: 0, 0.01, ..., 1
-COLUMNS = ("clip", "num_frames", "target_tracks", "visible_frames", "visibility_flips", "mask_agreement")
 
 
 def fraction_grid(run_value: float) -> list[float]:
@@ -61,24 +55,14 @@ def mask_buckets(agreement: np.ndarray | None, count: int, grid: list[float]) ->
 
 
 def read_clip_table(path: str) -> dict:
-    """The columns of one audit table the filters read, as ``load_statistics`` reads them."""
-    try:
-        names = pq.read_schema(path).names
-        table = pq.read_table(path, columns=[name for name in COLUMNS if name in names])
-    except (pa.ArrowException, OSError) as error:
-        raise ValueError(f"audit table {path} is unreadable ({error})") from error
-    missing = {"clip", "num_frames", "target_tracks", "visible_frames"} - set(table.column_names)
-    if missing:
-        raise ValueError(f"audit table {path} lacks column(s) {sorted(missing)}")
-    columns = {name: table.column(name).to_numpy(zero_copy_only=False) for name in table.column_names}
-    rows = len(columns["clip"])
+    """The statistics of one audit table the filters read (``read_audit_table``)."""
+    table = read_audit_table(path, ("visible_frames", "visibility_flips", "mask_agreement"))
+    stats = table.pop("stats")
     return {
-        "clip": str(columns["clip"][0]) if rows else os.path.basename(path)[: -len(".parquet")],
-        "num_frames": int(columns["num_frames"][0]) if rows else 0,
-        "target_tracks": int(columns["target_tracks"][0]) if rows else 0,
-        "visible_frames": columns["visible_frames"],
-        "visibility_flips": columns.get("visibility_flips"),
-        "mask_agreement": columns.get("mask_agreement"),
+        **table,
+        "visible_frames": stats["visible_frames"],
+        "visibility_flips": stats.get("visibility_flips"),
+        "mask_agreement": stats.get("mask_agreement"),
     }
 
 
@@ -182,39 +166,22 @@ def source_data(output: str, source: Source) -> dict | None:
 
 
 def counts_at(data: dict, flicker_index: int, mask_index: int, min_tracks: int) -> dict:
-    """The totals ``evaluate`` reports at grid positions (``flicker_index``, ``mask_index``) and
-    ``min_tracks``, from the folded clips alone (the page's own rule), plus the tracks written (at
-    most the target per clip)."""
-    dropped = dict.fromkeys(FILTER_ORDER, 0)
-    candidates = passed = written = below = tracks_written = 0
-    splits = {row["clip"]: row["split"] for row in data["verdicts"] or []}
-    release = dict.fromkeys(SPLITS, 0)
-    for clip in data["clips"]:
+    """The totals ``evaluate`` reports (``sweep.totals``) at grid positions (``flicker_index``,
+    ``mask_index``) and ``min_tracks``, from the folded clips alone (the page's own rule)."""
+
+    def folded(clip: dict) -> ClipCount:
         flicker_ok = clip["flicker"] <= flicker_index
         mask_ok = clip["mask"] > mask_index
+        dropped = {
+            "never_visible": clip["never_visible"],
+            "flicker": int(clip["count"][~flicker_ok].sum()),
+            "mask": int(clip["count"][flicker_ok & ~mask_ok].sum()),
+        }
         survivors = int(clip["count"][flicker_ok & mask_ok].sum())
-        dropped["never_visible"] += clip["never_visible"]
-        dropped["flicker"] += int(clip["count"][~flicker_ok].sum())
-        dropped["mask"] += int(clip["count"][flicker_ok & ~mask_ok].sum())
-        candidates += clip["candidates"]
-        passed += survivors
-        kept = survivors >= min_tracks
-        written += kept
-        below += kept and survivors < clip["target_tracks"]
-        tracks_written += min(survivors, clip["target_tracks"]) if kept else 0
-        if kept and clip["clip"] in splits:
-            release[splits[clip["clip"]]] += 1
-    result = {
-        "candidates": candidates,
-        "dropped": dropped,
-        "passed": passed,
-        "clips_written": written,
-        "clips_below_target": below,
-        "tracks_written": tracks_written,
-    }
-    if data["verdicts"] is not None:
-        result["release"] = release
-    return result
+        return ClipCount(clip["clip"], clip["candidates"], dropped, survivors, clip["target_tracks"])
+
+    splits = {row["clip"]: row["split"] for row in data["verdicts"]} if data["verdicts"] is not None else None
+    return totals(map(folded, data["clips"]), min_tracks, splits)
 
 
 def page_data(output: str, names: list[str]) -> list[dict]:

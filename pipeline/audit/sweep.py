@@ -16,11 +16,13 @@ its unit failed, no clip of its name) survives no threshold.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import io
 import itertools
 import json
 import os
 import sys
+from collections.abc import Iterable, Mapping
 
 import numpy as np
 import pyarrow as pa
@@ -44,68 +46,100 @@ def sweepable(source: Source) -> tuple[str, ...]:
     return ("flicker.max_fraction", "min_tracks", *source.sweepable)
 
 
+# An audit table's columns that are not statistics.
+NOT_STATISTICS = ("source", "clip", "num_frames", "target_tracks", "candidate", "output_index")
+
+
+def read_audit_table(path: str, columns: tuple[str, ...] | None = None) -> dict:
+    """One clip's audit table: {"clip", "num_frames", "target_tracks", "stats": {name: [N] array}}
+    with every statistic, or those of ``columns`` it holds; ValueError naming the file when it is
+    unreadable or lacks the columns the filters read."""
+    try:
+        names = pq.read_schema(path).names
+        wanted = names if columns is None else [name for name in (*NOT_STATISTICS, *columns) if name in names]
+        table = pq.read_table(path, columns=wanted)
+    except (pa.ArrowException, OSError) as error:
+        raise ValueError(f"audit table {path} is unreadable ({error})") from error
+    missing = {"clip", "num_frames", "target_tracks", "visible_frames"} - set(table.column_names)
+    if missing:
+        raise ValueError(f"audit table {path} lacks column(s) {sorted(missing)}")
+    found = {name: table.column(name).to_numpy(zero_copy_only=False) for name in table.column_names}
+    rows = len(found["clip"])
+    return {
+        "clip": str(found["clip"][0]) if rows else os.path.basename(path)[: -len(".parquet")],
+        "num_frames": int(found["num_frames"][0]) if rows else 0,
+        "target_tracks": int(found["target_tracks"][0]) if rows else 0,
+        "stats": {
+            name: values
+            for name, values in found.items()
+            if not name.startswith("pass_") and name not in NOT_STATISTICS
+        },
+    }
+
+
 def load_statistics(output: str, source: str) -> list[dict]:
-    """Per clip: {"clip", "num_frames", "target_tracks", "stats": {name: [N] array}}."""
-    clips = []
-    for path in list_files(audit_path(output, source, "*")):
-        try:
-            table = pq.read_table(path)
-        except (pa.ArrowException, OSError) as error:
-            raise ValueError(f"audit table {path} is unreadable ({error})") from error
-        missing = {"clip", "num_frames", "target_tracks", "visible_frames"} - set(table.column_names)
-        if missing:
-            raise ValueError(f"audit table {path} lacks column(s) {sorted(missing)}")
-        columns = {name: table.column(name).to_numpy(zero_copy_only=False) for name in table.column_names}
-        clips.append(
-            {
-                "clip": str(columns["clip"][0]) if len(columns["clip"]) else os.path.basename(path)[:-8],
-                "num_frames": int(columns["num_frames"][0]) if len(columns["num_frames"]) else 0,
-                "target_tracks": int(columns["target_tracks"][0]) if len(columns["target_tracks"]) else 0,
-                "stats": {
-                    name: values
-                    for name, values in columns.items()
-                    if not name.startswith("pass_")
-                    and name
-                    not in ("source", "clip", "num_frames", "target_tracks", "candidate", "output_index")
-                },
-            }
-        )
-    return clips
+    """Per clip of ``source`` in ``output``: its audit table (``read_audit_table``)."""
+    return [read_audit_table(path) for path in list_files(audit_path(output, source, "*"))]
 
 
-def evaluate(
-    clips: list[dict], source: Source, config: RunConfig, splits: dict[str, str] | None = None
-) -> dict:
-    """The filter stage's totals at ``config``: candidates, dropped per filter, passed, clips
-    written (at least ``min_tracks`` passing), those below their target track count and, with the
-    release's ``splits`` (clip -> split), the release clips written per split."""
+@dataclasses.dataclass(frozen=True)
+class ClipCount:
+    """One clip replayed at some thresholds: its candidates, the tracks each filter drops (each
+    against the first that rejects it), the tracks passing every filter and its target."""
+
+    clip: str
+    candidates: int
+    dropped: Mapping[str, int]
+    passed: int
+    target_tracks: int
+
+
+def totals(counts: Iterable[ClipCount], min_tracks: int, splits: dict[str, str] | None = None) -> dict:
+    """The filter stage's totals over clips: candidates, dropped per filter, passed, clips written
+    (at least ``min_tracks`` passing), those below their target track count, the tracks written (at
+    most the target per clip) and, with the release's ``splits`` (clip -> split), the release clips
+    written per split."""
     dropped = dict.fromkeys(FILTER_ORDER, 0)
-    candidates = passed = written = below = 0
+    candidates = passed = written = below = tracks_written = 0
     release = dict.fromkeys(SPLITS, 0)
-    for clip in clips:
-        verdicts = verdicts_from_stats(
-            clip["stats"], clip["num_frames"], config, source.mask_min_agreement(config)
-        )
-        for name, count in count_dropped(verdicts).items():
-            dropped[name] += count
-        survivors = int(np.logical_and.reduce([verdicts[name] for name in FILTER_ORDER]).sum())
-        candidates += len(clip["stats"]["visible_frames"])
-        passed += survivors
-        kept = survivors >= config.min_tracks
+    for count in counts:
+        for name in FILTER_ORDER:
+            dropped[name] += count.dropped[name]
+        candidates += count.candidates
+        passed += count.passed
+        kept = count.passed >= min_tracks
         written += kept
-        below += kept and survivors < clip["target_tracks"]
-        if splits is not None and kept and clip["clip"] in splits:
-            release[splits[clip["clip"]]] += 1
+        below += kept and count.passed < count.target_tracks
+        tracks_written += min(count.passed, count.target_tracks) if kept else 0
+        if splits is not None and kept and count.clip in splits:
+            release[splits[count.clip]] += 1
     result = {
         "candidates": candidates,
         "dropped": dropped,
         "passed": passed,
         "clips_written": written,
         "clips_below_target": below,
+        "tracks_written": tracks_written,
     }
     if splits is not None:
         result["release"] = release
     return result
+
+
+def evaluate(
+    clips: list[dict], source: Source, config: RunConfig, splits: dict[str, str] | None = None
+) -> dict:
+    """The filter stage's totals (``totals``) at ``config``, replayed from the recorded statistics."""
+
+    def replayed(clip: dict) -> ClipCount:
+        verdicts = verdicts_from_stats(
+            clip["stats"], clip["num_frames"], config, source.mask_min_agreement(config)
+        )
+        survivors = int(np.logical_and.reduce([verdicts[name] for name in FILTER_ORDER]).sum())
+        candidates = len(clip["stats"]["visible_frames"])
+        return ClipCount(clip["clip"], candidates, count_dropped(verdicts), survivors, clip["target_tracks"])
+
+    return totals(map(replayed, clips), config.min_tracks, splits)
 
 
 def parse_grid(assignments: list[str], source: Source, base: RunConfig) -> dict[str, list[str]]:
