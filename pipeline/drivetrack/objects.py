@@ -92,62 +92,66 @@ def select_objects(
     """Vehicles assigned to this camera whose box projects on enough contiguous frames, each on its
     longest such run, with a box corner within reach on one of its frames; in object-id order.
 
-    world_from_frame: [T, 4, 4] vehicle pose per camera frame (``poses.py``).
+    world_from_frame: [T, 4, 4] vehicle pose per camera frame (``camera_model.frame_poses``).
     wanted: object ids to consider (a release run's); None: every object of the segment.
     Returns the runs and, for each object considered and left out (and each wanted id the segment
     does not have), why.
     """
-    rules = config.drivetrack
-    boxes = unit.boxes
-    size = (unit.calibration.width, unit.calibration.height)
-    known = set(boxes.object_ids.tolist())
+    known = set(unit.boxes.object_ids.tolist())
     skipped = {
         object_id: f"object id {object_id} is not among the segment's boxes"
         for object_id in sorted((wanted or set()) - known)
     }
     runs = []
     for object_id in sorted(known if wanted is None else known & wanted):
-        rows = np.nonzero(boxes.object_ids == object_id)[0]
-        kind = int(boxes.types[rows[0]])
-        if kind not in rules.object_types:
-            types = ",".join(str(t) for t in rules.object_types)
-            skipped[object_id] = (
-                f"object {object_id} is of type {kind} ({OBJECT_TYPES.get(kind, 'unknown')}), not in "
-                f"drivetrack.object_types={types}"
-            )
-            continue
-        assigned = assigned_camera(boxes.most_visible_camera[rows])
-        if assigned != unit.camera:
-            skipped[object_id] = (
-                f"object {object_id} belongs to camera {assigned} (the one that sees it most), "
-                f"not {unit.camera}"
-            )
-            continue
-        synced, lidar = boxes_per_frame(unit, object_id, rows)
-        labelled = np.isfinite(synced[:, 0])
-        world_from_box = np.full((len(synced), 4, 4), np.nan)
-        world_from_box[labelled] = world_from_frame[labelled] @ box_poses(synced[labelled])
-        in_view_flags = np.zeros(len(synced), bool)
-        nearest = np.full(len(synced), np.inf)
-        for t in np.nonzero(labelled)[0]:
-            corners = camera.project(t, transform_points(world_from_box[t], box_corners_local(synced[t])))
-            in_view_flags[t] = box_in_view(corners, *size)
-            nearest[t] = np.linalg.norm(corners.points, axis=1).min()
-        start, stop = longest_run(in_view_flags)
-        if stop - start < rules.min_contiguous_frames:
-            skipped[object_id] = (
-                f"object {object_id}'s box is in view on at most {stop - start} contiguous frame(s), fewer "
-                f"than drivetrack.min_contiguous_frames={rules.min_contiguous_frames}"
-            )
-            continue
-        if nearest[start:stop].min() > rules.max_corner_distance_m:
-            skipped[object_id] = (
-                f"object {object_id}'s box comes no nearer than {nearest[start:stop].min():.1f} m, beyond "
-                f"drivetrack.max_corner_distance_m={rules.max_corner_distance_m:g}"
-            )
-            continue
-        runs.append(ObjectRun(object_id, start, stop, world_from_box[start:stop], lidar[start:stop]))
+        made = object_run(unit, camera, world_from_frame, object_id, config)
+        if isinstance(made, str):
+            skipped[object_id] = made
+        else:
+            runs.append(made)
     return runs, skipped
+
+
+def object_run(
+    unit: UnitInput, camera: UnitCamera, world_from_frame: np.ndarray, object_id: str, config: RunConfig
+) -> ObjectRun | str:
+    """The clip run of one object of the segment, or why it makes none on this unit's camera."""
+    rules, boxes = config.drivetrack, unit.boxes
+    rows = np.nonzero(boxes.object_ids == object_id)[0]
+    kind = int(boxes.types[rows[0]])
+    if kind not in rules.object_types:
+        types = ",".join(str(t) for t in rules.object_types)
+        return (
+            f"object {object_id} is of type {kind} ({OBJECT_TYPES.get(kind, 'unknown')}), not in "
+            f"drivetrack.object_types={types}"
+        )
+    assigned = assigned_camera(boxes.most_visible_camera[rows])
+    if assigned != unit.camera:
+        return (
+            f"object {object_id} belongs to camera {assigned} (the one that sees it most), not {unit.camera}"
+        )
+    synced, lidar = boxes_per_frame(unit, object_id, rows)
+    labelled = np.isfinite(synced[:, 0])
+    world_from_box = np.full((len(synced), 4, 4), np.nan)
+    world_from_box[labelled] = world_from_frame[labelled] @ box_poses(synced[labelled])
+    in_view_flags = np.zeros(len(synced), bool)
+    nearest = np.full(len(synced), np.inf)
+    for t in np.nonzero(labelled)[0]:
+        corners = camera.project(t, transform_points(world_from_box[t], box_corners_local(synced[t])))
+        in_view_flags[t] = box_in_view(corners, unit.calibration.width, unit.calibration.height)
+        nearest[t] = np.linalg.norm(corners.points, axis=1).min()
+    start, stop = longest_run(in_view_flags)
+    if stop - start < rules.min_contiguous_frames:
+        return (
+            f"object {object_id}'s box is in view on at most {stop - start} contiguous frame(s), fewer "
+            f"than drivetrack.min_contiguous_frames={rules.min_contiguous_frames}"
+        )
+    if nearest[start:stop].min() > rules.max_corner_distance_m:
+        return (
+            f"object {object_id}'s box comes no nearer than {nearest[start:stop].min():.1f} m, beyond "
+            f"drivetrack.max_corner_distance_m={rules.max_corner_distance_m:g}"
+        )
+    return ObjectRun(object_id, start, stop, world_from_box[start:stop], lidar[start:stop])
 
 
 _CORNER_SIGNS = np.array(
