@@ -130,7 +130,7 @@ def adt(spec: dict) -> dict:
     from pipeline.settings import RunConfig
 
     config = with_overrides(RunConfig(), spec["overrides"])
-    sequence, chunk = spec["unit"]
+    ((sequence, chunk),) = spec["unit"]
     opened = {}
 
     def open_sequence() -> None:

@@ -40,7 +40,7 @@ def prepare(workdir: str, quick: bool) -> UnitSetup | None:
     return UnitSetup(
         source="adt",
         input_root=path,
-        units=[[path, 0]],
+        units=[[[path, 0]]],
         overrides=list(EXCERPT_SETTINGS),
         frames=chunk * repeat,
         description=[
@@ -105,7 +105,8 @@ def _release_size_write(spec: dict, config: RunConfig, runs: int = 3) -> tuple[f
     from pipeline.unit import Annotated, UnitJob, filter_unit, write_unit
 
     source = sources.get("adt")
-    (made,) = source.annotate_group(spec["input_root"], [tuple(spec["unit"])], config, [None])
+    ((sequence, chunk),) = spec["unit"]
+    (made,) = source.annotate_group(spec["input_root"], [(sequence, chunk)], config, [None])
     (clip,) = made.clips
     take = np.arange(CHUNK_FRAMES) % clip.num_frames
     release = dataclasses.replace(
@@ -142,7 +143,7 @@ def measure_fixed_cost(spec: dict, config: RunConfig) -> dict:
     (``_release_size_write``): a unit writes one clip, so the 2-frame runs' own write stage (its
     audit table and record are a 300-frame unit's too) is taken out of the per-frame cost and this
     counted once per unit."""
-    sequence = spec["unit"][0]
+    ((sequence, _),) = spec["unit"]
     open_wall, open_cpu = _open_and_close_once(sequence, config)
     first_wall, first_cpu = _first_calls(sequence, config)
     write_wall, write_cpu = _release_size_write(spec, config)

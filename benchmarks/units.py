@@ -35,7 +35,8 @@ from benchmarks.report import report, speedup_line
 class UnitSetup:
     """One source's benchmark unit, as ``prepare`` builds it.
 
-    units: the units of the scaling run (the first one is "the" unit); each is JSON-able.
+    units: the units of the scaling run (the first one is "the" unit); each is a group of the
+      source's units, a JSON list (one ADT chunk: a group of one).
     frames: frames of one unit's input as measured (for the per-frame figure).
     extrapolate_frames: when set, the release's unit of that many frames is extrapolated from the
       measured one: fixed cost (ADT: opening the sequence, measured apart; else 0) + per-frame

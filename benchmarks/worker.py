@@ -4,7 +4,7 @@ started by ``benchmarks.processes``.
 The work is the Beam graph's, through the same function its stages call:
 ``pipeline.unit.run_group(UnitJob(source, input_root, config, output, resume=False), units)`` (read
 the inputs and annotate, filter, encode and write the clips, record each unit), ``spec["repeat"]``
-times (default 1); ``spec["unit"]`` is one unit or a group of them (``unit_group``). The source's
+times (default 1); ``spec["unit"]`` is a group of the source's units (``unit_group``). The source's
 ``annotate`` and ``annotate_group`` are wrapped only to time them (a generator group: the
 making of each unit's clips, not the writing between). A source whose
 ``benchmarks/inputs_<source>.py`` defines ``measure_fixed_cost(spec, config)`` (ADT: opening and
@@ -41,10 +41,11 @@ def unit_counts(reports: list) -> dict:
     }
 
 
-def unit_group(unit: list) -> list[tuple]:
-    """The spec's unit as the units ``run_group`` runs: a unit ([segment, camera]) alone, or a
-    group of them ([[segment, 1], [segment, 2], ...]: DriveTrack's cameras of one segment)."""
-    return [tuple(item) for item in unit] if isinstance(unit[0], list) else [tuple(unit)]
+def unit_group(group: list) -> list:
+    """The spec's unit, a group of the source's units in JSON ([[segment, 1], [segment, 2], ...]:
+    DriveTrack's cameras of one segment; [[sequence, chunk]]: one ADT chunk), as ``run_group`` runs
+    them: each unit a tuple again, or as it is when it was no list (a name)."""
+    return [tuple(unit) if isinstance(unit, list) else unit for unit in group]
 
 
 def timed_into(totals: list[float], step):
