@@ -24,7 +24,7 @@ from pipeline.settings import RunConfig
 CHUNK_FRAMES = 300
 # Each repeated run opens and closes the sequence again (warm: the tables cached); the worker times
 # these inside the runs and the report takes them out of the per-frame cost.
-FIXED_IN_WORK = (("pipeline.adt.source", "open_sequence"), ("pipeline.adt.source", "close_sequence"))
+FIXED_IN_WORK = (("pipeline.adt.annotate", "open_sequence"), ("pipeline.adt.annotate", "close_sequence"))
 RELEASE_UNITS = 1956  # one clip per (sequence, 300-frame chunk) unit, 215 sequences
 REPEAT, QUICK_REPEAT = 15, 2
 
