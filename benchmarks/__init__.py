@@ -8,6 +8,6 @@ One file per job:
   floors.py            the read+decode floor of a unit: reading and decoding its inputs, nothing else
   processes.py         spawning the worker processes, reaping them (wait4), their peak memory (VmHWM)
   report.py            per-source figures, the one table against the targets, its JSON, CPU-hours
-  inputs_<source>.py   ``prepare(workdir, quick[, full])``: one source's unit inputs (built once, cached)
-  micro_<source>.py    ``run(frames)``: the source's micro-benchmarks (``--micro``)
+  <source>.py          one source's benchmark: ``prepare(workdir, quick[, full])``, its unit inputs (built
+                       once, cached), and ``run(frames)``, its micro-benchmarks (``--micro``)
 """

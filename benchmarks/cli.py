@@ -35,7 +35,7 @@ with ``--beam`` the Panoptic Studio units also through ``python -m pipeline.run`
 DirectRunner. ``--quick``: small sizes to exercise the code paths fast (figures meaningless).
 Inputs are generated once under ``--workdir`` (default out/bench) and reused.
 
-Micro-benchmarks (``--micro``, with ``--frames``), ``benchmarks/micro_<source>.py``:
+Micro-benchmarks (``--micro``, with ``--frames``), ``benchmarks/<source>.py``:
 
 drivetrack: the occlusion decision for one 1920x1280 frame, ours (nearest lidar point of the
   four integer pixels around each track point) against the DriveTrack generator's (a dense
@@ -103,7 +103,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.micro:
         for source in sources:
             print(f"\n=== {source} (micro) ===")
-            importlib.import_module(f"benchmarks.micro_{source}").run(args.frames)
+            importlib.import_module(f"benchmarks.{source}").run(args.frames)
         return 0
     if args.units is None:
         args.units = 4 if args.full else 2

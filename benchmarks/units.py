@@ -10,7 +10,7 @@ of its (segment, camera) units, which share one read of the lidar), Panoptic Stu
 process right after each 1-worker run; the figures are printed by ``benchmarks.report``.
 
 Each source's inputs are built (once, cached under the work folder) by
-``benchmarks/inputs_<source>.py``: ``prepare(workdir, quick[, full]) -> UnitSetup`` (or None:
+``benchmarks/<source>.py``: ``prepare(workdir, quick[, full]) -> UnitSetup`` (or None:
 skipped); ``full`` (full-size inputs) is passed only to a ``prepare`` that takes it.
 """
 
@@ -76,7 +76,7 @@ def _specs(setup: UnitSetup, workdir: str, tag: str) -> list[dict]:
 
 def prepare_source(source: str, args: argparse.Namespace) -> tuple[UnitSetup | None, float]:
     """The source's ``prepare`` (its inputs written once under the work folder): (setup, seconds)."""
-    module = importlib.import_module(f"benchmarks.inputs_{source}")
+    module = importlib.import_module(f"benchmarks.{source}")
     workdir = os.path.abspath(os.path.join(args.workdir, source))
     os.makedirs(workdir, exist_ok=True)
     started = time.perf_counter()
@@ -105,7 +105,7 @@ def bench_source(
     """Prepare the source's unit (unless ``prepared``: ``prepare_source``'s result), run the scaling
     set with 1 (each run paired with its read+decode floor) and ``args.workers`` workers, print; returns
     the figures (``report``), {} when skipped."""
-    module = importlib.import_module(f"benchmarks.inputs_{source}")
+    module = importlib.import_module(f"benchmarks.{source}")
     workdir = os.path.abspath(os.path.join(args.workdir, source))
     size = "quick: reduced sizes, figures meaningless" if args.quick else "full size" if args.full else ""
     print(f"\n=== {source}{f' ({size})' if size else ''} ===", flush=True)

@@ -7,7 +7,7 @@ the inputs and annotate, filter, encode and write the clips, record each unit), 
 times (default 1); ``spec["unit"]`` is a group of the source's units (``unit_group``). The source's
 ``annotate`` and ``annotate_group`` are wrapped only to time them (a generator group: the
 making of each unit's clips, not the writing between). A source whose
-``benchmarks/inputs_<source>.py`` defines ``measure_fixed_cost(spec, config)`` (ADT: opening and
+``benchmarks/<source>.py`` defines ``measure_fixed_cost(spec, config)`` (ADT: opening and
 closing the sequence) has that cost measured apart, before the runs, for the extrapolation in
 ``report``; the functions it names in ``FIXED_IN_WORK`` ((module, name) pairs: ADT's
 ``open_sequence`` and ``close_sequence``, which each repeated run calls again) are timed inside the
@@ -92,7 +92,7 @@ def run(spec: dict) -> dict:
     config = with_overrides(RunConfig(), spec["overrides"])
     source = sources.get(spec["source"])
     group = unit_group(spec["unit"])
-    inputs = importlib.import_module(f"benchmarks.inputs_{spec['source']}")
+    inputs = importlib.import_module(f"benchmarks.{spec['source']}")
     measure_fixed_cost = getattr(inputs, "measure_fixed_cost", None)
     fixed = measure_fixed_cost(spec, config) if measure_fixed_cost else {}
 
