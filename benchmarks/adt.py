@@ -1,5 +1,9 @@
-"""ADT's benchmark: its inputs (``prepare``): the real excerpt (``pipeline.adt.source.excerpt_path()``),
-read through projectaria-tools. Its ground-truth window holds 2 frames, so its unit is that 2-frame
+"""ADT's benchmark entry. Unit: the real excerpt (``pipeline.adt.source.excerpt_path()``: $ADT_EXCERPT,
+else ../shared/data/adt_sample), read through projectaria-tools: its one 2-frame chunk run 15 times;
+the 300-frame unit is extrapolated (the opening of the sequence, measured apart, + 300 x per-frame
+cost), at every size. Micro: per-frame cost of reading and re-rendering RGB, depth and ids.
+
+Inputs (``prepare``): the excerpt's ground-truth window holds 2 frames, so its unit is that 2-frame
 chunk, run ``REPEAT`` times through ``pipeline.unit.run_group`` (each run opens and closes the
 sequence, as a group does); a release unit (300 frames) is extrapolated: its share of its group's
 opening and closing (the sequence opened, its re-rendering tables built and the sequence closed once
@@ -8,46 +12,57 @@ for ``CHUNKS_PER_GROUP`` chunks, measured apart by ``measure_fixed_cost`` with t
 (measured apart, once per unit), plus 300 x the measured per-frame cost of reading, re-rendering
 and annotating.
 
-Micro-benchmark (``run``): on the real excerpt: per-frame cost of reading RGB, depth and ids
-(projectaria-tools' VRS decode), of re-rendering them to the stored frames both ways --
-projectaria-tools' ``distort_*_by_calibration`` (the reference) and ours (``Remap`` gathers,
-the same pixels) -- of the poses and the JPEG encoding, with the largest difference between the
-two renderings; then the cost of building the tables and the annotation cost of one clip, per
-frame and extrapolated to a 300-frame chunk.
+Floor (``floor``): opening the sequence with projectaria-tools (``AriaDigitalTwinDataProvider``,
+once, cold) and its frame timestamps, then the chunk's RGB, depth and segmentation frames read from
+the VRS files ``repeat`` times, as the unit's runs read them, then closing it; the report
+extrapolates it to a 300-frame unit like the unit itself (its share of a group's opening and
+closing + 300 x per-frame read).
 
-The excerpt is ``pipeline.adt.source.excerpt_path()``: ``$ADT_EXCERPT``, else
-``../shared/data/adt_sample/aria_digital_twin_test_data`` beside the repository.
+Micro (``micro``): per-frame cost of reading RGB, depth and ids (projectaria-tools' VRS decode), of
+re-rendering them to the stored frames both ways -- projectaria-tools' ``distort_*_by_calibration``
+(the reference) and ours (``Remap`` gathers, the same pixels) -- of the poses and the JPEG encoding,
+with the largest difference between the two renderings; then the cost of building the tables and
+the annotation cost of one clip, per frame and extrapolated to a 300-frame chunk.
+
+The pipeline's modules are imported inside the functions, so that a floor process imports only
+what its floor reads.
 """
 
 from __future__ import annotations
 
 import os
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from benchmarks.units import UnitSetup
-from pipeline.adt.source import EXCERPT_SETTINGS, SHARED_EXCERPT, excerpt_path
-from pipeline.adt.units import CHUNKS_PER_GROUP
-from pipeline.core.config import with_overrides
-from pipeline.settings import RunConfig
+from benchmarks.entry import UnitSetup, wall_and_cpu
 
-CHUNK_FRAMES = 300
+if TYPE_CHECKING:
+    from pipeline.settings import RunConfig
+
+# Per input frame on one core.
+TARGETS = {"ms_per_frame": 60.0}
 # Each repeated run opens and closes the sequence again (warm: the tables cached); the worker times
 # these inside the runs and the report takes them out of the per-frame cost.
 FIXED_IN_WORK = (("pipeline.adt.annotate", "open_sequence"), ("pipeline.adt.annotate", "close_sequence"))
+CHUNK_FRAMES = 300
 RELEASE_UNITS = 1956  # one clip per (sequence, 300-frame chunk) unit, 215 sequences
 REPEAT, QUICK_REPEAT = 15, 2
 
 
-def prepare(workdir: str, quick: bool) -> UnitSetup | None:
+def prepare(workdir: str, size: str) -> UnitSetup | None:
+    """The excerpt's unit (read in place: nothing is written under ``workdir``), or None (skipped)
+    without an excerpt."""
+    from pipeline.adt.source import EXCERPT_SETTINGS, SHARED_EXCERPT, excerpt_path
+
     path = excerpt_path()
     if path is None:
         where = os.environ.get("ADT_EXCERPT") or SHARED_EXCERPT
         print(f"adt: no ADT excerpt at {where}; set ADT_EXCERPT to a sequence folder. Skipped.")
         return None
     chunk = int(EXCERPT_SETTINGS[0].split("=")[1])
-    repeat = QUICK_REPEAT if quick else REPEAT
+    repeat = QUICK_REPEAT if size == "quick" else REPEAT
     return UnitSetup(
         source="adt",
         input_root=path,
@@ -154,6 +169,8 @@ def measure_fixed_cost(spec: dict, config: RunConfig) -> dict:
     (``_release_size_write``): a unit writes one clip, so the 2-frame runs' own write stage (its
     audit table and record are a 300-frame unit's too) is taken out of the per-frame cost and this
     counted once per unit."""
+    from pipeline.adt.units import CHUNKS_PER_GROUP
+
     ((sequence, _),) = spec["unit"]
     open_wall, open_cpu = _open_and_close_once(sequence, config)
     first_wall, first_cpu = _first_calls(sequence, config)
@@ -168,6 +185,81 @@ def measure_fixed_cost(spec: dict, config: RunConfig) -> dict:
         "write_unit_s": write_wall,
         "write_unit_cpu_s": write_cpu,
     }
+
+
+def floor(spec: dict) -> dict:
+    """The read+decode floor of the unit's chunk (the module's docstring): floor_s / floor_cpu_s
+    and floor_frames, with floor_open_s / floor_open_cpu_s (the opening and closing, inside
+    floor_s) and floor_open_share (a unit's share of it: a group of chunks opens and closes the
+    sequence once)."""
+    from pipeline.adt.frames import open_reader
+    from pipeline.adt.units import CHUNKS_PER_GROUP
+    from pipeline.core.config import with_overrides
+    from pipeline.settings import RunConfig
+
+    config = with_overrides(RunConfig(), spec["overrides"])
+    ((sequence, chunk),) = spec["unit"]
+    opened = {}
+
+    def open_sequence() -> None:
+        reader = open_reader(sequence, config)
+        opened["reader"], opened["stamps"] = reader, reader.frame_timestamps()
+
+    open_wall, open_cpu = wall_and_cpu(open_sequence)
+    reader = opened["reader"]
+    size = config.adt.chunk_frames
+    stamps = opened["stamps"][chunk * size : (chunk + 1) * size]
+    repeat = spec.get("repeat", 1)
+
+    def read() -> None:
+        for _ in range(repeat):
+            for timestamp in stamps:
+                reader.rgb(timestamp)
+                reader.depth_mm(timestamp)
+                reader.ids(timestamp)
+
+    wall, cpu = wall_and_cpu(read)
+    close_wall, close_cpu = wall_and_cpu(reader.close)
+    return {
+        "floor_s": open_wall + wall + close_wall,
+        "floor_cpu_s": open_cpu + cpu + close_cpu,
+        "floor_frames": len(stamps) * repeat,
+        "floor_open_s": open_wall + close_wall,
+        "floor_open_cpu_s": open_cpu + close_cpu,
+        "floor_open_share": 1.0 / CHUNKS_PER_GROUP,  # a group of chunks opens and closes the sequence once
+    }
+
+
+def micro(frames: int) -> None:
+    """Print per-frame reading/re-rendering costs over ``frames`` frame reads, then the clip cost."""
+    from pipeline.adt.frames import SequenceFrames, open_reader
+    from pipeline.adt.rectify import _stored_remap
+    from pipeline.adt.source import EXCERPT_SETTINGS, SHARED_EXCERPT, excerpt_path
+    from pipeline.core.config import with_overrides
+    from pipeline.settings import RunConfig
+
+    path = excerpt_path()
+    if path is None:
+        where = os.environ.get("ADT_EXCERPT") or SHARED_EXCERPT
+        print(f"adt bench: no ADT excerpt at {where}; set ADT_EXCERPT to a sequence folder")
+        return
+    config = with_overrides(RunConfig(), EXCERPT_SETTINGS)
+    open_time, reader = _timed(open_reader, path, config)
+    stamps = reader.frame_timestamps()
+    _stored_remap.cache_clear()
+    build_time, sequence = _timed(SequenceFrames, reader, config)
+    cached_time = _timed(SequenceFrames, reader, config)[0]
+    jit_time, steps, largest = _per_frame_steps(reader, sequence, config, stamps, max(1, frames))
+    size = config.adt.image_size
+    print(f"ADT excerpt {path}")
+    print(f"opening the sequence (projectaria-tools provider): {1000 * open_time:.0f} ms")
+    print(
+        f"re-rendering tables (projectaria-tools' project for {size * size} pixels, once per calibration "
+        f"per process): {1000 * build_time:.0f} ms; cached: {1000 * cached_time:.2f} ms; first RGB and depth "
+        f"calls (numba compiles or loads its cached loops, once per process): {1000 * jit_time:.0f} ms"
+    )
+    _print_steps(steps, largest, max(1, frames), size)
+    _clip_cost(path, sequence, stamps, config)
 
 
 def _timed(function, *args):
@@ -193,25 +285,11 @@ def _library_renderers(reader, config):
     }
 
 
-def run(frames: int) -> None:
-    """Print per-frame reading/re-rendering costs over ``frames`` frame reads, then the clip cost."""
-    from pipeline.adt.frames import SequenceFrames, encode_jpeg, open_reader
-    from pipeline.adt.records import Chunk
-    from pipeline.adt.rectify import _stored_remap
-    from pipeline.adt.tracks import annotate_chunk
-    from pipeline.adt.units import clip_name, unit_name
+def _per_frame_steps(reader, sequence, config, stamps, frames: int) -> tuple[float, dict, dict]:
+    """Over ``frames`` frame reads: (seconds of the first RGB and depth calls of ours, seconds of
+    each step summed, the largest difference between the two renderings per image kind)."""
+    from pipeline.adt.frames import encode_jpeg
 
-    path = excerpt_path()
-    if path is None:
-        where = os.environ.get("ADT_EXCERPT") or SHARED_EXCERPT
-        print(f"adt bench: no ADT excerpt at {where}; set ADT_EXCERPT to a sequence folder")
-        return
-    config = with_overrides(RunConfig(), EXCERPT_SETTINGS)
-    open_time, reader = _timed(open_reader, path, config)
-    stamps = reader.frame_timestamps()
-    _stored_remap.cache_clear()
-    build_time, sequence = _timed(SequenceFrames, reader, config)
-    cached_time = _timed(SequenceFrames, reader, config)[0]
     rect, library = sequence.rectifier, _library_renderers(reader, config)
     ours = {"RGB": rect.rgb, "depth": rect.depth_mm, "ids": rect.ids}
     read = {"RGB": reader.rgb, "depth": reader.depth_mm, "ids": reader.ids}
@@ -219,7 +297,6 @@ def run(frames: int) -> None:
     jit_time = sum(_timed(ours[kind], read[kind](first))[0] for kind in ("RGB", "depth"))
     steps: dict[str, float] = {}
     largest = {"RGB": 0.0, "depth": 0.0, "ids": 0}  # grey levels, mm, mismatched pixels
-    frames = max(1, frames)
     for index in range(frames):
         timestamp = int(stamps[index % len(stamps)])
         for kind in ("RGB", "depth", "ids"):
@@ -239,14 +316,10 @@ def run(frames: int) -> None:
         reader.world_from_camera(timestamp)
         reader.object_poses(timestamp)
         steps["poses"] = steps.get("poses", 0.0) + time.perf_counter() - start
-    size = config.adt.image_size
-    print(f"ADT excerpt {path}")
-    print(f"opening the sequence (projectaria-tools provider): {1000 * open_time:.0f} ms")
-    print(
-        f"re-rendering tables (projectaria-tools' project for {size * size} pixels, once per calibration "
-        f"per process): {1000 * build_time:.0f} ms; cached: {1000 * cached_time:.2f} ms; first RGB and depth "
-        f"calls (numba compiles or loads its cached loops, once per process): {1000 * jit_time:.0f} ms"
-    )
+    return jit_time, steps, largest
+
+
+def _print_steps(steps: dict, largest: dict, frames: int, size: int) -> None:
     print(f"per frame, mean over {frames} read(s), 1408x1408 fisheye -> {size}x{size} pinhole, rotated:")
     for name, seconds in steps.items():
         print(f"  {name:<16} {1000 * seconds / frames:8.2f} ms")
@@ -259,6 +332,13 @@ def run(frames: int) -> None:
         f"{largest['depth']:.3g} mm, ids {largest['ids']} pixel(s) differ"
     )
 
+
+def _clip_cost(path: str, sequence, stamps, config) -> None:
+    """Print the annotation cost of the excerpt's first chunk, per frame and for a 300-frame chunk."""
+    from pipeline.adt.records import Chunk
+    from pipeline.adt.tracks import annotate_chunk
+    from pipeline.adt.units import clip_name, unit_name
+
     chunk = Chunk(clip_name(path, 0), unit_name((path, 0)), stamps[: config.adt.chunk_frames])
     seconds, clip = _timed(annotate_chunk, chunk, sequence.frame, sequence.jpeg, sequence.instances, config)
     per_frame = seconds / clip.num_frames
@@ -267,3 +347,9 @@ def run(frames: int) -> None:
         f"ids and poses read once per frame): {seconds:.2f} s = {1000 * per_frame:.0f} ms/frame; a "
         f"300-frame chunk at that rate: {300 * per_frame:.0f} s"
     )
+
+
+def beam_run_args(units: list) -> None:
+    """None: not run through Beam (the scaling set repeats the excerpt's one chunk, which no command
+    line selects twice)."""
+    return None

@@ -1,14 +1,17 @@
-"""DriveTrack's benchmark: its inputs (``prepare``): one synthetic Waymo Open v2 segment at the real
-sensors' sizes, written in the real Parquet schema by the sample world's writer
-(``pipeline/samples/waymo_world.py``).
+"""DriveTrack's benchmark entry. Unit: one synthetic Waymo v2 segment's cameras FRONT, FRONT_LEFT and
+FRONT_RIGHT at 1920x1280 in the real Parquet schema, with the TOP lidar 64x2650 and 4 short-range
+lidars: the group the graph annotates together (one read of the lidar). Default size: 30 frames,
+extrapolated to 3 x 199 camera frames; ``--full``: 199 frames. Micro: the occlusion decision for one
+1920x1280 frame, ours against the DriveTrack generator's.
 
-Full size (``--full``): 199 frames (20 s at 10 Hz); FRONT, FRONT_LEFT and FRONT_RIGHT cameras at 1920x1280
-(focal 2055 px; the scene is ray cast at 480x320, resized up and given film grain so the JPEGs
-weigh about what photographs do; the pipeline only passes them through); TOP lidar range image
-64 x 2650 with per-pixel poses and camera projections; and, as in real ``lidar`` and
-``lidar_camera_projection`` files, the four short-range lidars (FRONT, SIDE_LEFT, SIDE_RIGHT,
-REAR, 200 x 600 each, no returns) in the same files. Real segments also hold SIDE_LEFT and
-SIDE_RIGHT camera images (not written here: about 400 more JPEGs in ``camera_image``).
+Inputs (``prepare``): the segment is written by the sample world's writer
+(``pipeline/samples/waymo_world.py``). Full size: 199 frames (20 s at 10 Hz); the cameras' focal is
+2055 px (the scene is ray cast at 480x320, resized up and given film grain so the JPEGs weigh about
+what photographs do; the pipeline only passes them through); the TOP lidar's range image has
+per-pixel poses and camera projections; and, as in real ``lidar`` and ``lidar_camera_projection``
+files, the four short-range lidars (FRONT, SIDE_LEFT, SIDE_RIGHT, REAR, 200 x 600 each, no returns)
+are in the same files. Real segments also hold SIDE_LEFT and SIDE_RIGHT camera images (not written
+here: about 400 more JPEGs in ``camera_image``).
 
 Default size (``make bench``): the same street, sensors and image sizes, for the first 30 frames
 (3 s; a clip needs 24 contiguous frames), written in a minute or two instead of ten: every per-frame
@@ -22,10 +25,17 @@ and parked cars, with a service road on each side where two cars keep pace, so t
 camera's unit yields several clips and each side camera's a few (the release's FRONT units
 average 6.3 clips, every unit 3.3: its side units 1.8).
 
-Micro-benchmark (``run``): the occlusion decision for one 1920x1280 frame, ours (nearest lidar point of the
-four integer pixels around each track point) against the DriveTrack generator's (a dense
-NearestNDInterpolator depth map of the whole image, then the max of the four pixels), on the
-same lidar points and track points, with the agreement of the decisions.
+Floor (``floor``): the columns the units read of every component file of the segment, streamed
+with pyarrow 8 rows at a time as the reader does; the group cameras' JPEGs decoded to BGR
+(``cv2.imdecode``, as the undistortion does); the TOP lidar's range images of ``lidar``,
+``lidar_pose`` and ``lidar_camera_projection`` turned into arrays [H, W, C], once.
+
+Micro (``micro``): ours is the nearest lidar point of the four integer pixels around each track
+point; the generator's a dense NearestNDInterpolator depth map of the whole image, then the max of
+the four pixels; on the same lidar points and track points, with the agreement of the decisions.
+
+The pipeline's modules are imported inside the functions, so that a floor process imports only
+what its floor reads.
 """
 
 from __future__ import annotations
@@ -36,9 +46,11 @@ import time
 
 import numpy as np
 
-from benchmarks.units import UnitSetup
-from pipeline.core.visibility import passes_relative_depth_test
-from pipeline.drivetrack.visibility import dense_nearest_depth, max4_from_dense, nearest_depth_max4
+from benchmarks.entry import UnitSetup, wall_and_cpu
+
+# Per input frame on one core; the peak memory of the unit's process.
+TARGETS = {"ms_per_frame": 150.0, "peak_rss_gib": 2.5}
+FIXED_IN_WORK = ()  # nothing a repeated run pays again: the unit runs once
 
 SEGMENT = "1000000000000000001_0_000_20_000"
 FULL = {"frames": 199, "width": 1920, "height": 1280, "columns": 2650, "short_range": (200, 600), "scale": 4}
@@ -51,6 +63,7 @@ VERSION = "3"  # 2: the sample writer's lens distortion and rolling shutter; 3: 
 # (segment, camera) pairs hold a released clip); the pipeline runs every (segment, camera) pair.
 SEGMENTS = 250
 CAMERAS = 3
+WIDTH, HEIGHT, FOCAL = 1920, 1280, 2055.0  # the micro-benchmark's frame
 
 
 @functools.cache
@@ -102,9 +115,39 @@ def bench_world():
     return driving.DrivingWorld(actors=actors, ego=driving.Ego(speed=8.0, yaw_rate=0.001))
 
 
-def prepare(workdir: str, quick: bool, full: bool = False) -> UnitSetup:
-    tag = "quick" if quick else "full" if full else "default"
-    sizes = {"quick": QUICK, "default": DEFAULT, "full": FULL}[tag]
+def prepare(workdir: str, size: str) -> UnitSetup:
+    """The segment of ``size`` written under ``workdir`` (once), and its unit."""
+    sizes = {"quick": QUICK, "default": DEFAULT, "full": FULL}[size]
+    folder = os.path.join(workdir, f"segment_{size}")
+    written = _write_segment(folder, size, sizes)
+    return UnitSetup(
+        source="drivetrack",
+        input_root=folder,
+        units=[[[SEGMENT, camera] for camera in range(1, CAMERAS + 1)]],
+        overrides=[],
+        frames=CAMERAS * sizes["frames"],
+        description=_description(folder, sizes, written),
+        full_units=SEGMENTS,
+        full_units_note=(
+            f"{SEGMENTS} segments of {CAMERAS} cameras: the release's 2457 clips come from 250 segments "
+            "(3.3 clips per camera); each priced like this one"
+        ),
+        size=size,
+        extrapolate_frames=CAMERAS * FULL["frames"] if size == "default" else None,
+        notes=[
+            f"measured on a {sizes['frames']}-frame segment with the full segment's sensors and image "
+            f"sizes; the {FULL['frames']}-frame segment is {CAMERAS} x {FULL['frames']} camera frames x "
+            "the per-frame cost (extrapolated); its clips cover 3.7 clip frames per camera frame, the "
+            "full segment's 3.6 (2026-11-23)"
+        ]
+        if size == "default"
+        else [],
+    )
+
+
+def _write_segment(folder: str, size: str, sizes: dict) -> float:
+    """The street's segment at ``sizes`` written into ``folder`` unless it is there; the seconds
+    spent."""
     from pipeline.samples import waymo_world as waymo
     from pipeline.samples.write_once import write_once
 
@@ -112,10 +155,9 @@ def prepare(workdir: str, quick: bool, full: bool = False) -> UnitSetup:
     models = waymo.camera_models(
         sizes["width"], sizes["height"], np.array([focal, focal, sizes["width"] / 2, sizes["height"] / 2])
     )
-    folder = os.path.join(workdir, f"segment_{tag}")
     version = f"{VERSION}-{sizes['frames']}f"  # a folder of other sizes is written again
     if not os.path.exists(os.path.join(folder, f".complete-v{version}")):
-        print(f"writing the {tag} segment (once; later runs reuse it) ...", flush=True)
+        print(f"writing the {size} segment (once; later runs reuse it) ...", flush=True)
     started = time.perf_counter()
     write_once(
         folder,
@@ -133,7 +175,11 @@ def prepare(workdir: str, quick: bool, full: bool = False) -> UnitSetup:
             keep_points=False,
         ),
     )
-    written = time.perf_counter() - started
+    return time.perf_counter() - started
+
+
+def _description(folder: str, sizes: dict, written: float) -> list[str]:
+    """The setup's description: the segment's files, and what a unit is."""
     jpeg_mib = os.path.getsize(os.path.join(folder, "camera_image", f"{SEGMENT}.parquet")) / 2**20
     jpeg_kib = jpeg_mib * 1024 / (3 * sizes["frames"])
     files_mib = (
@@ -141,38 +187,16 @@ def prepare(workdir: str, quick: bool, full: bool = False) -> UnitSetup:
         / 2**20
     )
     short = "x".join(map(str, sizes["short_range"]))
-    return UnitSetup(
-        source="drivetrack",
-        input_root=folder,
-        units=[[[SEGMENT, camera] for camera in range(1, CAMERAS + 1)]],
-        overrides=[],
-        frames=CAMERAS * sizes["frames"],
-        description=[
-            f"one Waymo v2 segment, {sizes['frames']} frames; cameras FRONT, FRONT_LEFT, FRONT_RIGHT at "
-            f"{sizes['width']}x{sizes['height']} (camera_image file {jpeg_mib:.0f} MiB, {jpeg_kib:.0f} KiB "
-            f"per JPEG); TOP lidar "
-            f"64x{sizes['columns']} + 4 short-range lidars {short} (no returns); {files_mib:.0f} MiB of "
-            f"Parquet" + (f"; written in {written:.0f} s" if written > 1 else ""),
-            f"unit = the segment's {CAMERAS} (segment, camera) units as the graph groups them (one read "
-            "of the lidar); a frame = one camera's frame; the scaling set repeats the group (same input, "
-            "separate outputs)",
-        ],
-        full_units=SEGMENTS,
-        full_units_note=(
-            f"{SEGMENTS} segments of {CAMERAS} cameras: the release's 2457 clips come from 250 segments "
-            "(3.3 clips per camera); each priced like this one"
-        ),
-        size=tag,
-        extrapolate_frames=CAMERAS * FULL["frames"] if tag == "default" else None,
-        notes=[
-            f"measured on a {sizes['frames']}-frame segment with the full segment's sensors and image "
-            f"sizes; the {FULL['frames']}-frame segment is {CAMERAS} x {FULL['frames']} camera frames x "
-            "the per-frame cost (extrapolated); its clips cover 3.7 clip frames per camera frame, the "
-            "full segment's 3.6 (2026-11-23)"
-        ]
-        if tag == "default"
-        else [],
-    )
+    return [
+        f"one Waymo v2 segment, {sizes['frames']} frames; cameras FRONT, FRONT_LEFT, FRONT_RIGHT at "
+        f"{sizes['width']}x{sizes['height']} (camera_image file {jpeg_mib:.0f} MiB, {jpeg_kib:.0f} KiB "
+        f"per JPEG); TOP lidar "
+        f"64x{sizes['columns']} + 4 short-range lidars {short} (no returns); {files_mib:.0f} MiB of "
+        f"Parquet" + (f"; written in {written:.0f} s" if written > 1 else ""),
+        f"unit = the segment's {CAMERAS} (segment, camera) units as the graph groups them (one read "
+        "of the lidar); a frame = one camera's frame; the scaling set repeats the group (same input, "
+        "separate outputs)",
+    ]
 
 
 def measure_fixed_cost(spec: dict, config) -> dict:
@@ -197,7 +221,54 @@ def measure_fixed_cost(spec: dict, config) -> dict:
     return {"first_calls_s": time.perf_counter() - wall, "first_calls_cpu_s": time.process_time() - cpu}
 
 
-WIDTH, HEIGHT, FOCAL = 1920, 1280, 2055.0
+def floor(spec: dict) -> dict:
+    """The read+decode floor of the unit's group of cameras (the module's docstring)."""
+    import cv2
+    import pyarrow as pa
+    import pyarrow.compute as pc
+    import pyarrow.parquet as pq
+
+    from pipeline.drivetrack import columns as C
+
+    (segment,), cameras = {s for s, _ in spec["unit"]}, [c for _, c in spec["unit"]]
+    frames = 0
+
+    def path(component: str) -> str:
+        return os.path.join(spec["input_root"], component, f"{segment}.parquet")
+
+    def batches(component: str, columns: list[str]):
+        yield from pq.ParquetFile(path(component)).iter_batches(batch_size=8, columns=columns)
+
+    def read() -> None:
+        nonlocal frames
+        small = {
+            C.CAMERA_CALIBRATION: [C.CAMERA_NAME, *C.CAM_INTRINSICS, *C.CAM_DISTORTION, C.CAM_EXTRINSIC],
+            C.LIDAR_CALIBRATION: [C.LASER_NAME, C.LIDAR_EXTRINSIC, C.BEAM_INCLINATION_VALUES],
+            C.VEHICLE_POSE: [C.TIMESTAMP, C.WORLD_FROM_VEHICLE],
+            C.LIDAR_BOX: [C.TIMESTAMP, C.OBJECT_ID, C.BOX_TYPE, *C.BOX_FIELDS],
+            C.LIDAR_CAMERA_SYNCED_BOX: [C.TIMESTAMP, C.OBJECT_ID, C.MOST_VISIBLE_CAMERA],
+        }
+        for component, names in small.items():
+            pq.read_table(path(component), columns=names)
+        for batch in batches(C.CAMERA_IMAGE, [C.TIMESTAMP, C.CAMERA_NAME, C.IMAGE_JPEG, C.IMAGE_POSE]):
+            names = batch.column(C.CAMERA_NAME)
+            rows = batch.filter(pc.is_in(names, pa.array(cameras, names.type)))
+            for jpeg in rows.column(C.IMAGE_JPEG).to_pylist():
+                cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
+                frames += 1
+        for component, values, shape in (
+            (C.LIDAR, C.LIDAR_RANGE_VALUES, C.LIDAR_RANGE_SHAPE),
+            (C.LIDAR_POSE, C.LIDAR_POSE_VALUES, C.LIDAR_POSE_SHAPE),
+            (C.LIDAR_CAMERA_PROJECTION, C.PROJECTION_VALUES, C.PROJECTION_SHAPE),
+        ):
+            for batch in batches(component, [C.TIMESTAMP, C.LASER_NAME, values, shape]):
+                rows = batch.filter(pc.equal(batch.column(C.LASER_NAME), C.TOP_LASER))
+                for row in range(rows.num_rows):
+                    dims = rows.column(shape)[row].values.to_numpy()
+                    rows.column(values)[row].values.to_numpy(zero_copy_only=False).reshape(dims)
+
+    wall, cpu = wall_and_cpu(read)
+    return {"floor_s": wall, "floor_cpu_s": cpu, "floor_frames": frames}
 
 
 def synthetic_frame(seed: int = 0, tracks: int = 1024):
@@ -238,8 +309,11 @@ def best_of(repeats: int, function, *args):
     return min(times), result
 
 
-def run(frames: int) -> None:
+def micro(frames: int) -> None:
     """Print the occlusion-decision timings, ours and the generator's, over ``frames`` frames."""
+    from pipeline.core.visibility import passes_relative_depth_test
+    from pipeline.drivetrack.visibility import dense_nearest_depth, max4_from_dense, nearest_depth_max4
+
     ours_total = theirs_total = 0.0
     agree = total = 0
     for seed in range(frames):
@@ -268,3 +342,9 @@ def run(frames: int) -> None:
         f"  speed-up: {theirs_total / ours_total:.1f}x   identical decisions: {agree}/{total} "
         f"({agree / total:.2%})"
     )
+
+
+def beam_run_args(units: list) -> None:
+    """None: not run through Beam (the scaling set repeats one segment, which no command line
+    selects twice)."""
+    return None
