@@ -1,6 +1,7 @@
 """A toy source, defined entirely here and registered at run time: the proof that a source needs
 one object and nothing else in the package (docs/adding-a-source.md), its settings section
-(``ToyConfig``: ``--set toy.<field>=...``) included.
+(``ToyConfig``: ``--set toy.<field>=...``) and its benchmark entry (``tests/support/toy_bench.py``:
+``python -m benchmarks toy``) included.
 
 Input: a folder of ``<name>.json`` files, each a unit: ``{"frames": T, "points": [[x, y, z], ...],
 "velocity": [vx, vy, vz]}``: points moving at constant velocity (metres per frame, times
@@ -108,5 +109,6 @@ TOY = Source(
     sample_input=write_sample,
     mask_min_agreement=lambda config: MASK_THRESHOLD,
     settings=ToyConfig,
+    bench="tests.support.toy_bench",
 )
 SOURCE = TOY
