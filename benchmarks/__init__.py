@@ -1,13 +1,31 @@
 """Speed and memory benchmarks of the pipeline (``python -m benchmarks``), kept out of the installed
 package: they import ``pipeline`` and ``pipeline.samples``, never the other way round.
 
-One file per job:
-  cli.py               the command: ``python -m benchmarks {all,adt,drivetrack,pstudio} [--quick|--full]``
-  units.py             the per-unit benchmark of one source: prepare, run the scaling set and the floor
-  worker.py            one unit in a fresh single-threaded pinned process, through ``pipeline.unit.run_group``
-  floors.py            the read+decode floor of a unit: reading and decoding its inputs, nothing else
-  processes.py         spawning the worker processes, reaping them (wait4), their peak memory (VmHWM)
-  report.py            per-source figures, the one table against the targets, its JSON, CPU-hours
-  inputs_<source>.py   ``prepare(workdir, quick[, full])``: one source's unit inputs (built once, cached)
-  micro_<source>.py    ``run(frames)``: the source's micro-benchmarks (``--micro``)
+The framework, one file per job:
+  cli.py         the command: ``python -m benchmarks {all,<source>} [--quick|--full] [--micro]``
+  units.py       the per-unit benchmark of one source: prepare, run the scaling set and the floor
+  worker.py      one unit (or its floor) in a fresh single-threaded pinned process
+  processes.py   spawning the worker processes, reaping them (wait4), their peak memory (VmHWM)
+  report.py      one source's figures: computed from its runs, printed
+  table.py       the one table of every source against its targets, its lines and its JSON
+  entry.py       finding a source's entry, the interface it defines, the UnitSetup it returns
+
+One entry per source, ``<source>.py`` (drivetrack.py, adt.py, pstudio.py), found through the
+registry (``sources.get(name).bench_module``; a plug-in names its own with ``Source.bench``); the
+bench runs the sources in ``sources.names()``'s order. An entry defines:
+  TARGETS                           {table column: target}: its own targets, ``ms_per_frame`` and
+                                    ``peak_rss_gib`` (the others are every source's: ``table.py``)
+  FIXED_IN_WORK                     ((module, function), ...): what each repeated run pays again,
+                                    clocked inside the runs and taken out of the per-frame cost
+  prepare(workdir, size)            -> UnitSetup, or None (skipped): its unit's inputs, written once
+                                    under ``workdir`` at ``size`` ("quick", "default" or "full")
+  measure_fixed_cost(spec, config)  -> {figure: seconds}: in the unit's process, before the runs,
+                                    the costs that do not scale with its frames
+  floor(spec)                       -> floor_s, floor_cpu_s, floor_frames: in a process of its own,
+                                    the bare reading and decoding of the unit's inputs
+  micro(frames)                     prints its micro-benchmarks (``--micro``)
+  beam_run_args(units)              -> the ``pipeline.run`` arguments that make these units, or
+                                    None: not run through Beam (``--beam``)
+A ``spec`` is one unit's, as ``units.py`` writes it for the worker: source, entry, input_root,
+unit (a group of the source's units, JSON), overrides, output, and the setup's ``extra``.
 """

@@ -1,6 +1,7 @@
-"""``python -m benchmarks {all,adt,drivetrack,pstudio} [--quick | --full] [--micro]``: speed and memory.
+"""``python -m benchmarks {all,<source>} [--quick | --full] [--micro]``: speed and memory.
 
-Per-unit benchmark (default; ``benchmarks/units.py``), for each source:
+Per-unit benchmark (default; ``benchmarks/units.py``), for each source (``all``: every registered
+source, in the registry's order):
 
 1. one unit's real work on one worker (read inputs + annotate + filter + encode and write the
    clips: ``pipeline.unit.run_group``, the Beam graph's own stages), per unit and per input frame;
@@ -8,7 +9,7 @@ Per-unit benchmark (default; ``benchmarks/units.py``), for each source:
 3. the speed-up of the same set of units (``--units``) from 1 to ``--workers`` (default 2)
    worker processes, each single-threaded and bound to a CPU of its own;
 4. the read+decode floor: the bare cost of reading and decoding the unit's inputs, in one more
-   such process right after each 1-worker run (``benchmarks/floors.py``), and the unit's time
+   such process right after each 1-worker run (the entry's ``floor``), and the unit's time
    over it (time on one core: the CPU time of these single-threaded pinned processes, their wall
    time on an idle machine);
 5. the CPU-hours of the whole benchmark (units of the release x CPU per unit).
@@ -18,52 +19,96 @@ target, and a last row ``all`` with the total CPU-hours), also written as JSON (
 default ``<workdir>/bench.json``, ``bench-full.json`` with ``--full``).
 
 Sizes. Default (``make bench``, a few minutes): inputs as large per frame as the release's but
-shorter, the release unit extrapolated from the measured per-frame cost (marked ``*``):
-  drivetrack: one synthetic Waymo v2 segment in the real Parquet schema, 30 frames, cameras
-    FRONT, FRONT_LEFT, FRONT_RIGHT at 1920x1280, TOP lidar 64x2650 + 4 short-range lidars;
-    unit = the segment's 3 cameras, the group the graph annotates together; extrapolated to
-    3 x 199 camera frames.
-  pstudio: 300,000 Gaussians x 30 frames x 27 cameras at 640x360 in Dynamic 3D Gaussians' file
-    layout; unit = 3 cameras of the sequence annotated together; extrapolated to 3 x 150 frames.
-  adt: the real excerpt (``pipeline.adt.source.excerpt_path()``: $ADT_EXCERPT, else
-    ../shared/data/adt_sample): its one 2-frame chunk run 15 times; the 300-frame unit is
-    extrapolated (the opening of the sequence, measured apart, + 300 x per-frame cost), at
-    every size.
-``--full`` (``make bench-full``): DriveTrack's segment of 199 frames, Panoptic Studio's 150
-frames (writing them takes about 7 minutes the first time), 4 units in the scaling set, and
-with ``--beam`` the Panoptic Studio units also through ``python -m pipeline.run`` on Beam's
-DirectRunner. ``--quick``: small sizes to exercise the code paths fast (figures meaningless).
-Inputs are generated once under ``--workdir`` (default out/bench) and reused.
+shorter, the release unit extrapolated from the measured per-frame cost (marked ``*``).
+``--full`` (``make bench-full``): full-size inputs, 4 units in the scaling set, and with
+``--beam`` the units also through ``python -m pipeline.run`` on Beam's DirectRunner (where the
+entry's ``beam_run_args`` selects them). ``--quick``: small sizes to exercise the code paths fast
+(figures meaningless). Inputs are generated once under ``--workdir`` (default out/bench) and
+reused.
 
-Micro-benchmarks (``--micro``, with ``--frames``), ``benchmarks/micro_<source>.py``:
+Micro-benchmarks (``--micro``, with ``--frames``): each source's entry's ``micro``.
 
-drivetrack: the occlusion decision for one 1920x1280 frame, ours (nearest lidar point of the
-  four integer pixels around each track point) against the DriveTrack generator's (a dense
-  NearestNDInterpolator depth map of the whole image), on the same points, with the agreement.
-pstudio: full-frame against selected-pixel depth renders, and one clip's annotation.
-adt: per-frame cost of reading and re-rendering RGB, depth and ids on the real excerpt.
+Per source, its benchmark entry (``benchmarks/<source>.py`` for a built-in source):
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib
 import os
 import sys
+import textwrap
 import time
 
 from pipeline.commandline import StrictParser
 
-ORDER = ("drivetrack", "pstudio", "adt")
+# The pipeline, hence NumPy, is imported inside the functions, after ``one_thread_here``.
 
 
 def main(argv: list[str] | None = None) -> int:
+    one_thread_here()
+    args = parse(argv)
+    from benchmarks.units import bench_source, prepare_side_by_side
+    from pipeline import sources
+
+    names = sources.names() if args.source == "all" else (args.source,)
+    if args.micro:
+        return micro(names, args.frames)
+    started, load = time.perf_counter(), os.getloadavg()
+    prepared = prepare_side_by_side(names, args)
+    figures = [f for f in (bench_source(source, args, prepared.get(source)) for source in names) if f]
+    if not figures:
+        print("nothing was benchmarked")
+        return 1
+    command = ["python", "-m", "benchmarks", *(sys.argv[1:] if argv is None else argv)]
+    summarize(figures, args, command, started, load)
+    return 0
+
+
+def one_thread_here() -> None:
+    """Writing the inputs is NumPy work in this process: one BLAS / OpenMP thread, as in the workers
+    (on a busy machine BLAS's spinning threads made it several times slower); only before NumPy is
+    imported (a test calling ``main`` keeps its own)."""
+    if "numpy" not in sys.modules:
+        from benchmarks.processes import THREAD_ENV
+
+        os.environ.update(THREAD_ENV)
+
+
+def _described(names: tuple[str, ...]) -> str:
+    """This module's docstring, then the first paragraph of each source's entry's docstring."""
+    from benchmarks.entry import entry
+
+    lines = [__doc__]
+    for name in names:
+        summary = entry(name).__doc__.split("\n\n")[0]
+        lines.append(f"{name}:\n{textwrap.indent(summary, '  ')}")
+    return "\n".join(lines)
+
+
+def parse(argv: list[str] | None) -> argparse.Namespace:
+    """The command line, checked; ``size`` ("quick", "default", "full"), ``units`` and ``json``
+    filled in."""
+    from pipeline import sources
+
+    parser = _parser(sources.names())
+    args = parser.parse_args(argv)
+    args.units = args.units if args.units is not None else 4 if args.full else 2
+    if args.units < 1 or args.workers < 1:
+        parser.error("--units and --workers must be at least 1")
+    args.size = "quick" if args.quick else "full" if args.full else "default"
+    args.json = args.json or os.path.join(
+        args.workdir, "bench.json" if args.size == "default" else f"bench-{args.size}.json"
+    )
+    return args
+
+
+def _parser(names: tuple[str, ...]) -> StrictParser:
     parser = StrictParser(
         prog="python -m benchmarks",
-        description=__doc__,
+        description=_described(names),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("source", choices=["all", *sorted(ORDER)])
+    parser.add_argument("source", choices=["all", *names])
     sizes = parser.add_mutually_exclusive_group()
     sizes.add_argument("--quick", action="store_true", help="small sizes: exercise the code paths fast")
     sizes.add_argument("--full", action="store_true", help="full-size inputs (make bench-full)")
@@ -85,44 +130,35 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--beam",
         action="store_true",
-        help="also run the scaling units through python -m pipeline.run on Beam's DirectRunner (pstudio)",
+        help="also run the scaling units through python -m pipeline.run on Beam's DirectRunner",
     )
     parser.add_argument(
         "--json", default=None, help="where to write the table (default <workdir>/bench[-full|-quick].json)"
     )
     parser.add_argument("--micro", action="store_true", help="run the per-source micro-benchmarks instead")
     parser.add_argument("--frames", type=int, default=3, help="--micro: frames to time (default %(default)s)")
-    args = parser.parse_args(argv)
-    if "numpy" not in sys.modules:
-        # Writing the inputs is NumPy work in this process: one BLAS / OpenMP thread, as in the
-        # workers (on a busy machine BLAS's spinning threads made it several times slower).
-        from benchmarks.processes import THREAD_ENV
+    return parser
 
-        os.environ.update(THREAD_ENV)
-    sources = ORDER if args.source == "all" else (args.source,)
-    if args.micro:
-        for source in sources:
-            print(f"\n=== {source} (micro) ===")
-            importlib.import_module(f"benchmarks.micro_{source}").run(args.frames)
-        return 0
-    if args.units is None:
-        args.units = 4 if args.full else 2
-    if args.units < 1 or args.workers < 1:
-        parser.error("--units and --workers must be at least 1")
-    from benchmarks.report import format_table, summary_table, write_json
-    from benchmarks.units import bench_source, prepare_side_by_side
 
-    size = "quick" if args.quick else "full" if args.full else "default"
-    name = "bench.json" if size == "default" else f"bench-{size}.json"
-    path = args.json or os.path.join(args.workdir, name)
-    started, load = time.perf_counter(), os.getloadavg()
-    prepared = prepare_side_by_side(sources, args)
-    figures = [f for f in (bench_source(source, args, prepared.get(source)) for source in sources) if f]
-    if not figures:
-        print("nothing was benchmarked")
-        return 1
-    table = summary_table(figures, size)
-    print(f"\n=== summary: {size} size, {args.units} unit(s), 1 -> {args.workers} workers ===")
+def micro(names: tuple[str, ...], frames: int) -> int:
+    """Each source's micro-benchmarks, over ``frames`` frames."""
+    from benchmarks.entry import entry
+
+    for source in names:
+        print(f"\n=== {source} (micro) ===")
+        entry(source).micro(frames)
+    return 0
+
+
+def summarize(
+    figures: list[dict], args: argparse.Namespace, command: list[str], started: float, load: tuple
+) -> None:
+    """Print the table of ``figures`` and the sources' notes, and write it as JSON (``args.json``)
+    with the command, the machine (its load average at ``started`` and now) and the time since."""
+    from benchmarks.table import format_table, summary_table, write_json
+
+    table = summary_table(figures, args.size)
+    print(f"\n=== summary: {args.size} size, {args.units} unit(s), 1 -> {args.workers} workers ===")
     for line in format_table(table):
         print(line)
     for f in figures:
@@ -134,10 +170,8 @@ def main(argv: list[str] | None = None) -> int:
         f"load average {load[0]:.1f} at the start, {machine['load_average_at_end'][0]:.1f} at the end on "
         f"{os.cpu_count()} CPU(s): on a busy machine read the ratios, not the absolute times"
     )
-    command = ["python", "-m", "benchmarks", *(sys.argv[1:] if argv is None else argv)]
-    write_json(table, path, {"command": command, "machine": machine, "elapsed_s": elapsed})
-    print(f"table written to {os.path.abspath(path)} ({elapsed:.0f} s in all)")
-    return 0
+    write_json(table, args.json, {"command": command, "machine": machine, "elapsed_s": elapsed})
+    print(f"table written to {os.path.abspath(args.json)} ({elapsed:.0f} s in all)")
 
 
 if __name__ == "__main__":

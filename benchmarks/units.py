@@ -2,24 +2,20 @@
 1 to N workers, its read+decode floor, and the CPU-hours of the whole benchmark
 (``python -m benchmarks``).
 
-A unit is what the Beam graph hands one worker: DriveTrack a segment's three cameras (the group
-of its (segment, camera) units, which share one read of the lidar), Panoptic Studio
-(sequence, camera), ADT (sequence, 300-frame chunk). Its work is the graph's own,
-``pipeline.unit.run_group`` (``benchmarks.worker``), in a fresh single-threaded pinned process
-(``benchmarks.processes``); its floor (``benchmarks.floors``) is measured in one more such
-process right after each 1-worker run; the figures are printed by ``benchmarks.report``.
+A unit is a group of the source's units, as the Beam graph hands them to one worker (each entry's
+``prepare`` says which: DriveTrack a segment's three cameras, which share one read of the lidar).
+Its work is the graph's own, ``pipeline.unit.run_group`` (``benchmarks.worker``), in a fresh
+single-threaded pinned process (``benchmarks.processes``); its floor (the entry's ``floor``) is
+measured in one more such process right after each 1-worker run; the figures are printed by
+``benchmarks.report``.
 
-Each source's inputs are built (once, cached under the work folder) by
-``benchmarks/inputs_<source>.py``: ``prepare(workdir, quick[, full]) -> UnitSetup`` (or None:
-skipped); ``full`` (full-size inputs) is passed only to a ``prepare`` that takes it.
+Each source's inputs are built (once, cached under the work folder) by its entry's
+``prepare(workdir, size) -> UnitSetup`` (or None: skipped).
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import importlib
-import inspect
 import os
 import shutil
 import subprocess
@@ -27,42 +23,18 @@ import sys
 import tempfile
 import time
 
+from benchmarks.entry import UnitSetup, entry, entry_name
 from benchmarks.processes import run_processes, single_threaded_env
-from benchmarks.report import report, speedup_line
-
-
-@dataclasses.dataclass
-class UnitSetup:
-    """One source's benchmark unit, as ``prepare`` builds it.
-
-    units: the units of the scaling run (the first one is "the" unit); each is JSON-able.
-    frames: frames of one unit's input as measured (for the per-frame figure).
-    extrapolate_frames: when set, the release's unit of that many frames is extrapolated from the
-      measured one: fixed cost (ADT: opening the sequence, measured apart; else 0) + per-frame
-      cost x frames (ADT: its excerpt holds 2 frames; DriveTrack and Panoptic Studio at the
-      default size: shorter inputs than the release's).
-    full_units: units of the whole benchmark for the CPU-hours line, with ``full_units_note``.
-    size: "quick", "default" or "full" (ADT: its excerpt whatever the size).
-    """
-
-    source: str
-    input_root: str
-    units: list
-    overrides: list[str]
-    frames: int
-    description: list[str]
-    full_units: int
-    full_units_note: str
-    extrapolate_frames: int | None = None
-    size: str = "excerpt"
-    notes: list[str] = dataclasses.field(default_factory=list)
-    extra: dict = dataclasses.field(default_factory=dict)  # passed to the worker in its spec
+from benchmarks.report import Runs, print_speedup, report
 
 
 def _specs(setup: UnitSetup, workdir: str, tag: str) -> list[dict]:
+    """One worker spec per unit of the scaling set, outputs under ``workdir``."""
+    module = entry_name(setup.source)
     return [
         {
             "source": setup.source,
+            "entry": module,
             "input_root": setup.input_root,
             "unit": unit,
             "overrides": setup.overrides,
@@ -75,36 +47,32 @@ def _specs(setup: UnitSetup, workdir: str, tag: str) -> list[dict]:
 
 def prepare_source(source: str, args: argparse.Namespace) -> tuple[UnitSetup | None, float]:
     """The source's ``prepare`` (its inputs written once under the work folder): (setup, seconds)."""
-    module = importlib.import_module(f"benchmarks.inputs_{source}")
     workdir = os.path.abspath(os.path.join(args.workdir, source))
     os.makedirs(workdir, exist_ok=True)
     started = time.perf_counter()
-    full = {"full": True} if args.full and "full" in inspect.signature(module.prepare).parameters else {}
-    return module.prepare(workdir, args.quick, **full), time.perf_counter() - started
+    return entry(source).prepare(workdir, args.size), time.perf_counter() - started
 
 
-def prepare_side_by_side(sources, args: argparse.Namespace) -> dict:
+def prepare_side_by_side(names: tuple[str, ...], args: argparse.Namespace) -> dict:
     """Each source's ``prepare_source`` result, the inputs written by one process per CPU at once
     (before anything is timed); {} for a single source (``bench_source`` prepares it)."""
-    if len(sources) < 2:
+    if len(names) < 2:
         return {}
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
-    print(f"preparing the inputs of {', '.join(sources)} side by side (written once, reused later) ...")
+    print(f"preparing the inputs of {', '.join(names)} side by side (written once, reused later) ...")
     context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(min(len(sources), os.cpu_count() or 1), mp_context=context) as pool:
-        futures = {source: pool.submit(prepare_source, source, args) for source in sources}
+    with ProcessPoolExecutor(min(len(names), os.cpu_count() or 1), mp_context=context) as pool:
+        futures = {source: pool.submit(prepare_source, source, args) for source in names}
         return {source: future.result() for source, future in futures.items()}
 
 
 def bench_source(
     source: str, args: argparse.Namespace, prepared: tuple[UnitSetup | None, float] | None = None
 ) -> dict:
-    """Prepare the source's unit (unless ``prepared``: ``prepare_source``'s result), run the scaling
-    set with 1 (each run paired with its read+decode floor) and ``args.workers`` workers, print; returns
-    the figures (``report``), {} when skipped."""
-    module = importlib.import_module(f"benchmarks.inputs_{source}")
+    """Prepare the source's unit (unless ``prepared``: ``prepare_source``'s result), run it
+    (``run_units``), print; returns the figures (``report``), {} when skipped."""
     workdir = os.path.abspath(os.path.join(args.workdir, source))
     size = "quick: reduced sizes, figures meaningless" if args.quick else "full size" if args.full else ""
     print(f"\n=== {source}{f' ({size})' if size else ''} ===", flush=True)
@@ -117,24 +85,32 @@ def bench_source(
         print(f"  {line}")
     scratch = tempfile.mkdtemp(prefix="runs-", dir=workdir)
     try:
-        print(
-            f"running {len(setup.units)} unit(s), one fresh single-threaded process each, 1 worker, each "
-            "followed by its read+decode floor (one more such process) ...",
-            flush=True,
-        )
-        one, one_wall, floors = paired_with_floors(_specs(setup, scratch, "w1"), scratch, args.pin)
-        many, many_wall = None, None
-        if args.workers > 1 and len(setup.units) > 1:
-            print(f"running the same {len(setup.units)} unit(s) with {args.workers} workers ...", flush=True)
-            many, many_wall = run_processes(
-                _specs(setup, scratch, f"w{args.workers}"), args.workers, scratch, args.pin
-            )
-        beam_args = getattr(module, "beam_run_args", None)
-        if args.beam and beam_args and args.workers > 1 and len(setup.units) > 1:
-            beam_scaling(setup, beam_args(setup.units), args.workers, scratch)
+        runs = run_units(setup, args, scratch)
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
-    return report(setup, one, one_wall, many, many_wall, floors, args.workers, args.pin)
+    return report(setup, runs)
+
+
+def run_units(setup: UnitSetup, args: argparse.Namespace, scratch: str) -> Runs:
+    """The scaling set with 1 worker (each run paired with its read+decode floor), then with
+    ``args.workers`` workers (and through Beam with ``args.beam``), outputs under ``scratch``."""
+    print(
+        f"running {len(setup.units)} unit(s), one fresh single-threaded process each, 1 worker, each "
+        "followed by its read+decode floor (one more such process) ...",
+        flush=True,
+    )
+    one, one_wall, floors = paired_with_floors(_specs(setup, scratch, "w1"), scratch, args.pin)
+    many, many_wall = None, None
+    scaling = args.workers > 1 and len(setup.units) > 1
+    if scaling:
+        print(f"running the same {len(setup.units)} unit(s) with {args.workers} workers ...", flush=True)
+        many, many_wall = run_processes(
+            _specs(setup, scratch, f"w{args.workers}"), args.workers, scratch, args.pin
+        )
+    beam_args = entry(setup.source).beam_run_args(setup.units)
+    if args.beam and beam_args is not None and scaling:
+        beam_scaling(setup, beam_args, args.workers, scratch)
+    return Runs(one, one_wall, floors, many, many_wall, args.workers, args.pin)
 
 
 def paired_with_floors(specs: list[dict], scratch: str, pin: bool) -> tuple[list, float, list]:
@@ -152,7 +128,7 @@ def paired_with_floors(specs: list[dict], scratch: str, pin: bool) -> tuple[list
     return runs, wall, floors
 
 
-def beam_scaling(setup: UnitSetup, run_args: list[str], workers: int, scratch: str) -> float:
+def beam_scaling(setup: UnitSetup, run_args: list[str], workers: int, scratch: str) -> None:
     """The same units through ``python -m pipeline.run`` on Beam's DirectRunner in multi_processing
     mode, with 1 and then ``workers`` worker processes (single-threaded, not pinned): the speed-up
     a user gets from the runner itself, Beam's start-up and the finalize step included."""
@@ -174,6 +150,6 @@ def beam_scaling(setup: UnitSetup, run_args: list[str], workers: int, scratch: s
         started = time.perf_counter()
         subprocess.run(command, env=single_threaded_env(), check=True, capture_output=True)
         walls[count] = time.perf_counter() - started
-    return speedup_line(
+    print_speedup(
         "through Beam (DirectRunner multi_processing, whole command)", walls[1], walls[workers], workers
     )

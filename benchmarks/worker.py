@@ -4,18 +4,18 @@ started by ``benchmarks.processes``.
 The work is the Beam graph's, through the same function its stages call:
 ``pipeline.unit.run_group(UnitJob(source, input_root, config, output, resume=False), units)`` (read
 the inputs and annotate, filter, encode and write the clips, record each unit), ``spec["repeat"]``
-times (default 1); ``spec["unit"]`` is one unit or a group of them (``unit_group``). The source's
+times (default 1); ``spec["unit"]`` is a group of the source's units (``unit_group``). The source's
 ``annotate`` and ``annotate_group`` are wrapped only to time them (a generator group: the
-making of each unit's clips, not the writing between). A source whose
-``benchmarks/inputs_<source>.py`` defines ``measure_fixed_cost(spec, config)`` (ADT: opening and
-closing the sequence) has that cost measured apart, before the runs, for the extrapolation in
-``report``; the functions it names in ``FIXED_IN_WORK`` ((module, name) pairs: ADT's
-``open_sequence`` and ``close_sequence``, which each repeated run calls again) are timed inside the
-runs too, so that the report can take exactly what the runs paid for them out of the per-frame
-cost.
+making of each unit's clips, not the writing between). The source's benchmark entry
+(``spec["entry"]``, a module name) measures apart, before the runs, the costs that do not scale
+with the frames (``measure_fixed_cost(spec, config)``; ADT: opening and closing the sequence) for
+the extrapolation in ``report``; the functions it names in ``FIXED_IN_WORK`` ((module, name) pairs:
+ADT's ``open_sequence`` and ``close_sequence``, which each repeated run calls again) are timed
+inside the runs too, so that the report can take exactly what the runs paid for them out of the
+per-frame cost.
 
-With ``spec["mode"] == "floor"`` the process measures the unit's read+decode floor instead
-(``benchmarks.floors``): the bare cost of reading and decoding the unit's inputs.
+With ``spec["mode"] == "floor"`` the process measures the unit's read+decode floor instead (the
+entry's ``floor(spec)``): the bare cost of reading and decoding the unit's inputs.
 """
 
 from __future__ import annotations
@@ -41,10 +41,11 @@ def unit_counts(reports: list) -> dict:
     }
 
 
-def unit_group(unit: list) -> list[tuple]:
-    """The spec's unit as the units ``run_group`` runs: a unit ([segment, camera]) alone, or a
-    group of them ([[segment, 1], [segment, 2], ...]: DriveTrack's cameras of one segment)."""
-    return [tuple(item) for item in unit] if isinstance(unit[0], list) else [tuple(unit)]
+def unit_group(group: list) -> list:
+    """The spec's unit, a group of the source's units in JSON ([[segment, 1], [segment, 2], ...]:
+    DriveTrack's cameras of one segment; [[sequence, chunk]]: one ADT chunk), as ``run_group`` runs
+    them: each unit a tuple again, or as it is when it was no list (a name)."""
+    return [tuple(unit) if isinstance(unit, list) else unit for unit in group]
 
 
 def timed_into(totals: list[float], step):
@@ -69,20 +70,43 @@ def clock_apart(functions, totals: list[float]) -> None:
         setattr(module, name, clocked(getattr(module, name)))
 
 
+def clocked_group(annotate_group, totals: list[float]):
+    """``annotate_group`` wrapped so that its calls add their wall and CPU seconds to totals [2]
+    (wall, CPU); of a generator group, the making of each unit's clips, not the caller's work
+    between (the writing)."""
+
+    def clocked(step):
+        return timed_into(totals, step)
+
+    def each_timed(items):
+        done = object()
+        while (item := clocked(lambda: next(items, done))) is not done:
+            yield item
+
+    def call(*args):
+        result = clocked(lambda: annotate_group(*args))
+        return each_timed(result) if inspect.isgenerator(result) else result
+
+    return call
+
+
 def run(spec: dict) -> dict:
-    """The unit's work, timed: work_s / work_cpu_s (all runs), annotate_s / annotate_cpu_s (the
-    source's annotate), the output counts of the last run, the fixed costs when measured apart,
-    and peak_rss."""
+    """The spec's floor (``mode == "floor"``), or its unit's work (``unit_work``), and peak_rss."""
     if spec.get("cpu") is not None:  # before the imports, so every thread created later inherits it
         os.sched_setaffinity(0, {spec["cpu"]})
     import cv2
 
     if os.environ.get("OPENCV_FOR_THREADS_NUM") == "1":
         cv2.setNumThreads(1)
-    if spec.get("mode") == "floor":
-        from benchmarks.floors import measure
+    entry = importlib.import_module(spec["entry"])
+    measured = entry.floor(spec) if spec.get("mode") == "floor" else unit_work(spec, entry)
+    return {**measured, "peak_rss": peak_rss()}
 
-        return {**measure(spec), "peak_rss": peak_rss()}
+
+def unit_work(spec: dict, entry) -> dict:
+    """The unit's work, timed: work_s / work_cpu_s (all runs), annotate_s / annotate_cpu_s (the
+    source's annotate), the output counts of the last run, the fixed costs measured apart (the
+    entry's ``measure_fixed_cost``) and those paid inside the runs (``FIXED_IN_WORK``)."""
     from pipeline import sources
     from pipeline.core.config import with_overrides
     from pipeline.settings import RunConfig
@@ -91,32 +115,13 @@ def run(spec: dict) -> dict:
     config = with_overrides(RunConfig(), spec["overrides"])
     source = sources.get(spec["source"])
     group = unit_group(spec["unit"])
-    inputs = importlib.import_module(f"benchmarks.inputs_{spec['source']}")
-    measure_fixed_cost = getattr(inputs, "measure_fixed_cost", None)
-    fixed = measure_fixed_cost(spec, config) if measure_fixed_cost else {}
-
+    fixed = entry.measure_fixed_cost(spec, config)
     annotating = [0.0, 0.0]  # wall, CPU seconds of the source's annotate
     fixed_in_work = [0.0, 0.0]  # wall, CPU seconds of the FIXED_IN_WORK functions inside the runs
-    clock_apart(getattr(inputs, "FIXED_IN_WORK", ()), fixed_in_work)
-
-    def clocked(step):
-        return timed_into(annotating, step)
-
-    def each_timed(items):
-        """A generator group's items, the work of making each timed (not the caller's between)."""
-        done = object()
-        while (item := clocked(lambda: next(items, done))) is not done:
-            yield item
-
-    def timed(function):
-        def call(*args):
-            result = clocked(lambda: function(*args))
-            return each_timed(result) if inspect.isgenerator(result) else result
-
-        return call
-
+    clock_apart(entry.FIXED_IN_WORK, fixed_in_work)
+    annotate_group = clocked_group(source.annotate_group, annotating)
     job = UnitJob(
-        dataclasses.replace(source, annotate_group=timed(source.annotate_group)),
+        dataclasses.replace(source, annotate_group=annotate_group),
         spec["input_root"],
         config,
         spec["output"],
@@ -137,7 +142,6 @@ def run(spec: dict) -> dict:
         **fixed,
         "fixed_in_work_s": fixed_in_work[0],
         "fixed_in_work_cpu_s": fixed_in_work[1],
-        "peak_rss": peak_rss(),
     }
 
 

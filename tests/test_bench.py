@@ -13,17 +13,21 @@ import types
 import pytest
 
 from benchmarks import cli, worker
-from benchmarks.report import COLUMNS, CPU_HOURS_TARGET, format_table, summary_table
+from benchmarks.entry import entry
+from benchmarks.table import COLUMNS, CPU_HOURS_TARGET, OWN_TARGETS, format_table, summary_table
+from pipeline import sources
 
 KEYS = ["source", *(key for key, *_ in COLUMNS)]
 
 
 def given(source: str, ms: float, rss: float, speedup: float | None, cpu_hours: float, ratio: float) -> dict:
     """The figures ``benchmarks.report.report`` returns, with the ones the table reads set."""
+    unit_frames = {"drivetrack": 597, "pstudio": 450, "adt": 300}[source]
     return {
         "source": source,
         "size": "default",
         "extrapolated": source != "drivetrack",
+        "unit_frames": unit_frames,
         "ms_per_frame": ms,
         "peak_rss_gib": rss,
         "speedup": speedup,
@@ -62,9 +66,19 @@ def test_table_judges_each_figure_and_sums_the_cpu_hours():
     lines = format_table(table)
     assert lines[0].split()[0] == "source" and lines[4].startswith("all")
     assert "120.0* <=100 FAIL" in lines[2] and "14.75* <=15 pass" in lines[4]
+    assert "of a release unit (drivetrack 597, pstudio 450, adt 300 frames" in lines[5]
     # Without every source, the total is not judged against the whole benchmark's target.
     partial = summary_table(figures[:2], "default")["rows"][-1]
     assert partial["cpu_hours"] == pytest.approx(10.75) and partial["cpu_hours_pass"] is None
+
+
+def test_every_source_has_a_benchmark_entry():
+    """Each registered source's entry (``Source.bench_module``) defines the whole interface, with
+    targets only for the columns an entry may judge."""
+    for name in sources.names():
+        module = entry(name)
+        assert module.__name__ == sources.get(name).bench_module
+        assert set(module.TARGETS) <= set(OWN_TARGETS) and "ms_per_frame" in module.TARGETS
 
 
 def test_quick_run_prints_the_table_and_writes_it_as_json(tmp_path, capsys):

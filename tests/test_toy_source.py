@@ -1,5 +1,6 @@
 """A source registered from the test suite goes through run, validate, sweep and compare with no
-change to any other module (the Source interface, pipeline/sources.py)."""
+change to any other module (the Source interface, pipeline/sources.py), and brings its settings
+section with it (``--set toy.speed_scale=...``, range-checked like any other)."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from pipeline.audit.compare import main as compare_main
 from pipeline.audit.sweep import main as sweep_main
 from pipeline.run import main as run_main
 from pipeline.validate import main as validate_main
+from tests.cli import run_in_process
 from tests.toy_source import TOY, truth, write_sample
 
 
@@ -52,3 +54,23 @@ def test_an_unregistered_source_is_refused(tmp_path):
     write_sample(str(tmp_path / "in"))
     with pytest.raises(SystemExit):
         run_main(["--source", "toy", "--input", str(tmp_path / "in"), "--output", str(tmp_path / "out")])
+
+
+def test_the_toys_setting_changes_its_clips_as_its_annotate_says(toy, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert run_main(["--source", "toy", "--output", str(out), "--set", "toy.speed_scale=2.5"]) == 0
+    spec = json.loads((out / "sample_input" / "toy" / "walk.json").read_text())
+    with np.load(out / "toy" / "toy_walk.npz") as clip:
+        np.testing.assert_allclose(clip["tracks_XYZ"], truth(spec, 2.5), atol=1e-6)
+        assert np.abs(clip["tracks_XYZ"][-1] - truth(spec)[-1]).max() > 0.3  # 11 frames x 1.5 x 0.02 m
+    record = json.loads((out / "run_toy.json").read_text())
+    assert record["config"]["toy"] == {"speed_scale": 2.5}
+    capsys.readouterr()
+
+
+def test_a_toy_setting_out_of_its_range_is_refused(toy, tmp_path):
+    out = tmp_path / "out"
+    refused = run_in_process("toy", "--output", str(out), "--set", "toy.speed_scale=-1")
+    assert refused.returncode == 2
+    assert "--set toy.speed_scale=-1: must be a number in [0, 10]" in refused.stderr
+    assert not (out / "toy").exists()

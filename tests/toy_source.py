@@ -1,14 +1,20 @@
 """A toy source, defined entirely here and registered at run time: the proof that a source needs
-one object and nothing else in the package (docs/adding-a-source.md).
+one object and nothing else in the package (docs/adding-a-source.md), its settings section
+(``ToyConfig``: ``--set toy.<field>=...``) and its benchmark entry (``tests/support/toy_bench.py``:
+``python -m benchmarks toy``) included.
 
 Input: a folder of ``<name>.json`` files, each a unit: ``{"frames": T, "points": [[x, y, z], ...],
-"velocity": [vx, vy, vz]}``: points moving at constant velocity (metres per frame) in front of a
-static 64x48 pinhole camera. Each unit makes one clip ``toy_<name>`` of every point, visible while
-it projects into the frame.
+"velocity": [vx, vy, vz]}``: points moving at constant velocity (metres per frame, times
+``toy.speed_scale``) in front of a static 64x48 pinhole camera. Each unit makes one clip
+``toy_<name>`` of every point, visible while it projects into the frame.
+
+Registered by the tests (``sources.register(TOY)``), or for every process of a run by naming this
+module in ``TAPVID3D_SOURCES`` (it defines ``SOURCE``).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 
@@ -16,6 +22,7 @@ import cv2
 import numpy as np
 
 from pipeline.core.clip import ClipRecord
+from pipeline.core.config import ranged
 from pipeline.core.errors import InputError
 from pipeline.settings import RunConfig
 from pipeline.sources import Source, UnitPlan, one_by_one
@@ -25,6 +32,16 @@ INTRINSICS = np.array([40.0, 40.0, 32.0, 24.0])
 MASK_THRESHOLD = 0.5
 
 
+@dataclasses.dataclass(frozen=True)
+class ToyConfig:
+    """The ``toy`` section of the run's settings.
+
+    speed_scale: every unit's velocity is multiplied by this (0: the points stand still).
+    """
+
+    speed_scale: float = ranged(1.0, "[0, 10]")
+
+
 def list_units(input_root: str, config: RunConfig, release: frozenset[str] | None = None) -> UnitPlan:
     names = sorted(name[: -len(".json")] for name in os.listdir(input_root) if name.endswith(".json"))
     if not names:
@@ -32,16 +49,16 @@ def list_units(input_root: str, config: RunConfig, release: frozenset[str] | Non
     return UnitPlan(names)
 
 
-def truth(spec: dict) -> np.ndarray:
-    """Points [T, N, 3] of a unit, from its analytic motion."""
+def truth(spec: dict, speed_scale: float = 1.0) -> np.ndarray:
+    """Points [T, N, 3] of a unit, from its analytic motion at ``speed_scale`` x its velocity."""
     steps = np.arange(spec["frames"])[:, None, None]
-    return np.asarray(spec["points"], float)[None] + steps * np.asarray(spec["velocity"], float)
+    return np.asarray(spec["points"], float)[None] + steps * speed_scale * np.asarray(spec["velocity"], float)
 
 
 def annotate(input_root: str, unit: str, config: RunConfig) -> list[ClipRecord]:
     with open(os.path.join(input_root, f"{unit}.json")) as handle:
         spec = json.load(handle)
-    tracks = truth(spec)
+    tracks = truth(spec, config.toy.speed_scale)
     fx, fy, cx, cy = INTRINSICS
     pixels = np.stack(
         [fx * tracks[..., 0] / tracks[..., 2] + cx, fy * tracks[..., 1] / tracks[..., 2] + cy], -1
@@ -91,4 +108,7 @@ TOY = Source(
     annotate_group=one_by_one(annotate),
     sample_input=write_sample,
     mask_min_agreement=lambda config: MASK_THRESHOLD,
+    settings=ToyConfig,
+    bench="tests.support.toy_bench",
 )
+SOURCE = TOY
