@@ -1,7 +1,7 @@
 """The documentation cannot drift from the code: docs/configuration.md is the settings' own table, every
-link between the pages resolves, and every command line the README shows is accepted by the command
-it names (its options by that command's parser, its ``--set`` and ``--grid`` keys by the settings,
-its ``make`` targets by the Makefile)."""
+link between the pages resolves, and every command line the README (and each topic page) shows is
+accepted by the command it names: its options by that command's parser, its ``--set`` and ``--grid``
+keys by the settings, its ``make`` targets by the Makefile."""
 
 from __future__ import annotations
 
@@ -200,6 +200,8 @@ def makefile_targets() -> set[str]:
 
 
 README_COMMANDS = shell_commands(read(README))
+# Every shell command of every page: the README's, then the topic pages'.
+PAGE_COMMANDS = [(relative(page), words) for page in PAGES for words in shell_commands(read(page))]
 
 
 def test_the_readme_shows_the_commands_a_newcomer_needs():
@@ -209,8 +211,12 @@ def test_the_readme_shows_the_commands_a_newcomer_needs():
     assert ["make", "demo"] in README_COMMANDS and ["make", "test"] in README_COMMANDS
 
 
-@pytest.mark.parametrize("words", README_COMMANDS, ids=lambda words: shlex.join(words)[:100])
-def test_each_readme_command_is_accepted(words):
+@pytest.mark.parametrize(
+    ("page", "words"),
+    PAGE_COMMANDS,
+    ids=[f"{page}: {shlex.join(words)[:90]}" for page, words in PAGE_COMMANDS],
+)
+def test_each_shown_command_is_accepted(page, words):
     if words[0] == "make":
         targets = [word for word in words[1:] if "=" not in word and not word.startswith("-")]
         assert set(targets) <= makefile_targets(), f"{shlex.join(words)}: no such Makefile target"
