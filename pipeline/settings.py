@@ -28,7 +28,7 @@ class RunConfig:
     splits_file: the release's splits JSON: the manifests follow its membership where clip names
       match (``--release`` also restricts the run to its clips).
     queries_from: a folder of existing clips whose queries are re-annotated instead of sampling
-      new ones (``--queries-from``); only clips found there are made.
+      new ones; only clips found there are made. Set it with ``--queries-from DIR``.
     export_depth: also write the depth each visibility test read (``--export-depth``).
     minival_per_source: without a splits file, minival is a seeded draw of this many clips per
       source; full_test holds every other clip.

@@ -80,8 +80,8 @@ class Source:
       share are cheaper read once (DriveTrack: a segment's cameras share its lidar); None: each
       unit alone.
     settings: the dataclass of the source's settings section (``--set <name>.<field>``), or None.
-    bench: the module of the source's benchmark entry (``benchmarks/README``); default
-      ``benchmarks.<name>``.
+    bench: the module of the source's benchmark entry (``python -m benchmarks <name>``, see
+      ``benchmarks/__init__.py``); default ``benchmarks.<name>``.
     """
 
     name: str

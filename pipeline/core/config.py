@@ -86,7 +86,11 @@ def not_in_clips(default, interval: str | None = None):
 
 @dataclasses.dataclass(frozen=True)
 class FlickerConfig:
-    """Drop a track whose visibility changes state more than ``max_fraction`` x T times."""
+    """Drop a track whose visibility changes state more than ``max_fraction`` x T times.
+
+    max_fraction: a track is dropped when its visibility flips (visible to occluded or back) more
+      than this fraction of its T frames (the paper's 10%).
+    """
 
     max_fraction: float = ranged(0.10, "[0, 1]")
 

@@ -17,6 +17,21 @@ class DriveTrackConfig:
     5% depth margin exceeds a car's width, so the depth test alone calls the far side of a
     car visible. Set it false to reproduce the generator's decisions exactly.
 
+    cameras: the unit cameras, Waymo camera names (1 FRONT, 2 FRONT_LEFT, 3 FRONT_RIGHT,
+      4 SIDE_LEFT, 5 SIDE_RIGHT); the release's are 1-3.
+    object_types: the Waymo box types tracked (1 vehicle, 2 pedestrian, 3 sign, 4 cyclist); the
+      release tracks vehicles.
+    box_shrink_m: each box dimension shrinks by this (metres) before the lidar points inside the
+      box are attached to the object.
+    min_contiguous_frames: an object makes a clip only when its box projects into the camera on at
+      least this many contiguous frames (the clip is the longest such run).
+    max_corner_distance_m: an object makes a clip only when some box corner comes within this
+      distance (metres) of the camera during the clip.
+    occlusion_margin: a track point is occluded when the lidar depth at its pixel is below
+      (1 - margin) x its own depth (the lidar's own parallax cleanup uses twice the margin).
+    facing_test: a track is also invisible where its surface (normal from the lidar points) faces
+      away from the camera; ours, not the generator's: false reproduces its decisions.
+    tracks_per_clip, oversample: tracks written per clip; candidates drawn = oversample x that.
     mask_min_agreement: keep a track when (visible frames on the object's mask) / (visible
       frames) >= this. 0.5 trims 1-3% of the sample world's candidates, the share the
       generator's Segment Anything masks trimmed (2-3%); 0.8 trimmed 13-22% there, mostly true

@@ -28,6 +28,7 @@ class PstudioConfig:
       99% under 1.7 cm, 1 query in 2,449 beyond 3 cm (3.3 cm).
     mask_min_agreement: keep a track whose centre lies on the foreground mask in at least this
       fraction of the (frame, camera) pairs where it projects into the image.
+    tracks_per_clip, oversample: tracks written per clip; candidates drawn = oversample x that.
     """
 
     params_dir: str = path_setting()

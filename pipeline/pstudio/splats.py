@@ -21,13 +21,12 @@ centre and a bound of its footprint (its largest scale, whatever its rotation) b
 covariance is computed: only the splats that can reach a BLOCK x BLOCK-pixel block holding one
 of the points are projected in full, and of those, the ones whose footprint does are kept; with a
 depth limit per point, only those no deeper than the largest limit of a block their footprint
-covers (a third fewer on the bench's visibility pass: 71,000 -> 48,000 splats a frame).
+covers (a track's depth test never needs a splat deeper than its own limit, so the frame's single
+deepest limit would keep far more splats than any track reads).
 
 The kernels (here and in render.py) are serial: the pipeline's parallelism is across units, one
-single-threaded worker per core. On one thread numba's parallel loops ran no faster (one frame's
-projection at 58k splats 24.5 ms parallel, 24.9 ms serial; its render 10.7 and 10.5 ms; best of
-14 interleaved runs) and took about three times as long to compile (the first Panoptic Studio
-run in a fresh environment: about 20 s of it).
+single-threaded worker per core. On one thread numba's parallel loops are no faster, and they take
+about three times as long to compile.
 
 Pixel convention: TAP-Vid's (docs/formats.md), as the reference rasterizer's: u = fx x / z + cx
 is a continuous coordinate, pixel (i, j) covers [i, i + 1) x [j, j + 1) and its centre is
@@ -115,7 +114,7 @@ def _boxes_reach(u, v, ext_x, ext_y, width, height, wanted, flags):
     [M], finite) meets the image and a wanted block (``wanted``: ``wanted_blocks``' summed-area
     table). Without branches: the block range clamped to the table (a box off the image is refused
     by its own test), so that mispredicted tests cost nothing. (Not vectorised: the four table
-    reads are gathers; a vectorised pass for the block corners and a scalar one for the reads was
+    reads are gathers; a vectorised pass for the block corners and a scalar one for the reads is
     no faster.)"""
     last_x, last_y = wanted.shape[1] - 2, wanted.shape[0] - 2
     for k in range(u.shape[0]):
@@ -214,9 +213,9 @@ def _candidates(
     footprint: Sigma'_xx = |g R S|^2 + 0.3 <= max_variance |g|^2 + 0.3 with g = row 0 of J W (R a
     rotation), likewise Sigma'_yy; widened by 1e-6 for rounding.
 
-    Chunk by chunk: first the boxes (``_footprint_boxes``), then their tests. (One loop with the
-    test ran three times slower: each mispredicted test had waited on a division and a square
-    root.)"""
+    Chunk by chunk: first the boxes (``_footprint_boxes``), then their tests. (In one loop with the
+    test, each mispredicted test waits on a division and a square root: about three times
+    slower.)"""
     u, v, half_width, half_height = np.empty(CHUNK), np.empty(CHUNK), np.empty(CHUNK), np.empty(CHUNK)
     for chunk in range((xs.shape[0] + CHUNK - 1) // CHUNK):
         first, last = chunk * CHUNK, min((chunk + 1) * CHUNK, xs.shape[0])
@@ -336,7 +335,8 @@ def _preprocess(
 
     PREPROCESS_CHUNK candidates at a time: gathered into columns, projected by the vectorised
     ``_covariances`` and ``_conics``, their boxes tested by ``_boxes_reach``, then written out
-    (a bench frame's 76,000 candidates: 5.7 -> 3.7 ms; 9,300 scattered ones: 2.7 -> 1.3 ms)."""
+    (one loop writing all nine outputs is not vectorised by LLVM; two kernels are, four splats
+    side by side)."""
     columns = np.empty((11, PREPROCESS_CHUNK))
     rows = np.empty((9, PREPROCESS_CHUNK))
     reaches = np.empty(PREPROCESS_CHUNK, np.bool_)
@@ -417,8 +417,7 @@ def front_to_back(depth: np.ndarray) -> np.ndarray:
     each depth's bits with its index in place of the lowest ones: positive doubles order as their
     bits, so the keys order by depth, then index, except among depths that agree above the index
     bits, which are put in order after. NumPy's sort of integers is vectorised and its argsort is
-    not: a bench frame's 97,000 splat depths take ~4 ms this way, 6-7 ms by argsort with a check
-    for ties."""
+    not, so this is faster than a stable argsort."""
     depth = np.ascontiguousarray(depth, dtype=np.float64)
     if not (np.all(depth > 0) and np.all(depth < np.inf)):
         return np.argsort(depth, kind="stable")

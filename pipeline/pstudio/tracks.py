@@ -176,8 +176,8 @@ def track_first_visible(
 
     A track's visibility does not depend on the tracks computed with it, so the candidates are
     tracked a batch at a time: the number still wanted and a margin (nearly every attached centre
-    is seen at its query frame: 705 of 709 on the bench's dome), more only if that fell short.
-    The candidates past the batches (there 276 of 709) are never tracked.
+    is seen at its query frame), more only if that fell short. The candidates past the batches
+    (on the bench's dome, about 40% of them) are never tracked.
 
     Returns (kept [V] indices into the candidates, V <= wanted, tracks [T, V, 3], visible
     [T, V], the depth maps of ``track_visibility``, from the first batch).

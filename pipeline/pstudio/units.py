@@ -18,9 +18,9 @@ if TYPE_CHECKING:
 ALL_CAMERAS = -1
 # Cameras annotated together (by camera id: 0-2, 3-5, ...). A group reads params.npz once (1.7 GiB
 # for 150 frames of 300,000 Gaussians) and each mask once (a worker's mask cache then serves the
-# sequence's other groups); but a group is one worker's, and a benchmark has a handful of
-# sequences: a whole sequence per group left one worker of two idle (0.88x from 1 to 2 workers on
-# one sequence's units through the DirectRunner), groups of 3 keep ~9 per sequence to share out.
+# sequence's other groups); but a group is one worker's, and the release has few sequences: a whole
+# sequence per group would put all of a sequence's cameras on one worker and leave the others idle,
+# while groups of 3 give each sequence ~9 groups to share out.
 CAMERAS_PER_GROUP = 3
 # The cameras Dynamic 3D Gaussians holds out for testing (its test_meta.json): no training masks.
 HELD_OUT_CAMERAS = (0, 10, 15, 30)
