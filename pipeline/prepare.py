@@ -101,7 +101,7 @@ def settings(args: argparse.Namespace) -> tuple[RunConfig, Release | None]:
     config = dataclasses.replace(
         config,
         export_depth=config.export_depth or args.export_depth,
-        queries_from=absolute(args.queries_from or ""),
+        queries_from=absolute(args.queries_from or config.queries_from),
         splits_file=splits,
     )
     check_inputs(args.input, config)

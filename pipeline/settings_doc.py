@@ -5,7 +5,7 @@ of ``RunConfig`` (``pipeline/settings.py``) and of the built-in sources' section
 (``pipeline/<source>/settings.py``), its default, its allowed range (``ranged(...)``, described as
 ``--set`` describes a value outside it) and its meaning (the ``field: ...`` lines of the dataclass's
 docstring), marked when it names a path the run reads (``path_setting``) and when it never changes a
-clip's bytes (``clip_bytes`` False: the resume fingerprint leaves it out). tests/test_docs.py checks
+clip's bytes (``clip_bytes`` False: the resume fingerprint leaves it out). tests/docs/test_docs.py checks
 that docs/configuration.md is this command's output::
 
     python -m pipeline.settings_doc > docs/configuration.md

@@ -32,7 +32,7 @@ from pipeline.samples.dynamic3dgs_files import write_sequence
 from pipeline.samples.studio_world import StudioWorld
 from pipeline.samples.waymo_world import write_split
 from pipeline.samples.write_once import write_once
-from tests.cli import REPO, run_pipeline
+from tests.support.cli import REPO, run_pipeline
 
 SAMPLE_CACHE = os.environ.get("TAPVID3D_SAMPLE_CACHE") or os.path.join(REPO, ".cache", "samples")
 CACHE_LAYOUT = "1"  # bump when what the fixtures below keep in a cache folder changes

@@ -24,8 +24,8 @@ import time
 import numpy as np
 
 from pipeline.samples.dynamic3dgs_files import write_sequence
-from tests.cli import REPO
-from tests.hostile import bomb_clip, savez_bytes, shape_bomb_clip, with_payload
+from tests.support.cli import REPO
+from tests.support.hostile import bomb_clip, savez_bytes, shape_bomb_clip, with_payload
 
 PYTHON = [sys.executable, "-m"]
 

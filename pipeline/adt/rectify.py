@@ -1,7 +1,7 @@
 """Re-render ADT frames as the release's generator does (tapnet ``adt_utils.py``; docs/formats.md,
 section 4): projectaria-tools' ``distort_by_calibration`` to a linear camera of 512x512, focal
 280, principal point (W/2, H/2) = (256, 256), then a 90-degree clockwise rotation. The frames are
-pixel for pixel the generator's before JPEG encoding (``tests/test_adt_frames.py``).
+pixel for pixel the generator's before JPEG encoding (``tests/adt/test_frames.py``).
 
 Pixel convention of the stored frames (TAP-Vid's): pixel [row r, column c] covers [c, c+1) x
 [r, r+1), its centre is (c + 0.5, r + 0.5). projectaria-tools puts pixel centres at integers, so
@@ -138,7 +138,7 @@ def stored_remap(source_calibration, size: int, focal: float) -> Remap:
 class Rectifier:
     """Fisheye RGB / depth / id images [H, W, ...] -> the stored upright pinhole frames [S, S, ...]:
     the release generator's ``distort_*_by_calibration`` then ``rotate_cw``, pixel for pixel
-    (``Remap``; ``tests/test_adt_remap.py`` holds them against the library).
+    (``Remap``; ``tests/adt/test_remap.py`` holds them against the library).
 
     Args:
       source_calibration: the RGB camera's projectaria-tools ``CameraCalibration`` (Fisheye624).

@@ -30,7 +30,7 @@ def source_points(source, target) -> np.ndarray:
       source: the image's ``CameraCalibration``; its ``project`` (every model's checks included)
         is called once per target pixel.
       target: a LINEAR ``CameraCalibration``; its rays are unproject_no_checks' (x - cx) / fx,
-        (y - cy) / fy, 1 in double (``tests/test_adt_remap.py`` checks they are the library's).
+        (y - cy) / fy, 1 in double (``tests/adt/test_remap.py`` checks they are the library's).
     """
     from projectaria_tools.core.calibration import CameraModelType
 

@@ -359,7 +359,7 @@ def undistort_image(image: np.ndarray, maps: tuple[np.ndarray, np.ndarray]) -> b
     The frame is remapped with a fourth, opaque channel: OpenCV's bilinear remap has vector code
     for 1- and 4-channel images and a scalar loop for 3 (about half the time at 1920x1280), and
     computes each channel alone, so the first three channels are the 3-channel remap's pixels;
-    the JPEG encoder drops the fourth. Same bytes (tests/test_waymo_camera.py)."""
+    the JPEG encoder drops the fourth. Same bytes (tests/drivetrack/test_camera_model.py)."""
     padded = cv2.cvtColor(image, cv2.COLOR_BGR2BGRA)
     stored = cv2.remap(padded, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
     return cv2.imencode(".jpg", stored, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])[1].tobytes()

@@ -123,7 +123,7 @@ def posed_points(points, rotations, translations, pose_of_point):
     """Points [M, 3] moved by their poses: rotations[k] @ p + translations[k], k = pose_of_point[m]
     ([P, 3, 3], [P, 3], [M]), without gathering a rotation per point. Each row's products are
     summed as NumPy's einsum("mij,mj->mi") sums them, (x + z) + y: the same bits (NumPy 2.4's
-    order; tests/test_drivetrack_shortcuts.py compares with einsum itself)."""
+    order; tests/drivetrack/test_shortcuts.py compares with einsum itself)."""
     out = np.empty_like(points)
     for m in range(points.shape[0]):
         k = pose_of_point[m]

@@ -85,7 +85,7 @@ def encode_npz(members: dict[str, np.ndarray | FixedWidthBytes], compress: bool 
 
     Each member is written straight into the archive: saving it to a buffer of its own first, as
     ``np.savez`` does, costs two more copies of it (for a clip of Waymo frames, tens of MB, and
-    40% of the encoding time). The bytes are those of that recipe (tests/test_export.py): the
+    40% of the encoding time). The bytes are those of that recipe (tests/export/test_export.py): the
     member's size is set before it is opened, as ``ZipFile.writestr`` sets it (it decides the
     ZIP64 headers), and its ``.npy`` header is format 1.0, as ``np.save`` writes any header
     under 64 KiB."""

@@ -12,7 +12,7 @@ The maths of the reference CUDA rasterizer's preprocessing, in float64:
 One deliberate difference: a splat's screen footprint is the exact ellipse where its alpha
 reaches 1/255 (the compositing cut-off), not the rasterizer's 3-sigma square rounded to
 16-pixel tiles. A pixel's value then depends on no tiling: it equals compositing over all
-Gaussians (tests/test_pstudio_render.py checks this against a brute-force reference).
+Gaussians (tests/pstudio/test_render.py checks this against a brute-force reference).
 
 What no frame changes (scales, opacities and what follows from them) is computed once per
 sequence (``gaussian_constants``); per frame, only the means and rotations are read (float32 as

@@ -203,7 +203,7 @@ def camera_pixel(x, y, z, w2c, fx_fy_cx_cy):
     """(u, v, depth) of the world point (x, y, z) in a camera (w2c [4, 4], fx_fy_cx_cy [4]):
     ``transform_points`` then ``project``, bit for bit (each row's products summed as NumPy's
     einsum sums them, (x + z) + y, then the translation; u = fx x / z + cx; NumPy 2.4's order,
-    tests/test_pstudio_pixels.py compares with those functions). u and v are meaningless where
+    tests/pstudio/test_pixels.py compares with those functions). u and v are meaningless where
     the depth is not positive."""
     depth = ((w2c[2, 0] * x + w2c[2, 2] * z) + w2c[2, 1] * y) + w2c[2, 3]
     if not depth > 0:

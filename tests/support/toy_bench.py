@@ -1,6 +1,7 @@
-"""The toy source's benchmark entry (``tests/toy_source.py`` names it with ``Source(bench=...)``), found
-by ``python -m benchmarks toy`` through the registry like a built-in source's. Unit: the toy's sample
-unit (3 points over 12 frames), annotated, filtered and written; its floor, reading the unit's JSON.
+"""The toy source's benchmark entry (``tests/support/toy_source.py`` names it with
+``Source(bench=...)``), found by ``python -m benchmarks toy`` through the registry like a built-in
+source's. Unit: the toy's sample unit (3 points over 12 frames), annotated, filtered and written; its
+floor, reading the unit's JSON.
 
 The pipeline's modules are imported inside the functions, so that a floor process imports only
 what its floor reads.
@@ -22,7 +23,7 @@ UNIT = "walk"  # the sample's one unit
 
 def prepare(workdir: str, size: str) -> UnitSetup:
     """The toy's sample written under ``workdir`` (the same at every size), and its unit."""
-    from tests.toy_source import write_sample
+    from tests.support.toy_source import write_sample
 
     root = write_sample(os.path.join(workdir, "sample"))
     with open(os.path.join(root, f"{UNIT}.json")) as handle:
@@ -61,7 +62,7 @@ def floor(spec: dict) -> dict:
 def micro(frames: int) -> None:
     """Print the time to annotate the sample unit, the mean of ``frames`` calls."""
     from pipeline.settings import RunConfig
-    from tests.toy_source import annotate, write_sample
+    from tests.support.toy_source import annotate, write_sample
 
     with tempfile.TemporaryDirectory() as folder:
         root, config = write_sample(folder), RunConfig()

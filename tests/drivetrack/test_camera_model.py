@@ -1,0 +1,186 @@
+"""Waymo's camera model (pipeline/drivetrack/camera_model.py) on the sample world, whose cameras have
+lens distortion and rolling shutters on a moving ego vehicle, against an independent projection
+(tests/support/waymo_truth.py); and both ways of storing the frames."""
+
+import dataclasses
+import os
+
+import cv2
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from pipeline.core.config import with_overrides
+from pipeline.drivetrack import columns as C
+from pipeline.drivetrack.annotate import unit_camera
+from pipeline.drivetrack.camera_model import JPEG_QUALITY, undistort_image, undistortion_maps
+from pipeline.export.npz_writer import clip_arrays
+from pipeline.export.validator import check_arrays, quality_findings
+from pipeline.samples.waymo_world import POSE_DELAY_S, SEGMENT, frame_time
+from pipeline.settings import RunConfig
+from tests.support.units import drivetrack_clips, drivetrack_input
+from tests.support.waymo_truth import inside, pinhole_pixels, seen, sensor_pixels, true_tracks, world_from_cv
+
+FRAMES = (0, 20, 39)
+
+
+def settings(undistorted: bool) -> RunConfig:
+    return with_overrides(RunConfig(), [f"drivetrack.undistort_frames={str(undistorted).lower()}"])
+
+
+def lidar_points(generated, frame: int) -> np.ndarray:
+    points = generated["points"][frame].reshape(-1, 3)
+    return points[np.isfinite(points[:, 0])]
+
+
+def away_from_edges(pixels: np.ndarray, margin: float = 0.01) -> np.ndarray:
+    """[N] True for pixels [N, 2] farther than ``margin`` from the frame's edges (or far outside)."""
+    return inside(pixels + margin) == inside(pixels - margin)
+
+
+@pytest.mark.parametrize("undistorted", [False, True])
+def test_lidar_points_appear_where_the_truth_says(sample_split, world, undistorted):
+    folder, generated = sample_split
+    worst_pixel = worst_point = 0.0
+    for camera in (1, 2, 3):
+        model = unit_camera(drivetrack_input(folder, SEGMENT, camera), settings(undistorted))
+        for frame in FRAMES:
+            points = lidar_points(generated, frame)
+            ours = model.project(frame, points)
+            truth, sensor, _ = seen(world, camera, frame, points)
+            front = truth[:, 2] > 0
+            stored = np.where(front[:, None], pinhole_pixels(truth) if undistorted else sensor, -1.0)
+            in_view = front & inside(np.nan_to_num(sensor, nan=-1.0)) & inside(stored)
+            clear = away_from_edges(stored) & away_from_edges(np.nan_to_num(sensor, nan=-1.0))
+            assert in_view.sum() > 1000
+            np.testing.assert_array_equal(ours.in_view[clear], in_view[clear])
+            worst_pixel = max(worst_pixel, np.abs(ours.pixels[in_view] - stored[in_view]).max())
+            worst_point = max(worst_point, np.abs(ours.points[in_view] - truth[in_view]).max())
+    print(
+        f"undistorted={undistorted}: worst {worst_pixel:.5f} px, {worst_point * 1000:.4f} mm from the truth"
+    )
+    assert worst_pixel < 0.01
+    assert worst_point < 1e-4
+
+
+def test_pinhole_at_the_pose_misses_by_pixels(sample_split, world):
+    """What the camera model is for: the pinhole projection from the frame's pose (the pipeline
+    before it) lands pixels away from where the points appear; the pinhole projection of the
+    points as the camera sees them misses by the lens distortion alone."""
+    folder, generated = sample_split
+    old, lens = [], []
+    for camera in (1, 2, 3):
+        unit = drivetrack_input(folder, SEGMENT, camera)
+        cam_from_world = unit_camera(unit, settings(False)).cam_from_world
+        for frame in FRAMES:
+            points = lidar_points(generated, frame)
+            truth, sensor, _ = seen(world, camera, frame, points)
+            at_pose = points @ cam_from_world[frame, :3, :3].T + cam_from_world[frame, :3, 3]
+            shown = (truth[:, 2] > 0) & (at_pose[:, 2] > 0) & inside(np.nan_to_num(sensor, nan=-1.0))
+            old.append(np.linalg.norm(pinhole_pixels(at_pose[shown]) - sensor[shown], axis=1))
+            lens.append(np.linalg.norm(pinhole_pixels(truth[shown]) - sensor[shown], axis=1))
+    for name, miss in (("pinhole at the pose", np.concatenate(old)), ("lens alone", np.concatenate(lens))):
+        median, p95, worst = np.median(miss), np.percentile(miss, 95), miss.max()
+        print(f"{name}: median {median:.3f} p95 {p95:.3f} max {worst:.3f} px")
+    assert np.percentile(np.concatenate(old), 95) > 1.0
+    assert np.concatenate(lens).max() > 2.0
+
+
+def test_without_rolling_shutter_columns_frames_are_seen_from_their_pose(split_copy, world, sample_split):
+    path = os.path.join(split_copy, C.CAMERA_IMAGE, f"{SEGMENT}.parquet")
+    pq.write_table(pq.read_table(path).drop_columns(list(C.ROLLING_SHUTTER)), path)
+    unit = drivetrack_input(split_copy, SEGMENT, 2)
+    assert unit.frames.motion is None
+    model = unit_camera(unit, settings(False))
+    frame = 20
+    points = lidar_points(sample_split[1], frame)
+    pose = world_from_cv(world, 2, frame_time(frame) + POSE_DELAY_S)
+    local = (points - pose[:3, 3]) @ pose[:3, :3]
+    ours = model.project(frame, points)
+    assert ours.in_view.sum() > 1000
+    np.testing.assert_allclose(ours.points, local, atol=1e-4)
+    np.testing.assert_allclose(ours.pixels[ours.in_view], sensor_pixels(2, local[ours.in_view]), atol=1e-3)
+
+
+@pytest.mark.parametrize("undistorted", [False, True])
+def test_frames_projected_together_are_each_as_projected_alone(sample_split, undistorted):
+    """``project_frames`` gives each frame's points the bytes ``project`` gives them, whether the
+    frame has a rolling shutter record, none, or a camera that does not turn; a frame may hold
+    no point, or appear twice."""
+    folder, generated = sample_split
+    model = unit_camera(drivetrack_input(folder, SEGMENT, 1), settings(undistorted))
+    model.readouts[5] = None
+    model.readouts[7] = dataclasses.replace(model.readouts[7], omega=np.zeros(3))
+    frames = [0, 5, 7, 20, 39, 20, 3]
+    world = [lidar_points(generated, t)[: 2000 + 100 * i] for i, t in enumerate(frames)]
+    world[-1] = np.zeros((0, 3))
+    together = model.project_frames(frames, world)
+    assert all(projection.in_view.sum() > 400 for projection in together[:-1])
+    for t, points, projection in zip(frames, world, together, strict=True):
+        alone = model.project(t, points)
+        for ours, theirs in zip(
+            (projection.points, projection.pixels, projection.in_view),
+            (alone.points, alone.pixels, alone.in_view),
+            strict=True,
+        ):
+            np.testing.assert_array_equal(ours, theirs, strict=True)
+
+
+def test_undistortion_maps_read_the_sensor_pixel_of_each_stored_pixel(sample_split):
+    calibration = drivetrack_input(sample_split[0], SEGMENT, 3).calibration
+    map_x, map_y = undistortion_maps(calibration)
+    rows, cols = np.mgrid[0 : calibration.height : 7, 0 : calibration.width : 11]
+    fx, fy, cx, cy = calibration.fx_fy_cx_cy
+    # the ray of each stored pixel's centre (c + 0.5, r + 0.5), through the sensor's lens
+    rays = np.stack([(cols.ravel() + 0.5 - cx) / fx, (rows.ravel() + 0.5 - cy) / fy, np.ones(rows.size)], 1)
+    read = (
+        np.stack([map_x[rows, cols].ravel(), map_y[rows, cols].ravel()], 1) + 0.5
+    )  # OpenCV: centres at integers
+    np.testing.assert_allclose(read, sensor_pixels(3, rays), atol=2e-3)
+
+
+def test_undistorted_frame_has_the_bytes_of_the_three_channel_remap(sample_split):
+    """``undistort_image`` remaps with a fourth channel (OpenCV's fast path): the JPEG is the one
+    a plain 3-channel remap and encode give, on a textured frame with saturated edges."""
+    calibration = drivetrack_input(sample_split[0], SEGMENT, 2).calibration
+    maps = undistortion_maps(calibration)
+    rng = np.random.default_rng(5)
+    image = rng.integers(0, 256, (calibration.height, calibration.width, 3), np.uint8)
+    image = cv2.GaussianBlur(image, (0, 0), 1.5)
+    image[:, : calibration.width // 8] = (0, 255, 255)
+    plain = cv2.remap(image, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    expected = cv2.imencode(".jpg", plain, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])[1].tobytes()
+    assert undistort_image(image, maps) == expected
+
+
+@pytest.fixture(scope="module")
+def lead_clips(sample_split):
+    """Camera 1's clips with Waymo's frames kept and with frames undistorted."""
+    unit = drivetrack_input(sample_split[0], SEGMENT, 1)
+    return {undistorted: drivetrack_clips(unit, settings(undistorted)) for undistorted in (False, True)}
+
+
+def test_kept_frames_put_queries_where_the_sensor_saw_them_and_the_validator_reports_it(lead_clips, world):
+    residuals = []
+    for clip in lead_clips[False]:
+        _, pixels, _, _, _ = true_tracks(world, clip, 1, undistorted=False)
+        queried = np.flatnonzero(np.isfinite(clip.queries_xyt[:, 2]))
+        t_q = clip.queries_xyt[queried, 2].astype(int)
+        np.testing.assert_allclose(clip.queries_xyt[queried, :2], pixels[t_q, queried], atol=0.01)
+        arrays = clip_arrays(clip.select_tracks(queried))
+        findings = quality_findings(arrays)
+        residuals.append(findings["query_residual_max_px"])
+        assert findings["query_residual_max_px"] > 0.5
+        assert any("px from their track's projection" in problem for problem in check_arrays(arrays))
+    print(f"kept frames: worst query residual per clip {residuals} px")
+
+
+def test_undistorted_frames_make_the_pinhole_exact(lead_clips):
+    for kept, clip in zip(lead_clips[False], lead_clips[True], strict=True):
+        assert clip.name == kept.name
+        assert clip.images_jpeg != kept.images_jpeg
+        np.testing.assert_array_equal(clip.tracks_xyz, kept.tracks_xyz)
+        queried = np.flatnonzero(np.isfinite(clip.queries_xyt[:, 2]))
+        arrays = clip_arrays(clip.select_tracks(queried))
+        assert quality_findings(arrays)["query_residual_max_px"] < 0.01
+        assert check_arrays(arrays) == []
