@@ -9,6 +9,9 @@ The framework, one file per job:
   report.py      one source's figures: computed from its runs, printed
   table.py       the one table of every source against its targets, its lines and its JSON
   entry.py       finding a source's entry, the interface it defines, the UnitSetup it returns
+  audit_page.py  the audit page's size and load time in headless Chromium
+  hostile_files.py  every hostile file and fault case run as a user would: exit, peak RSS, files
+                 touched outside --output (``python -m benchmarks.hostile_files [FOLDER]``)
 
 One entry per source, ``<source>.py`` (drivetrack.py, adt.py, pstudio.py), found through the
 registry (``sources.get(name).bench_module``; a plug-in names its own with ``Source.bench``); the

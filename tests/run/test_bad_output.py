@@ -1,5 +1,5 @@
 """Bad input every source shares: names that are not plain file names, and output that cannot
-be written. The per-source cases are in tests/test_bad_input_<source>.py.
+be written. The per-source cases are in tests/<source>/test_bad_input.py.
 
 Each case: how it is made -> the expected error.
 

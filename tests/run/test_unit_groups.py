@@ -1,7 +1,7 @@
 """Units annotated in groups (``Source.group_of`` / ``annotate_group``, DriveTrack's segments): the
 graph hands each group to one call, each unit keeps its own outcome and record, a unit's failure
 stays its own, and resume re-annotates only the unfinished units of a group. (That DriveTrack's
-segment group decodes its lidar once: ``tests/test_drivetrack_group.py``.)"""
+segment group decodes its lidar once: ``tests/drivetrack/test_truth.py``.)"""
 
 from __future__ import annotations
 

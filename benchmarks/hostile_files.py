@@ -1,5 +1,5 @@
-"""``python -m tests.hostile_report [FOLDER]``: every hostile case of issue "Hostile files and faults"
-run as a user would (one command each, in a fresh process), as a markdown table.
+"""``python -m benchmarks.hostile_files [FOLDER]``: every hostile file and fault case run as a user
+would (one command each, in a fresh process), as a markdown table.
 
 Per case: what happened (the command's last stderr line), exit code, the command's peak RSS
 (``wait4``), files touched outside its output folder (every file under FOLDER other than the
@@ -10,6 +10,7 @@ this prints the figures.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -75,8 +76,39 @@ def plain_load(path: str) -> dict[str, np.ndarray]:
         return {key: archive[key] for key in archive.files}
 
 
-def main(argv: list[str]) -> int:
-    root = os.path.abspath(argv[0] if argv else tempfile.mkdtemp(prefix="hostile-"))
+@dataclasses.dataclass(frozen=True)
+class Inputs:
+    """What the cases read: the studio sample, a good run's output and two of its clips, the folder
+    where a payload leaves its marker when unpickled, and the pipeline's run command."""
+
+    root: str
+    sample: str
+    good: str
+    clips: dict[str, dict[str, np.ndarray]]
+    markers: str
+    run: list[str]
+
+    def folder(self, name: str, files: dict[str, bytes]) -> str:
+        """A folder of clips ``<root>/files/<name>/pstudio/<file>``."""
+        path = os.path.join(self.root, "files", name)
+        os.makedirs(os.path.join(path, "pstudio"), exist_ok=True)
+        for file, data in files.items():
+            with open(os.path.join(path, "pstudio", file), "wb") as handle:
+                handle.write(data)
+        return path
+
+    def payload(self, key: str, clip: str = "dome_3.npz") -> bytes:
+        """A good clip whose member ``key`` unpickles into a marker-writing payload."""
+        return savez_bytes(with_payload(self.clips[clip], key, os.path.join(self.markers, f"{key}-{clip}")))
+
+    def out(self, name: str) -> str:
+        path = os.path.join(self.root, "outs", name)
+        shutil.rmtree(path, ignore_errors=True)
+        return path
+
+
+def prepare(root: str) -> Inputs:
+    """The studio sample and a good run of it (made once under ``root``)."""
     sample = os.path.join(root, "inputs", "pstudio")
     if not os.path.isdir(sample):
         write_sequence(sample)
@@ -87,41 +119,42 @@ def main(argv: list[str]) -> int:
     clips = {name: plain_load(os.path.join(good, "pstudio", name)) for name in ("dome_3.npz", "dome_8.npz")}
     markers = os.path.join(root, "markers")
     os.makedirs(markers, exist_ok=True)
+    return Inputs(root, sample, good, clips, markers, run)
 
-    def folder(name: str, files: dict[str, bytes]) -> str:
-        path = os.path.join(root, "files", name)
-        os.makedirs(os.path.join(path, "pstudio"), exist_ok=True)
-        for file, data in files.items():
-            with open(os.path.join(path, "pstudio", file), "wb") as handle:
-                handle.write(data)
-        return path
 
-    def payload(key: str, clip: str = "dome_3.npz") -> bytes:
-        return savez_bytes(with_payload(clips[clip], key, os.path.join(markers, f"{key}-{clip}")))
-
-    good_copy = open(os.path.join(good, "pstudio", "dome_8.npz"), "rb").read()
-    pickled = folder("pickled", {"dome_3.npz": payload("images_jpeg_bytes"), "dome_8.npz": good_copy})
-    pickled_tracks = folder("pickled_tracks", {"dome_3.npz": payload("tracks_XYZ"), "dome_8.npz": good_copy})
-    pickled_queries = folder("pickled_queries", {"dome_3.npz": payload("queries_xyt")})
-    bombs = folder(
-        "bombs",
-        {
-            "dome_3.npz": bomb_clip(clips["dome_3.npz"], "queries_xyt", gib=20),
-            "dome_8.npz": shape_bomb_clip(clips["dome_8.npz"], "tracks_XYZ", (40, 10**9, 3)),
-        },
-    )
-    splits = os.path.join(root, "files", "splits.json")
+def hostile_folders(inputs: Inputs) -> dict[str, str]:
+    """Folders of hostile clips (pickled members, deflate and shape bombs) and a malformed splits file."""
+    good_copy = open(os.path.join(inputs.good, "pstudio", "dome_8.npz"), "rb").read()
+    clips = inputs.clips
+    splits = os.path.join(inputs.root, "files", "splits.json")
+    os.makedirs(os.path.dirname(splits), exist_ok=True)
     with open(splits, "w") as handle:
         handle.write('{"minival": {"pstudio": "dome_3.npz"}}')
+    return {
+        "pickled": inputs.folder(
+            "pickled", {"dome_3.npz": inputs.payload("images_jpeg_bytes"), "dome_8.npz": good_copy}
+        ),
+        "pickled_tracks": inputs.folder(
+            "pickled_tracks", {"dome_3.npz": inputs.payload("tracks_XYZ"), "dome_8.npz": good_copy}
+        ),
+        "pickled_queries": inputs.folder("pickled_queries", {"dome_3.npz": inputs.payload("queries_xyt")}),
+        "bombs": inputs.folder(
+            "bombs",
+            {
+                "dome_3.npz": bomb_clip(clips["dome_3.npz"], "queries_xyt", gib=20),
+                "dome_8.npz": shape_bomb_clip(clips["dome_8.npz"], "tracks_XYZ", (40, 10**9, 3)),
+            },
+        ),
+        "splits": splits,
+    }
 
-    def out(name: str) -> str:
-        path = os.path.join(root, "outs", name)
-        shutil.rmtree(path, ignore_errors=True)
-        return path
 
-    forged = out("forged")
-    subprocess.run([*run, "--output", forged, "--set", "pstudio.cameras=3"], cwd=REPO, check=True)
-    data = payload("tracks_XYZ")
+def forge_output(inputs: Inputs) -> None:
+    """A finished run's output whose clip is a pickle payload its record vouches for, and whose record
+    lists a clip named ``../`` outside the folder; and an output whose manifests folder is a file."""
+    forged = inputs.out("forged")
+    subprocess.run([*inputs.run, "--output", forged, "--set", "pstudio.cameras=3"], cwd=REPO, check=True)
+    data = inputs.payload("tracks_XYZ")
     with open(os.path.join(forged, "pstudio", "dome_3.npz"), "wb") as handle:
         handle.write(data)
     units = os.path.join(forged, "units", "pstudio")
@@ -131,13 +164,17 @@ def main(argv: list[str]) -> int:
     victim = "../../../inputs/pstudio/output/pretrained/dome/params"  # the sample's params.npz
     record["reports"].append(dict(record["reports"][0], clip=victim))
     json.dump(record, open(record_path, "w"))
-    manifests_file = out("manifests_file")
+    manifests_file = inputs.out("manifests_file")
     os.makedirs(manifests_file)
     open(os.path.join(manifests_file, "manifests"), "w").write("a file")
 
-    # (case, output folder name, command given that folder, options); the folder is the one place
-    # the command may write.
-    cases = [
+
+def cases(inputs: Inputs, folders: dict[str, str]) -> list[tuple]:
+    """(case, output folder name, command given that folder, options): the folder is the one place
+    the command may write."""
+    run, pickled, bombs = inputs.run[2:], folders["pickled"], folders["bombs"]
+    studio = ["--set", "pstudio.cameras=3"]
+    return [
         (
             "validate: pickled frames member + a good clip",
             "validate1",
@@ -147,12 +184,19 @@ def main(argv: list[str]) -> int:
         (
             "compare: prediction with pickled tracks",
             "compare1",
-            lambda o: ["pipeline.audit", "compare", good, pickled_tracks, "--out", f"{o}/report"],
+            lambda o: [
+                "pipeline.audit",
+                "compare",
+                inputs.good,
+                folders["pickled_tracks"],
+                "--out",
+                f"{o}/report",
+            ],
         ),
         (
             "compare: reference with pickled frames",
             "compare2",
-            lambda o: ["pipeline.audit", "compare", pickled, good, "--out", f"{o}/report"],
+            lambda o: ["pipeline.audit", "compare", pickled, inputs.good, "--out", f"{o}/report"],
         ),
         (
             "viz: pickled frames member",
@@ -167,78 +211,72 @@ def main(argv: list[str]) -> int:
         (
             "run --queries-from: pickled queries",
             "qf_pickle",
-            lambda o: [
-                *run[2:],
-                "--output",
-                o,
-                "--queries-from",
-                pickled_queries,
-                "--set",
-                "pstudio.cameras=3",
-            ],
+            lambda o: [*run, "--output", o, "--queries-from", folders["pickled_queries"], *studio],
         ),
         (
             "run --queries-from: 20 GiB deflate bomb (21 MB file)",
             "qf_bomb",
-            lambda o: [*run[2:], "--output", o, "--queries-from", bombs, "--set", "pstudio.cameras=3"],
+            lambda o: [*run, "--output", o, "--queries-from", bombs, *studio],
         ),
         (
             "resume: forged record (pickled clip, '../' clip name)",
             "forged",
-            lambda o: [*run[2:], "--output", o, "--set", "pstudio.cameras=3"],
+            lambda o: [*run, "--output", o, *studio],
         ),
         (
             "run --set adt.image_size=0",
             "image_size",
-            lambda o: [*run[2:], "--output", o, "--set", "adt.image_size=0"],
+            lambda o: [*run, "--output", o, "--set", "adt.image_size=0"],
         ),
-        ("run --set adt.focal=-280", "focal", lambda o: [*run[2:], "--output", o, "--set", "adt.focal=-280"]),
+        ("run --set adt.focal=-280", "focal", lambda o: [*run, "--output", o, "--set", "adt.focal=-280"]),
         (
             "run: malformed splits_file",
             "splits",
-            lambda o: [*run[2:], "--output", o, "--set", f"splits_file={splits}"],
+            lambda o: [*run, "--output", o, "--set", f"splits_file={folders['splits']}"],
         ),
         (
             "run: full disk (1 MiB file-size limit)",
             "full_disk",
-            lambda o: [*run[2:], "--output", o],
+            lambda o: [*run, "--output", o],
             {"small_disk": True},
         ),
-        (
-            "run: gs:// output without the gcp extra",
-            "gs",
-            lambda o: [*run[2:], "--output", "gs://bucket/out"],
-        ),
+        ("run: gs:// output without the gcp extra", "gs", lambda o: [*run, "--output", "gs://bucket/out"]),
         (
             "run: manifests folder is a file (output error at the end)",
             "manifests_file",
-            lambda o: [*run[2:], "--output", o, "--set", "pstudio.cameras=3"],
+            lambda o: [*run, "--output", o, *studio],
         ),
-        (
-            "run: Ctrl-C during the first unit",
-            "ctrl_c",
-            lambda o: [*run[2:], "--output", o],
-            {"interrupt": True},
-        ),
+        ("run: Ctrl-C during the first unit", "ctrl_c", lambda o: [*run, "--output", o], {"interrupt": True}),
     ]
+
+
+def table(inputs: Inputs, listed: list[tuple]) -> list[str]:
+    """Run each case in a fresh process; one markdown row each."""
     rows = [
         "| case | what happened (last stderr line) | exit | peak RSS | files touched outside --output "
         "| markers |",
         "|---|---|---|---|---|---|",
     ]
-    for name, output, command, *options in cases:
-        target = os.path.join(root, "outs", output)
+    for name, output, command, *options in listed:
+        target = os.path.join(inputs.root, "outs", output)
         if output not in ("forged", "manifests_file"):
             shutil.rmtree(target, ignore_errors=True)
         code, rss, line, touched = run_case(
-            root, target, [*PYTHON, *command(target)], **(options[0] if options else {})
+            inputs.root, target, [*PYTHON, *command(target)], **(options[0] if options else {})
         )
-        created = len(os.listdir(markers))
+        created = len(os.listdir(inputs.markers))
         line = line.split(" ", 1)[1] if line[:2].isdigit() and line[2:3] == ":" else line
         rows.append(
             f"| {name} | {line[:160].replace('|', '/')} | {code} | {rss:.0f} MiB | {touched} | {created} |"
         )
-    print("\n".join(rows))
+    return rows
+
+
+def main(argv: list[str]) -> int:
+    inputs = prepare(os.path.abspath(argv[0] if argv else tempfile.mkdtemp(prefix="hostile-")))
+    folders = hostile_folders(inputs)
+    forge_output(inputs)
+    print("\n".join(table(inputs, cases(inputs, folders))))
     return 0
 
 
