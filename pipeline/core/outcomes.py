@@ -21,8 +21,9 @@ class UnitClips:
     """What annotating one unit made.
 
     clips: its candidate clips.
-    not_made: clip name -> why the unit made no clip of that name, for the names it was asked for
-      (a release run's clips); empty otherwise.
+    not_made: clip name -> why the unit made no clip of that name: for each name a release run asked
+      for, and for each one the unit considered and left out (DriveTrack: every object of the
+      segment), so that a later release run can resume the unit and still say why.
     """
 
     clips: tuple[ClipRecord, ...]
@@ -89,7 +90,7 @@ class UnitOutcome:
 
     reports: one per clip it made (written or not), sorted by clip name.
     failures: its errors; a unit with any is redone by the next run.
-    not_made: clip name -> why no clip, for the names it was asked for (``UnitClips.not_made``).
+    not_made: clip name -> why no clip (``UnitClips.not_made``; on a release run, its names only).
     resumed: an earlier run had finished it with the same settings; nothing was redone.
     seconds: wall time of its annotation, filtering and writing (0 when resumed).
     """
