@@ -110,7 +110,8 @@ class RunMonitor:
             self.bar.close()
 
     def _watch(self) -> None:
-        while not self._stop.wait(0.5):
+        interval = 0.5 if "://" not in self.output else 5.0  # an object store is listed less often
+        while not self._stop.wait(interval):
             self.poll()
             if self.closed:
                 _thread.interrupt_main()

@@ -26,6 +26,21 @@ PYTHON = [sys.executable, "-m"]
 RESUMED = "finished by an earlier run with these settings; skipped"
 
 
+def run_command(source: str, input_root: str, output, *extra: str) -> list[str]:
+    """The command line of ``python -m pipeline.run`` on ``source``."""
+    return [
+        *PYTHON,
+        "pipeline.run",
+        "--source",
+        source,
+        "--input",
+        input_root,
+        "--output",
+        str(output),
+        *extra,
+    ]
+
+
 def command(*args: str, cwd: str = REPO, **kwargs) -> subprocess.CompletedProcess:
     env = dict(os.environ, PYTHONPATH=REPO)
     return subprocess.run(
@@ -209,16 +224,7 @@ def test_a_terminal_gets_a_live_progress_bar(pstudio_sample, tmp_path):
     leader, follower = pty.openpty()
     fcntl.ioctl(follower, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 100, 0, 0))  # a 100-column terminal
     result = subprocess.run(
-        [
-            *PYTHON,
-            "pipeline.run",
-            "--source",
-            "pstudio",
-            "--input",
-            pstudio_sample[0],
-            "--output",
-            str(tmp_path / "o"),
-        ],
+        run_command("pstudio", pstudio_sample[0], tmp_path / "o"),
         cwd=REPO,
         stdout=subprocess.DEVNULL,
         stderr=follower,
@@ -270,17 +276,7 @@ def test_a_closed_output_pipe_stops_the_run_within_five_seconds(sample_split, tm
     env = dict(os.environ, PYTHONPATH=REPO)
     errors = open(tmp_path / "stderr", "w")
     process = subprocess.Popen(
-        [
-            *PYTHON,
-            "pipeline.run",
-            "--source",
-            "drivetrack",
-            "--input",
-            sample_split[0],
-            "--output",
-            str(tmp_path / "o"),
-            *mode,
-        ],
+        run_command("drivetrack", sample_split[0], tmp_path / "o", *mode),
         cwd=REPO,
         stdout=subprocess.PIPE,
         stderr=errors,
