@@ -1,11 +1,12 @@
-"""Annotate one DriveTrack unit (segment, camera): one clip per vehicle assigned to the camera.
+"""Annotate DriveTrack units: the cameras of one segment together (its lidar read once), one clip per
+vehicle assigned to each camera; per unit its clips (``UnitClips``) or the exception that failed it.
 
-Pure computation on the reader's records; no Beam. The steps, a module each: ``poses.py``
-(vehicle and camera per frame), ``camera_model.py`` (where a point appears in a frame),
-``objects.py`` (which vehicles, on which frames), ``evidence.py`` (the TOP lidar: depth samples,
-each object's points), ``tracks.py`` and ``draws.py`` (which points), ``visibility.py`` (in view,
-facing, not occluded), ``silhouette.py`` (object masks), ``queries.py`` and ``undistort.py``
-(the stored frames); this module runs them and assembles each clip.
+Pure computation on the reader's records; no Beam. The steps, a module each: ``camera_model.py``
+(vehicle and camera poses per frame, where a point appears in a frame, undistorted frames),
+``objects.py`` (which vehicles, on which frames), ``lidar.py`` (the TOP lidar: depth samples, each
+object's points and normals), ``tracks.py`` (which points, their queries), ``visibility.py`` (in
+view, facing, not occluded), ``masks.py`` (object masks); this module runs them and assembles each
+clip.
 """
 
 from __future__ import annotations

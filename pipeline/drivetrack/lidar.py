@@ -267,7 +267,7 @@ def box_points(
 @dataclasses.dataclass(frozen=True)
 class CameraPass:
     """One camera's share of a pass over the lidar: its unit, the object runs it tracks, its
-    camera model and the vehicle pose per camera frame [T, 4, 4] (``poses.py``)."""
+    camera model and the vehicle pose per camera frame [T, 4, 4] (``camera_model.frame_poses``)."""
 
     unit: UnitInput
     runs: list[ObjectRun]
@@ -350,7 +350,7 @@ def gather_lidar(
     shrink: float,
     occlusion_margin: float,
 ) -> LidarEvidence:
-    """``gather_lidar_cameras`` for one camera. world_from_frame: [T, 4, 4] (``poses.py``)."""
+    """``gather_lidar_cameras`` for one camera. world_from_frame: [T, 4, 4] (``camera_model.frame_poses``)."""
     (evidence,) = gather_lidar_cameras(
         [CameraPass(unit, runs, camera, world_from_frame)], shrink, occlusion_margin
     )

@@ -62,7 +62,7 @@ def choose_points(
 ) -> np.ndarray:
     """Indices into the pool [P, 3] of the points to track: the points the given queries [N, 3]
     fall on (``match_given_queries``), or else the ``count`` (at most P) points of lowest key [P]
-    (``draws.py``), sorted."""
+    (``point_keys``), sorted."""
     if given is not None:
         return match_given_queries(pool, given, run, camera, clip)
     return lowest_keys(keys, count)
@@ -137,7 +137,7 @@ def clip_queries(
 ) -> np.ndarray:
     """Queries [N, 3] (x, y, t): where each track appears in the stored frame (uv [T, N, 2]) at the
     given queries' [N, 3] frames, or else at a frame drawn among its visible frames [T, N] by its
-    own uniform draw [N] (``draws.py``); NaN for a track never visible."""
+    own uniform draw [N] (``query_draws``); NaN for a track never visible."""
     frames = query_frames(visibility, draws) if given is None else given[:, 2].astype(np.int64)
     xy = uv[np.maximum(frames, 0), np.arange(uv.shape[1])]
     queries = np.concatenate([xy, frames[:, None].astype(np.float64)], axis=1)
