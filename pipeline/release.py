@@ -36,13 +36,6 @@ class Release:
     def names(self, source: str) -> frozenset[str]:
         return frozenset(self.clips.get(source, {}))
 
-    def split(self, source: str, clip: str) -> str | None:
-        return self.clips.get(source, {}).get(clip)
-
-    def counts(self) -> dict[str, int]:
-        """Clips named per source."""
-        return {source: len(names) for source, names in sorted(self.clips.items())}
-
 
 def parse_release(text: str, path: str = "") -> Release:
     """The Release of a splits JSON's text; ValueError saying what is wrong with it."""

@@ -53,8 +53,6 @@ from pipeline.unit import UnitJob
 
 NOTHING_PRODUCED, INTERRUPTED, OUTPUT_CLOSED = 3, 130, 141
 
-log = logging.getLogger("pipeline")
-
 
 def command_parser() -> StrictParser:
     parser = StrictParser(
