@@ -215,7 +215,7 @@ def measure_fixed_cost(spec: dict, config) -> dict:
     world = unit.frames.world_from_vehicle_at_exposure[0][:3, 3] + rng.normal(0, 20.0, (64, 3))
     pixels, depth = rng.uniform(0, size, (64, 2)), rng.uniform(5.0, 50.0, 64)
     wall, cpu = time.perf_counter(), time.process_time()
-    unit_camera(unit, config).project(0, world)
+    unit_camera(unit).project(0, world)
     camera_occluded_lidar(pixels, depth, config.drivetrack.occlusion_margin)
     nearest_depth_max4(pixels, depth, pixels[:4], int(size[0]), int(size[1]))
     return {"first_calls_s": time.perf_counter() - wall, "first_calls_cpu_s": time.process_time() - cpu}

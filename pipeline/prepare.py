@@ -16,12 +16,20 @@ from apache_beam.options.pipeline_options import DirectOptions, PipelineOptions,
 
 import pipeline
 from pipeline import sources
-from pipeline.core.config import path_settings, with_overrides
+from pipeline.core.config import (
+    NOT_KNOWN,
+    path_settings,
+    release_values,
+    settings_dict,
+    with_overrides,
+    with_rules,
+)
 from pipeline.core.errors import InputError
 from pipeline.core.sizes import format_bytes
 from pipeline.export.layout import sample_folder
 from pipeline.io import storage
 from pipeline.io.files import is_local, remove_quietly, write_atomic
+from pipeline.io.http import is_http, scrub
 from pipeline.release import Release, read_release
 from pipeline.settings import RunConfig
 from pipeline.sources import Source, UnitPlan
@@ -41,6 +49,7 @@ class PreparedRun:
 
     source: Source
     config: RunConfig
+    rules: RuleSet
     input_root: str | None
     output: str
     release: Release | None
@@ -83,18 +92,102 @@ def check_writable(output: str) -> None:
 
 def check_inputs(input_root: str | None, config: RunConfig) -> None:
     """CannotStart unless every local path the run will read exists: ``--input`` and every setting
-    declared a path (``core.config.path_setting``) that is set."""
+    declared a path (``core.config.path_setting``) that is set. ``--queries-from`` may also be an
+    ``http(s)://`` base (``pipeline.io.given_queries``)."""
     paths = {"--input": input_root, **path_settings(config)}
     for what, path in paths.items():
-        if path:
+        if path and not (what == "--queries-from" and is_http(path)):
             storage.check_scheme(path)
         if path and is_local(path) and not os.path.exists(path):
             raise CannotStart(f"{what} {path} does not exist")
 
 
+@dataclasses.dataclass(frozen=True)
+class RuleSet:
+    """The rule set a run follows and what it decides for the run's source: ``sets``, key -> value of
+    each setting the rule set gives (its run-wide ones and the source's); ``other``, key -> that
+    setting's value under the other rule set; ``overridden``, key -> the rule set's value of each
+    one a ``--set`` changed; ``not_known``, the source's settings whose release value is not known
+    (ours kept)."""
+
+    name: str
+    sets: dict[str, object]
+    other: dict[str, object]
+    overridden: dict[str, object]
+    not_known: tuple[str, ...]
+
+    def lines(self) -> list[str]:
+        """What the run prints first: the rule set, the settings it sets, and each override."""
+        said = ", ".join(f"{key}={_shown(value)}" for key, value in self.sets.items())
+        other = "refined" if self.name == "release" else "release"
+        what = "the original generators' choices" if self.name == "release" else "ours, measured better"
+        lines = [f"rules: {self.name} ({what}; docs/release.md): {said or 'no setting of this source'}"]
+        if self.sets:
+            lines[0] += f" ({other}: {', '.join(_shown(value) for value in self.other.values())})"
+        if self.name == "release" and self.not_known:
+            lines.append(f"rules: the release's value not known, ours kept: {', '.join(self.not_known)}")
+        lines += [
+            f"rules: --set {key}={_shown(self.sets[key])} wins over rules={self.name} ({_shown(value)})"
+            for key, value in self.overridden.items()
+        ]
+        return lines
+
+    def to_json(self) -> dict:
+        return {
+            "name": self.name,
+            "sets": dict(self.sets),
+            "overridden": dict(self.overridden),
+            "not_known": list(self.not_known),
+        }
+
+
+def _shown(value) -> str:
+    """A setting's value as ``--set`` takes it."""
+    if isinstance(value, bool):
+        return str(value).lower()
+    return ",".join(str(item) for item in value) if isinstance(value, tuple) else str(value)
+
+
+def assigned_keys(assignments: list[str]) -> frozenset[str]:
+    """The keys of ``key=value`` assignments (``--set``)."""
+    return frozenset(text.partition("=")[0].strip() for text in assignments)
+
+
+def rule_set(config: RunConfig, source: str, explicit: frozenset[str]) -> RuleSet:
+    """What ``config.rules`` decides for a run of ``source``, the ``explicit`` keys (``--set``) aside."""
+    known = {key: value for key, value in release_values(config).items() if key != "rules"}
+    ours = {key for key in known if "." not in key or key.split(".", 1)[0] in ("flicker", source)}
+    other = with_rules(config, "refined" if config.rules == "release" else "release")
+    values, others = _flat(settings_dict(config)), _flat(settings_dict(other))
+    governed = sorted(key for key in ours if known[key] is not NOT_KNOWN)
+    rule_values = _flat(settings_dict(with_rules(config, config.rules)))
+    return RuleSet(
+        config.rules,
+        {key: values[key] for key in governed},
+        {key: others[key] for key in governed},
+        {key: rule_values[key] for key in governed if key in explicit and values[key] != rule_values[key]},
+        tuple(sorted(key for key in ours if known[key] is NOT_KNOWN)),
+    )
+
+
+def _flat(values: dict, prefix: str = "") -> dict[str, object]:
+    flat = {}
+    for name, value in values.items():
+        if isinstance(value, dict):
+            flat.update(_flat(value, f"{prefix}{name}."))
+        else:
+            flat[prefix + name] = tuple(value) if isinstance(value, list) else value
+    return flat
+
+
 def settings(args: argparse.Namespace) -> tuple[RunConfig, Release | None]:
-    """The run's config (defaults, ``--set``, the command's flags) and the release it follows."""
-    config = with_overrides(RunConfig(), args.overrides)
+    """The run's config (the rule set's defaults, ``--set``, the command's flags) and the release it
+    follows. The rule set is ``--set rules=...``, else ``release`` on a ``--release`` run and
+    ``refined`` on any other; a ``--set`` of one of its settings wins."""
+    explicit = assigned_keys(args.overrides)
+    given = with_overrides(RunConfig(), args.overrides)
+    rules = given.rules if "rules" in explicit else "release" if args.release else "refined"
+    config = with_overrides(with_rules(RunConfig(), rules), args.overrides)
     splits = absolute(args.release or "") or absolute(config.splits_file)
     if args.release and config.splits_file and absolute(config.splits_file) != splits:
         raise CannotStart("--release and --set splits_file name different files; give one")
@@ -117,6 +210,7 @@ def prepare_run(args: argparse.Namespace, beam_args: list[str]) -> PreparedRun:
     output = absolute(args.output)
     storage.check_scheme(output)
     config, release = settings(args)
+    rules = rule_set(config, source.name, assigned_keys(args.overrides))
     check_writable(output)
     if args.input is None and not is_local(output):
         raise CannotStart(
@@ -125,7 +219,16 @@ def prepare_run(args: argparse.Namespace, beam_args: list[str]) -> PreparedRun:
         )
     input_root = args.input if args.input is None or "://" in args.input else os.path.abspath(args.input)
     return PreparedRun(
-        source, config, input_root, output, release, bool(args.release), args.overwrite, beam_args, options
+        source,
+        config,
+        rules,
+        input_root,
+        output,
+        release,
+        bool(args.release),
+        args.overwrite,
+        beam_args,
+        options,
     )
 
 
@@ -170,13 +273,14 @@ def scratch_line(per_worker: int, options: PipelineOptions) -> str:
 @dataclasses.dataclass(frozen=True)
 class Provenance:
     """Where a run came from, as its record keeps it: the package and version, the source, input and
-    output, every setting, the release it was restricted to, its units, the Beam options, the
-    libraries' versions and when it started."""
+    output, every setting and the rule set's account of them, the release it was restricted to, its
+    units, the Beam options, the libraries' versions and when it started."""
 
     source: str
     input: str
     output: str
     config: dict
+    rules: dict
     release: str | None
     units: tuple[str, ...]
     beam_options: tuple[str, ...]
@@ -193,13 +297,22 @@ class Provenance:
         }
 
 
+def scrubbed(values: dict) -> dict:
+    """Settings as a run record keeps them: every URL without its query string (a token)."""
+    return {
+        key: scrubbed(value) if isinstance(value, dict) else scrub(value) if isinstance(value, str) else value
+        for key, value in values.items()
+    }
+
+
 def provenance(prepared: PreparedRun, input_root: str, plan: UnitPlan) -> Provenance:
     """The run record's account of where the run came from."""
     return Provenance(
         source=prepared.source.name,
         input=input_root,
         output=prepared.output,
-        config=prepared.config.to_dict(),
+        config=scrubbed(prepared.config.to_dict()),
+        rules=prepared.rules.to_json(),
         release=prepared.release.path if prepared.restricted else None,
         units=tuple(prepared.source.unit_name(unit) for unit in plan.units),
         beam_options=tuple(prepared.beam_args),

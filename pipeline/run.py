@@ -33,6 +33,7 @@ from pipeline.core.outcomes import FILTER_ORDER
 from pipeline.core.progress import quiet_worker_logs, set_verbose, workers_silenced
 from pipeline.export.layout import failures_path, release_verdicts_path, run_record_path
 from pipeline.finish import RunSummary, finish_run
+from pipeline.io.http import shown
 from pipeline.monitor import OUTPUT_CLOSED as OUTPUT_WENT_AWAY
 from pipeline.monitor import RunMonitor, watch_output_pipes
 from pipeline.prepare import (
@@ -206,9 +207,9 @@ def _why_nothing(summary: RunSummary, config: RunConfig) -> str:
     if summary.units_failed == summary.units:
         return f"no clip written: all {summary.units} unit(s) failed"
     if not summary.clips_annotated:
-        given = (
-            f"; --queries-from {config.queries_from} holds none of their clips" if config.queries_from else ""
-        )
+        given = ""
+        if config.queries_from:
+            given = f"; --queries-from {shown(config.queries_from)} holds none of their clips"
         return f"no clip written: the {summary.units} unit(s) made no clip{given}"
     if not summary.candidate_tracks:
         return f"no clip written: the {summary.clips_annotated} clip(s) made had no candidate track"
@@ -284,6 +285,8 @@ def main(argv: list[str] | None = None) -> int:
 def run(prepared: PreparedRun, started: float) -> int:
     """``main`` after the checks, without the Ctrl-C handling."""
     source, output = prepared.source, prepared.output
+    for line in prepared.rules.lines():
+        print(line, flush=True)
     try:
         input_root = sample_input(prepared)
         plan = plan_units(prepared, input_root)

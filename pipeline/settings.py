@@ -12,7 +12,18 @@ from collections.abc import Mapping
 from typing import Any
 
 from pipeline import sources
-from pipeline.core.config import FlickerConfig, not_in_clips, path_setting, ranged, sections, settings_dict
+from pipeline.core.config import (
+    NOT_KNOWN,
+    RULE_SETS,
+    FlickerConfig,
+    not_in_clips,
+    one_of,
+    path_setting,
+    ranged,
+    sections,
+    settings_dict,
+)
+from pipeline.io.http import HttpConfig
 
 
 def default_sections() -> dict[str, Any]:
@@ -24,6 +35,10 @@ def default_sections() -> dict[str, Any]:
 class RunConfig:
     """Everything that decides a run's output besides its input.
 
+    rules: the rule set: ``release``, every choice as the original generators made it (where the
+      release's value is not known, ours is kept); ``refined``, ours where we measured better.
+      It sets a group of defaults (docs/release.md); a ``--set`` of one of them still wins. A
+      ``--release`` run follows ``release`` unless this is set, any other run ``refined``.
     seed: every random choice is seeded from it and the clip's name.
     splits_file: the release's splits JSON: the manifests follow its membership where clip names
       match (``--release`` also restricts the run to its clips).
@@ -34,16 +49,19 @@ class RunConfig:
       source; full_test holds every other clip.
     min_tracks: a clip is written only when at least this many tracks pass the filters.
     flicker: the flicker filter's threshold.
+    http: how every HTTP transfer behaves (the release's files, ADT's downloads).
     source_sections: each source's section, by name (``config.adt`` reads the ``adt`` one).
     """
 
-    seed: int = ranged(0, "[0, 4294967295]")
+    rules: str = one_of("refined", RULE_SETS, release="release")
+    seed: int = ranged(0, "[0, 4294967295]", release=NOT_KNOWN)
     splits_file: str = path_setting("", "splits_file", clip_bytes=False)
     queries_from: str = path_setting("", "--queries-from")
     export_depth: bool = not_in_clips(False)
     minival_per_source: int = not_in_clips(50, "[0, 1000000]")
-    min_tracks: int = ranged(1, "[1, 100000]")
+    min_tracks: int = ranged(1, "[1, 100000]", release=NOT_KNOWN)
     flicker: FlickerConfig = dataclasses.field(default_factory=FlickerConfig)
+    http: HttpConfig = dataclasses.field(default_factory=HttpConfig, metadata={"clip_bytes": False})
     source_sections: Mapping[str, Any] = sections(default_sections)
 
     def __getattr__(self, name: str):

@@ -20,7 +20,7 @@ import sys
 
 from pipeline import sources
 from pipeline.commandline import StrictParser
-from pipeline.core.config import settings_items
+from pipeline.core.config import NOT_KNOWN, settings_items
 from pipeline.settings import RunConfig
 
 COMMAND = "python -m pipeline.settings_doc > docs/configuration.md"
@@ -36,6 +36,12 @@ checked against its allowed range, and every problem is reported, one line each,
 start: N problem(s) with the settings:` with exit status 2 (e.g. `--set adt.image_size=0: must be an
 integer in [2, 8192] and even`); an unknown key is refused with the list of valid keys (and the
 nearest one, when close). The run record (`<out>/run_<source>.json`) holds every value a run used.
+
+Rule sets: `rules=refined` (the default of every run but a `--release` one) takes the **default**
+column; `rules=release` (the default of a `--release` run) takes the **release** column, the
+original generators' choices: "same" where ours is the release's, "not known" where the release's
+value is not known and ours is kept (see [release.md](release.md#rule-sets)). A `--set` of one of
+these settings wins over the rule set, and the run's first lines say so.
 
 Marks: **path**, a file or folder the run reads, checked to exist before any work; **not in
 clips**, a setting that never changes a clip's bytes, so changing it re-annotates no unit (resume
@@ -91,6 +97,17 @@ def _allowed(field: dataclasses.Field, kind, node, prefix: str) -> str:
     return "a path" if field.metadata.get("path") else "a string"
 
 
+def _release(field: dataclasses.Field) -> str:
+    """The setting's value under ``rules=release``: the release's, "same" as ours, "not known" (ours
+    kept); empty for a path or a setting that never changes a clip's bytes."""
+    if "release" in field.metadata:
+        value = field.metadata["release"]
+        return "not known" if value is NOT_KNOWN else _default(value)
+    if field.metadata.get("path") or field.metadata.get("clip_bytes") is False:
+        return ""
+    return "same"
+
+
 def _marks(field: dataclasses.Field) -> str:
     marks = []
     if field.metadata.get("path"):
@@ -100,8 +117,8 @@ def _marks(field: dataclasses.Field) -> str:
     return ", ".join(marks)
 
 
-def rows(node, prefix: str = "") -> list[tuple[str, str, str, str, str]]:
-    """(key, default, allowed, meaning, marks) of every setting of the dataclass ``node``, sections
+def rows(node, prefix: str = "") -> list[tuple[str, str, str, str, str, str]]:
+    """(key, default, release, allowed, meaning, marks) of every setting of the dataclass ``node``, sections
     after the fields that hold them, in declaration order; ValueError naming a setting whose
     dataclass docstring gives it no meaning."""
     fields = {field.name: field for field in dataclasses.fields(node)}
@@ -115,7 +132,10 @@ def rows(node, prefix: str = "") -> list[tuple[str, str, str, str, str]]:
         if name not in meaning:
             raise ValueError(f"{key}: no '{name}: ...' line in {type(node).__name__}'s docstring")
         allowed = _allowed(fields[name], kind, node, prefix)
-        own.append((key, _default(value), allowed, _markdown_text(meaning[name]), _marks(fields[name])))
+        field = fields[name]
+        own.append(
+            (key, _default(value), _release(field), allowed, _markdown_text(meaning[name]), _marks(field))
+        )
     return own + nested
 
 
@@ -127,12 +147,16 @@ def markdown() -> str:
     """The page: the header, then one table per section (run-wide first), built-in sources only."""
     config = RunConfig(source_sections={name: sources.settings_of(name)() for name in sources.BUILT_IN})
     table = rows(config)
-    titles = {"": "Run-wide", "flicker": "`flicker`: the flicker filter"}
+    titles = {
+        "": "Run-wide",
+        "flicker": "`flicker`: the flicker filter",
+        "http": "`http`: every HTTP transfer (the release's files, ADT's downloads)",
+    }
     titles |= {name: f"`{name}`: {SOURCE_TITLES.get(name, name)}" for name in sources.BUILT_IN}
     parts = [HEADER]
     for section in dict.fromkeys(_section(key) for key, *_ in table):
         parts.append(f"\n## {titles[section]}\n\n")
-        parts.append("| key | default | allowed | meaning | marks |\n|---|---|---|---|---|\n")
+        parts.append("| key | default | release | allowed | meaning | marks |\n|---|---|---|---|---|---|\n")
         parts += [f"| `{key}` | {' | '.join(rest)} |\n" for key, *rest in table if _section(key) == section]
     return "".join(parts)
 

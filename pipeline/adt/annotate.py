@@ -54,7 +54,7 @@ def in_queries_from(sequence: str, chunk: int, config: RunConfig) -> bool:
     """False when ``--queries-from`` holds no clip of this chunk's name (then it makes no clip)."""
     return (
         not config.queries_from
-        or given_queries(config.queries_from, "adt", clip_name(sequence, chunk)) is not None
+        or given_queries(config.queries_from, "adt", clip_name(sequence, chunk), config.http) is not None
     )
 
 
@@ -130,14 +130,7 @@ def annotate_fetched(
             download = plan_download(
                 read_url_file(input_root), name, required_files(config.adt.with_skeleton)
             )
-            folder = stack.enter_context(
-                fetch_sequence(
-                    download,
-                    scratch_folder(config),
-                    retries=config.adt.download_retries,
-                    backoff=config.adt.download_backoff_s,
-                )
-            )
+            folder = stack.enter_context(fetch_sequence(download, scratch_folder(config), config.http))
         except Exception as error:  # noqa: BLE001 - the sequence's failure, each unit's
             for unit in units:
                 yield _unit_error(error, name, unit_name(unit))

@@ -17,8 +17,8 @@ with projectaria-tools' own ``load_data_groups_from_cdn`` (and its MPS folders).
 projectaria-tools' ``DatasetDownloader`` is not used to fetch: it downloads into the system's
 temporary folder (outside any scratch folder), checks free space on ``/`` instead of its target,
 retries 429 and 5xx answers only for ``https://`` URLs, reports failures as a printed line and a
-boolean, and draws progress bars. Here one ``requests`` session retries both schemes with a
-bounded, configurable back-off, every failure is an ``InputError`` of one line
+boolean, and draws progress bars. Here the project's HTTP client (``pipeline.io.http``) fetches
+both schemes under the run's ``http`` settings, every failure is an ``InputError`` of one line
 ``<sequence>: data group <group>: <cause>``, the SHA-1 is taken while the body streams (no second
 read of a multi-GB file), and only the needed members of a zip are written. Download URLs are
 never put in messages (they may carry access tokens).
@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import hashlib
 import json
 import os
 import posixpath
@@ -38,15 +37,12 @@ import tempfile
 import zipfile
 from collections.abc import Iterable, Iterator, Mapping
 
-import requests
-import urllib3
 from projectaria_tools.tools.dataset_downloader.dataset_downloader import MPS_DATA_TYPE_TO_SAVE_PATH
 from projectaria_tools.tools.dataset_downloader.dataset_downloader_utils import load_data_groups_from_cdn
-from requests.adapters import HTTPAdapter
-from urllib3.util.retry import Retry
 
 from pipeline.core.errors import InputError
 from pipeline.core.sizes import format_bytes
+from pipeline.io.http import HttpClient, HttpConfig, HttpError
 
 RECORDING_GROUP = "main_vrs"
 MAX_URL_FILE_BYTES = 64 << 20
@@ -55,7 +51,6 @@ MAX_URL_FILE_BYTES = 64 << 20
 MAX_UNPACK_RATIO = 64
 UNPACK_FLOOR_BYTES = 64 << 20
 MAX_UNPACK_BYTES = 1 << 40
-RETRY_STATUSES = (429, 500, 502, 503, 504)
 CHUNK_BYTES = 1 << 20
 _SHA1 = re.compile(r"[0-9a-fA-F]{40}")
 
@@ -289,23 +284,17 @@ def _peak_bytes(groups: Iterable[GroupDownload]) -> int:
 
 @contextlib.contextmanager
 def fetch_sequence(
-    download: SequenceDownload,
-    scratch_dir: str,
-    *,
-    retries: int = 5,
-    backoff: float = 2.0,
-    timeout: float = 60.0,
+    download: SequenceDownload, scratch_dir: str, http: HttpConfig | None = None
 ) -> Iterator[str]:
     """Fetch ``download`` into ``<scratch_dir>/<unique folder>/<sequence>`` and yield that folder.
 
-    Each group's body is streamed to a file in the unique folder and checked (HTTP status,
-    Content-Length, ``file_size_bytes``, SHA-1); a zip's needed members are unpacked (a zip with an
-    absolute or '..' member, or declaring absurd unpacked sizes, is refused) and the zip deleted;
-    the recording is renamed to ``main.recording``. Requests retry ``retries`` times on connection
-    errors and on 429/500/502/503/504, sleeping ``backoff`` x 2^(n-1) s before the n-th retry after
-    the first; ``timeout`` bounds each connect and read. Failures raise ``InputError``
-    ``<sequence>: data group <group>: <cause>``. On the way out, however it ends, the unique
-    folder is deleted, leaving ``scratch_dir`` as it was (created when missing).
+    Each group's body is streamed to a file in the unique folder by the project's HTTP client
+    (``pipeline.io.http``: retries, resumed bodies, a deadline and a stall rule per file, as ``http``
+    says) and checked (Content-Length, ``file_size_bytes``, SHA-1); a zip's needed members are
+    unpacked (a zip with an absolute or '..' member, or declaring absurd unpacked sizes, is refused)
+    and the zip deleted; the recording is renamed to ``main.recording``. Failures raise
+    ``InputError`` ``<sequence>: data group <group>: <cause>``. On the way out, however it ends, the
+    unique folder is deleted, leaving ``scratch_dir`` as it was (created when missing).
     """
     _check_sequence_name(download.sequence)
     os.makedirs(scratch_dir, exist_ok=True)
@@ -314,10 +303,10 @@ def fetch_sequence(
     try:
         folder = os.path.join(workdir, download.sequence)
         os.mkdir(folder)
-        with _session(retries, backoff) as session:
+        with HttpClient(http) as client:
             for index, group in enumerate(download.groups):
                 try:
-                    _fetch_group(session, group, f"{folder}.download-{index}", folder, timeout)
+                    _fetch_group(client, group, f"{folder}.download-{index}", folder)
                 except _GroupError as error:
                     raise InputError(f"{download.sequence}: data group {group.name}: {error}") from error
         yield folder
@@ -334,114 +323,21 @@ def _check_free_space(download: SequenceDownload, scratch_dir: str) -> None:
         )
 
 
-def _session(retries: int, backoff: float) -> requests.Session:
-    """A session retrying both schemes; Retry-After is not honoured, so waits stay bounded."""
-    retry = Retry(
-        total=retries,
-        connect=retries,
-        read=retries,
-        status=retries,
-        other=0,
-        backoff_factor=backoff,
-        status_forcelist=RETRY_STATUSES,
-        allowed_methods=frozenset({"GET"}),
-        raise_on_status=False,
-        respect_retry_after_header=False,
-    )
-    session = requests.Session()
-    for scheme in ("http://", "https://"):
-        session.mount(scheme, HTTPAdapter(max_retries=retry))
-    return session
-
-
-def _fetch_group(session: requests.Session, group: GroupDownload, path: str, folder: str, timeout: float):
+def _fetch_group(client: HttpClient, group: GroupDownload, path: str, folder: str) -> None:
     try:
-        _download(session, group, path, timeout)
+        with open(path, "wb") as out:
+            digest = client.download(group.url, out, group.size)
+        if digest != group.sha1:
+            raise _GroupError(f"sha1 mismatch (expected {group.sha1}, got {digest})")
         if group.is_recording:
             os.replace(path, os.path.join(folder, group.files[0]))
         else:
             _unpack(path, group, folder)
             os.remove(path)
+    except HttpError as error:
+        raise _GroupError(str(error)) from error
     except OSError as error:
         raise _GroupError(f"cannot write {error.filename or path}: {error.strerror}") from error
-
-
-def _download(session: requests.Session, group: GroupDownload, path: str, timeout: float) -> None:
-    try:
-        response = session.get(
-            group.url, stream=True, timeout=timeout, headers={"Accept-Encoding": "identity"}
-        )
-    except requests.RequestException as error:
-        tries = session.get_adapter(group.url).max_retries.total + 1
-        raise _GroupError(_request_failure(error, tries)) from error
-    with response:
-        tries = len(getattr(response.raw.retries, "history", ())) + 1
-        if response.status_code != 200:
-            after = f" after {tries} tries" if tries > 1 else ""
-            raise _GroupError(f"HTTP {response.status_code}{after}")
-        digest = _stream(response, group, path)
-    if digest != group.sha1:
-        raise _GroupError(f"sha1 mismatch (expected {group.sha1}, got {digest})")
-
-
-def _stream(response: requests.Response, group: GroupDownload, path: str) -> str:
-    """Write the body to ``path``; its SHA-1. A body shorter or longer than promised raises."""
-    declared = response.headers.get("Content-Length")
-    if declared is not None and declared.strip() != str(group.size):
-        raise _GroupError(f"size mismatch: Content-Length {declared}, file_size_bytes {group.size}")
-    digest, got = hashlib.sha1(), 0
-    with open(path, "wb") as out:
-        try:
-            for chunk in response.iter_content(CHUNK_BYTES):
-                got += len(chunk)
-                if got > group.size:
-                    raise _GroupError(f"too long: more than the {group.size} bytes file_size_bytes gives")
-                digest.update(chunk)
-                out.write(chunk)
-        except requests.RequestException as error:
-            raise _GroupError(f"truncated: got {got} of {group.size} bytes ({_reason(error)})") from error
-    if got != group.size:
-        raise _GroupError(f"truncated: got {got} of {group.size} bytes")
-    return digest.hexdigest()
-
-
-def _request_failure(error: requests.RequestException, tries: int) -> str:
-    """``connection refused after 6 tries`` and the like, for a request that got no answer."""
-    retried = any(isinstance(seen, urllib3.exceptions.MaxRetryError) for seen in _chain(error))
-    return f"{_reason(error)} after {tries} tries" if retried else _reason(error)
-
-
-# Short causes of a failed request, the first whose exception is in its chain (most specific first).
-_CAUSES = (
-    (ConnectionRefusedError, "connection refused"),
-    (urllib3.exceptions.NameResolutionError, "host not found"),
-    (urllib3.exceptions.NewConnectionError, "cannot connect"),
-    ((urllib3.exceptions.ConnectTimeoutError, requests.ConnectTimeout), "connection timed out"),
-    ((urllib3.exceptions.ReadTimeoutError, requests.ReadTimeout, TimeoutError), "read timed out"),
-    (urllib3.exceptions.ProtocolError, "connection broken"),
-)
-
-
-def _reason(error: BaseException) -> str:
-    """A short cause for a failed request, else the exception's own text on one line."""
-    chain = _chain(error)
-    for kinds, text in _CAUSES:
-        if any(isinstance(seen, kinds) for seen in chain):
-            return text
-    return _one_line(error) or type(error).__name__
-
-
-def _chain(error: BaseException) -> list[BaseException]:
-    """The exceptions wrapped by ``error``: its arguments, cause, context, ``reason`` (bounded)."""
-    found, queue = [], [error]
-    while queue and len(found) < 32:
-        seen = queue.pop(0)
-        if any(seen is other for other in found):
-            continue
-        found.append(seen)
-        inner = [*getattr(seen, "args", ()), seen.__cause__, seen.__context__, getattr(seen, "reason", None)]
-        queue.extend(e for e in inner if isinstance(e, BaseException))
-    return found
 
 
 def _unpack(path: str, group: GroupDownload, folder: str) -> None:

@@ -253,7 +253,7 @@ class SequenceReader:
       folder: the sequence folder.
       with_skeleton: read the depth and segmentation that render the wearer's body.
       max_offset_ns: the largest |time offset| accepted between an RGB frame and the depth,
-        segmentation and pose samples the provider returns for it (CLOSEST query).
+        segmentation and pose samples the provider returns for it (CLOSEST query); 0: any.
     """
 
     def __init__(self, folder: str, with_skeleton: bool = True, max_offset_ns: int = 5_000_000):
@@ -329,7 +329,7 @@ class SequenceReader:
     def _check_offset(self, what: str, timestamp: int, result) -> None:
         if not result.is_valid():
             raise InputError(f"{self.name}: no {what} for the RGB frame at t={timestamp} ns")
-        if abs(int(result.dt_ns())) > self.max_offset_ns:
+        if self.max_offset_ns and abs(int(result.dt_ns())) > self.max_offset_ns:
             raise InputError(
                 f"{self.name}: the nearest {what} to the RGB frame at t={timestamp} ns is "
                 f"{abs(int(result.dt_ns())) / 1e6:.1f} ms away (limit {self.max_offset_ns / 1e6:.1f} ms)"

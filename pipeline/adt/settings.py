@@ -5,19 +5,21 @@ from __future__ import annotations
 
 import dataclasses
 
-from pipeline.core.config import not_in_clips, ranged
+from pipeline.core.config import NOT_KNOWN, flag, not_in_clips, ranged
 
 
 @dataclasses.dataclass(frozen=True)
 class AdtConfig:
-    """Aria Digital Twin choices, as the TAPVid-3D release made them (docs/formats.md, section 4).
+    """Aria Digital Twin choices: the TAPVid-3D release's (docs/formats.md, section 4), and ours
+    where marked (``rules=release`` sets ours to the release's: docs/release.md).
 
     chunk_frames: frames per clip (chunk k = frames [k * chunk_frames, (k + 1) * chunk_frames)
       of the RGB frames strictly inside the ground-truth window).
     min_frames: a chunk with fewer frames (the end of a sequence) is skipped.
     with_skeleton: read the depth and segmentation that render the wearer's body and hands.
     max_gt_offset_ms: the largest time between an RGB frame and the depth, segmentation and
-      poses used for it (projectaria-tools' CLOSEST sample); a frame beyond it fails its unit.
+      poses used for it (projectaria-tools' CLOSEST sample); a frame beyond it fails its unit
+      (ours; 0: no limit, as the release's generator, which takes the closest sample however far).
       Real sequences are within 0.1 ms; the shared 3-frame excerpt needs 40 (its depth stops
       one frame early, 33.2 ms before its last RGB frame).
     image_size, focal: the square pinhole camera every frame is re-rendered to (principal point
@@ -35,25 +37,20 @@ class AdtConfig:
     tracks_per_clip, oversample: tracks written per clip; candidates drawn = oversample x that.
     scratch_dir: where sequences fetched from a download-URLs JSON (``--input``) are unpacked, one
       at a time per worker, and deleted after; empty = a folder under the system's temporary folder.
-    download_retries, download_backoff_s: a download that fails with 429, a 5xx answer or a lost
-      connection is retried this many times, waiting backoff x 2^(n-1) s before the n-th retry but
-      the first.
     """
 
     chunk_frames: int = ranged(300, "[1, 100000]")
     min_frames: int = ranged(300, "[1, chunk_frames]")
-    with_skeleton: bool = True
-    max_gt_offset_ms: float = ranged(5.0, "(0, 1000]")
+    with_skeleton: bool = flag(True, release=NOT_KNOWN)
+    max_gt_offset_ms: float = ranged(5.0, "[0, 1000]", release=0.0)
     image_size: int = ranged(512, "[2, 8192]", even=True)
     focal: float = ranged(280.0, "(0, 100000]")
     depth_delta_m: float = ranged(0.02, "(0, 10]")
-    dynamic_share: float = ranged(0.5, "[0, 1]")
-    mask_min_agreement: float = ranged(0.5, "[0, 1]")
+    dynamic_share: float = ranged(0.5, "[0, 1]", release=NOT_KNOWN)
+    mask_min_agreement: float = ranged(0.5, "[0, 1]", release=NOT_KNOWN)
     tracks_per_clip: int = ranged(1024, "[1, 100000]")
-    oversample: int = ranged(4, "[1, 10000]")
+    oversample: int = ranged(4, "[1, 10000]", release=NOT_KNOWN)
     scratch_dir: str = not_in_clips("")
-    download_retries: int = not_in_clips(5, "[0, 100]")
-    download_backoff_s: float = not_in_clips(2.0, "[0, 600]")
 
 
 SETTINGS = AdtConfig

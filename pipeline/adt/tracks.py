@@ -367,7 +367,7 @@ def annotate_chunk(
       instances_of: the ids present in a frame [K] -> which are human / dynamic.
     """
     rules: AdtConfig = config.adt
-    given = given_queries(config.queries_from, "adt", chunk.name) if config.queries_from else None
+    given = given_queries(config.queries_from, "adt", chunk.name, config.http)
     made = first_pass(chunk, read_frame, read_jpeg, instances_of, given, config)
     queries = made.queries
     tracks, visibility, agree = carry_tracks(chunk, made.kept, queries, config)

@@ -1,12 +1,22 @@
-"""``python -m pipeline.audit compare REF_DIR NEW_DIR [--clips LIST] [--out PREFIX]``: TAPVid-3D
-metrics of NEW against REF, scored as tapnet's ``tapvid3d/evaluation/evaluate_model.py`` scores them.
+"""``python -m pipeline.audit compare REF NEW_DIR [--clips LIST] [--out PREFIX]``: TAPVid-3D metrics of
+NEW against REF, scored as tapnet's ``tapvid3d/evaluation/evaluate_model.py`` scores them, and each
+clip's agreement with REF.
 
-Clips are matched by ``<source>/<clip>.npz``; REF's clips (or those named in ``--clips``, one
-``<source>/<clip>.npz`` a line, e.g. a run's ``manifests/minival.txt``: tapnet's ``use_minival``)
-are the benchmark, NEW's ``tracks_XYZ`` and ``visibility`` the prediction (other members are
-ignored, so a file holding only those two is scored); tracks correspond by index. Per clip: 3D-AJ
-and APD under each rescaling of ``pipeline.audit.metrics.SCALINGS``, OA (the visibility agreement)
-and the median 3D error in metres (not a tapnet metric). As in tapnet:
+REF is a folder, or a base URL (``gs://``, ``http(s)://``, e.g. the release's bucket,
+``https://storage.googleapis.com/dm-tapnet/tapvid3d/release_files/v1.0``). Clips are matched by
+``<source>/<clip>.npz``; REF's clips (a URL cannot be listed: then the release clips of NEW_DIR's
+verdicts, ``release_<source>.jsonl``), or those named in ``--clips`` (one ``<source>/<clip>.npz`` a
+line, e.g. a run's ``manifests/minival.txt``: tapnet's ``use_minival``) are the benchmark, NEW's
+``tracks_XYZ`` and ``visibility`` the prediction (other members are ignored, so a file holding only
+those two is scored); tracks correspond by index. Per clip: 3D-AJ and APD under each rescaling of
+``pipeline.audit.metrics.SCALINGS``, OA (the visibility agreement) and the median 3D error in metres
+(not a tapnet metric); and its agreement (``pipeline/audit/agreement.py``): the share of equal query
+frames, the visibility agreement, the median and 95th percentile of the track distance (mm), and
+whether it agrees fully (``--agree-mm``). Over HTTP only the members scored are read, by Range
+requests (``pipeline.io.http``): a clip's frames never, but the start of its first JPEG, for the
+frame size; ``fetched_bytes`` counts each clip's bytes received. A reference without frames or
+intrinsics (the release's ADT and Panoptic Studio files hold annotations only) takes them from NEW's
+clip of the same video. As in tapnet:
 
 - a REF clip whose prediction is missing, unreadable, refused or of another shape counts with
   every metric 0 (status ``zero``, named with the reason); under per-trajectory rescaling, so does
@@ -16,7 +26,9 @@ and the median 3D error in metres (not a tapnet metric). As in tapnet:
 
 The median error is averaged over the clips whose prediction was read. A REF clip that cannot be
 read (tapnet's evaluator would stop there) is named and left out of the means (status
-``ref_error``). Writes ``PREFIX.md`` and ``PREFIX.json`` (default prefix ``NEW_DIR/compare``).
+``ref_error``), and so is one REF does not hold (HTTP 404: status ``not_in_ref``). Writes
+``PREFIX.md`` and ``PREFIX.json`` (default prefix ``NEW_DIR/compare``); when NEW_DIR is a release
+run, each of its verdict rows gains the clip's ``agreement``.
 Nothing is unpickled and every size is bounded (``pipeline.io.clip_reader``): a prediction's
 members may hold no more than REF's T frames and N tracks need. The frame size that sets the
 evaluation scale comes from REF's first JPEG header.
@@ -30,6 +42,7 @@ written.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -39,6 +52,7 @@ import sys
 import numpy as np
 
 from pipeline import sources as registry
+from pipeline.audit.agreement import AGREE_MM, agreement
 from pipeline.audit.metrics import (
     SCALINGS,
     eval_intrinsics,
@@ -46,24 +60,27 @@ from pipeline.audit.metrics import (
     query_frame_indices,
     tapvid3d_metrics,
 )
+from pipeline.audit.verdicts import add_agreement, release_clip_keys
 from pipeline.commandline import StrictParser
-from pipeline.core.images import jpeg_size
 from pipeline.io.clip_reader import (
     DEFAULT_LIMITS,
-    FRAMES,
     ReadLimits,
     add_limit_argument,
+    first_frame_size,
     limits_from,
     member_caps,
-    read_clip_file,
+    read_clip_archive,
 )
 from pipeline.io.files import is_local, list_files, read_bytes, write_atomic
+from pipeline.io.http import HttpClient, HttpError, is_http, join, open_remote, shown
 from pipeline.io.npz_reader import NpzArchive, NpzError
 
 NUMERIC_KEYS = ("queries_xyt", "tracks_XYZ", "visibility", "fx_fy_cx_cy")
+REQUIRED_KEYS = ("queries_xyt", "tracks_XYZ", "visibility")
 PREDICTION_KEYS = ("tracks_XYZ", "visibility")
 TAPNET_KEYS = (*(f"{key}_{scaling}" for scaling in SCALINGS for key in ("aj", "apd")), "oa")
 SUMMARY_KEYS = (*TAPNET_KEYS, "median_error_m")
+AGREEMENT_KEYS = ("query_frames_equal", "visibility", "median_mm", "p95_mm")
 CLIP_ENTRY = re.compile(r"[^/\s]+/[^/\s]+\.npz")
 MAX_LIST_BYTES = 16 << 20
 
@@ -96,35 +113,56 @@ def check_numbers(path: str, arrays: dict[str, np.ndarray], keys: tuple[str, ...
         raise ClipError(f"{path}: {strings} hold bytes, not numbers")
 
 
-def read_reference(path: str, limits: ReadLimits) -> tuple[dict[str, np.ndarray], tuple[int, int]]:
-    """REF's numeric arrays, checked to be a clip's tracks [T, N, 3], visibility [T, N] and
-    intrinsics [4], and its frame (height, width) from the first JPEG's header."""
+def read_reference(
+    path: str, limits: ReadLimits, client: HttpClient | None = None
+) -> tuple[dict[str, np.ndarray], tuple[int, int] | None]:
+    """REF's numeric arrays, checked to be a clip's queries [N, 3], tracks [T, N, 3], visibility
+    [T, N] and intrinsics [4] when it has them, and its frame (height, width) from the first JPEG's
+    header (None when it holds no frames). Over HTTP (``client``) only those members and the start
+    of the first JPEG are fetched; HttpError when the file cannot be (kind not_found: REF has none)."""
     try:
-        arrays = read_clip_file(path, limits, (*NUMERIC_KEYS, FRAMES))
+        if is_http(path):
+            with open_remote(client or HttpClient(), path, limits.max_file_bytes) as remote:
+                return _reference(NpzArchive(remote, shown(path)), limits)
+        return _reference(NpzArchive(read_bytes(path, limits.max_file_bytes), path), limits)
     except NpzError as error:
         raise ClipError(str(error)) from error
-    missing = [key for key in (*NUMERIC_KEYS, FRAMES) if key not in arrays]
+    except OSError as error:
+        raise ClipError(f"{path}: cannot be read ({error.strerror or error})") from error
+
+
+def _reference(
+    archive: NpzArchive, limits: ReadLimits
+) -> tuple[dict[str, np.ndarray], tuple[int, int] | None]:
+    path = archive.name
+    missing = [key for key in REQUIRED_KEYS if key not in archive.keys]
     if missing:
         raise ClipError(f"{path}: missing {missing}")
-    check_numbers(path, arrays, NUMERIC_KEYS)
+    arrays = read_clip_archive(archive, limits, tuple(key for key in NUMERIC_KEYS if key in archive.keys))
+    check_numbers(path, arrays, tuple(arrays))
     tracks, visible = arrays["tracks_XYZ"], arrays["visibility"]
     if tracks.ndim != 3 or tracks.shape[2] != 3 or visible.shape != tracks.shape[:2]:
         raise ClipError(
             f"{path}: tracks_XYZ {tracks.shape} and visibility {visible.shape} are not [T, N, 3], [T, N]"
         )
-    if arrays["fx_fy_cx_cy"].shape != (4,):
+    if "fx_fy_cx_cy" in arrays and arrays["fx_fy_cx_cy"].shape != (4,):
         raise ClipError(f"{path}: fx_fy_cx_cy has shape {arrays['fx_fy_cx_cy'].shape}, not [4]")
-    frames = arrays.pop(FRAMES)
-    readable = frames.dtype.kind == "S" and frames.ndim == 1 and len(frames)
-    size = jpeg_size(bytes(frames[0])) if readable else None
-    if size is None:
+    size = first_frame_size(archive, limits)
+    if size is None and "images_jpeg_bytes" in archive.keys:
         raise ClipError(f"{path}: no readable JPEG header in the first frame")
     return arrays, size
 
 
-def read_prediction(path: str, num_frames: int, num_tracks: int, limits: ReadLimits) -> dict[str, np.ndarray]:
-    """NEW's ``tracks_XYZ`` and ``visibility``, each refused before reading when it claims more
-    than REF's T frames and N tracks need; ClipError saying why it cannot be read."""
+OPTIONAL_PREDICTION_KEYS = ("queries_xyt", "fx_fy_cx_cy")
+
+
+def read_prediction(
+    path: str, num_frames: int, num_tracks: int, limits: ReadLimits
+) -> tuple[dict[str, np.ndarray], tuple[int, int] | None]:
+    """NEW's ``tracks_XYZ`` and ``visibility``, each refused before reading when it claims more than
+    REF's T frames and N tracks need; ClipError saying why they cannot be read. Also, where they can
+    be read within the same bounds (else they are left out), its queries and intrinsics and its first
+    frame's size (None without)."""
     caps = member_caps(num_frames, num_tracks, limits)
     why = f"REF's clip has T = {num_frames} frames and N = {num_tracks} tracks"
     try:
@@ -138,7 +176,16 @@ def read_prediction(path: str, num_frames: int, num_tracks: int, limits: ReadLim
     except NpzError as error:
         raise ClipError(str(error)) from error
     check_numbers(path, arrays, PREDICTION_KEYS)
-    return arrays
+    for key in OPTIONAL_PREDICTION_KEYS:
+        with contextlib.suppress(NpzError, KeyError):
+            optional = archive.read(key, caps[key], why)
+            if optional.dtype.kind in "fiu":
+                arrays[key] = optional
+    try:
+        size = first_frame_size(archive, limits)
+    except NpzError:
+        size = None
+    return arrays, size
 
 
 def compare_clip(ref: dict[str, np.ndarray], new: dict[str, np.ndarray], height: int, width: int) -> dict:
@@ -180,26 +227,65 @@ def zero_row(error: str) -> dict:
 
 
 def score_pair(
-    key: str, ref_path: str | None, new_path: str | None, limits: ReadLimits = DEFAULT_LIMITS
+    key: str,
+    ref_path: str | None,
+    new_path: str | None,
+    limits: ReadLimits = DEFAULT_LIMITS,
+    client: HttpClient | None = None,
+    agree_mm: float = AGREE_MM,
 ) -> dict:
-    """One per-clip row: status ``scored`` with the metrics, ``zero`` (the prediction is missing,
-    unreadable or of another shape: every tapnet metric 0) or ``ref_error`` (REF unreadable)."""
+    """One per-clip row: status ``scored`` with the metrics and the agreement (``agrees``: fully,
+    within ``agree_mm``), ``zero`` (the
+    prediction is missing, unreadable or of another shape: every tapnet metric 0), ``ref_error`` (REF
+    unreadable) or ``not_in_ref`` (REF holds no such clip: HTTP 404); over HTTP, the bytes fetched."""
     source, clip = key.split("/")
+    row: dict = {"source": source, "clip": clip}
+    fetched = client.fetched if client is not None else 0
     try:
         if ref_path is None:
             raise ClipError("not in REF")
-        ref, (height, width) = read_reference(ref_path, limits)
+        ref, size = read_reference(ref_path, limits, client)
+    except HttpError as error:
+        status = "not_in_ref" if error.kind == "not_found" else "ref_error"
+        return row | {"status": status, "error": f"{error.url}: {error}"} | _fetched(client, fetched)
     except ClipError as error:
-        return {"source": source, "clip": clip, "status": "ref_error", "error": str(error)}
+        return row | {"status": "ref_error", "error": str(error)} | _fetched(client, fetched)
     num_frames, num_tracks = ref["visibility"].shape
-    row = {"source": source, "clip": clip, "frames": num_frames, "tracks": num_tracks}
+    row |= {"frames": num_frames, "tracks": num_tracks, **_fetched(client, fetched)}
     if new_path is None:
         return row | zero_row("no prediction file")
     try:
-        new = read_prediction(new_path, num_frames, num_tracks, limits)
-        return row | {"status": "scored", **compare_clip(ref, new, height, width)}
+        new, new_size = read_prediction(new_path, num_frames, num_tracks, limits)
+        ref, size, note = _with_camera(ref, size, new, new_size)
+        scored = compare_clip(ref, new, *size)
     except ClipError as error:
         return row | zero_row(str(error))
+    measured = agreement(ref, new)
+    row |= {"status": "scored", **scored, **{key: getattr(measured, key) for key in AGREEMENT_KEYS}}
+    row["agrees"] = measured.agrees(agree_mm)
+    return row | ({"note": f"{scored['note']}; {note}" if "note" in scored else note} if note else {})
+
+
+def _fetched(client: HttpClient | None, before: int) -> dict:
+    return {"fetched_bytes": client.fetched - before} if client is not None else {}
+
+
+def _with_camera(ref: dict, size, new: dict, new_size) -> tuple[dict, tuple[int, int], str]:
+    """REF with intrinsics, its frame size, and a note when either came from NEW's clip (the
+    release's ADT and Panoptic Studio files hold annotations only); ClipError when neither has them."""
+    taken = []
+    if size is None:
+        size = new_size
+        taken.append("frame size")
+    if "fx_fy_cx_cy" not in ref:
+        if "fx_fy_cx_cy" not in new or new["fx_fy_cx_cy"].shape != (4,):
+            raise ClipError("neither clip holds intrinsics (fx_fy_cx_cy)")
+        ref = {**ref, "fx_fy_cx_cy": new["fx_fy_cx_cy"]}
+        taken.append("intrinsics")
+    if size is None:
+        raise ClipError("neither clip holds frames to read the frame size from")
+    note = f"{' and '.join(taken)} from the regenerated clip (the reference holds none)" if taken else ""
+    return ref, size, note
 
 
 def plain_mean(values: list[float]) -> float:
@@ -210,10 +296,13 @@ def plain_mean(values: list[float]) -> float:
 def mean_row(rows: list[dict], source: str) -> dict:
     """Means over the clips of ``rows`` counted by tapnet (scored and zero); the median error over
     the scored ones."""
-    counted = [row for row in rows if row["status"] != "ref_error"]
+    counted = [row for row in rows if row["status"] not in ("ref_error", "not_in_ref")]
     scored = [row for row in counted if row["status"] == "scored"]
     summary = {"source": source, "clips": len(counted), "zero": len(counted) - len(scored)}
-    summary["ref_errors"] = len(rows) - len(counted)
+    summary["ref_errors"] = sum(row["status"] == "ref_error" for row in rows)
+    summary["not_in_ref"] = sum(row["status"] == "not_in_ref" for row in rows)
+    summary["agree"] = sum(bool(row.get("agrees")) for row in scored)
+    summary["fetched_bytes"] = sum(row.get("fetched_bytes", 0) for row in rows)
     for key in TAPNET_KEYS:
         summary[key] = plain_mean([row[key] for row in counted])
     summary["median_error_m"] = plain_mean([row["median_error_m"] for row in scored])
@@ -230,7 +319,10 @@ def summarise(rows: list[dict]) -> list[dict]:
     per_source = [mean_row([row for row in rows if row["source"] == source], source) for source in sources]
     overall = {
         "source": "all",
-        **{key: sum(r[key] for r in per_source) for key in ("clips", "zero", "ref_errors")},
+        **{
+            key: sum(r[key] for r in per_source)
+            for key in ("clips", "zero", "ref_errors", "not_in_ref", "agree", "fetched_bytes")
+        },
     }
     for key in TAPNET_KEYS:
         overall[key] = plain_mean([r[key] for r in per_source if r["clips"]])
@@ -256,38 +348,33 @@ def _cell(value) -> str:
 def markdown(report: dict) -> str:
     """The report as markdown: per-source table, per-clip table, clips only in NEW."""
     header = " | ".join(SUMMARY_KEYS)
+    agree = " | ".join(AGREEMENT_KEYS)
     lines = [
         f"# TAPVid-3D metrics of `{report['new']}` against `{report['ref']}`",
         "",
         "aj/apd = 3D-AJ/APD under median, per-trajectory and no rescaling; oa = occlusion accuracy "
         "(= visibility agreement); means over clips as tapnet's evaluate_model.py, a clip whose "
         "prediction is missing or unreadable counting 0 (status zero); median_error_m = unscaled "
-        "median 3D error over REF-visible points (not a tapnet metric; scored clips only).",
+        "median 3D error over REF-visible points (not a tapnet metric; scored clips only). Agreement "
+        f"per clip: query_frames_equal and visibility are shares of equal query frames and visibility "
+        f"values, median_mm and p95_mm the track distance; agree: clips with all of them equal and "
+        f"p95_mm <= {report['agree_mm']:g} mm. fetched_bytes: bytes received over HTTP.",
         "",
-        f"| source | clips | zero | ref_errors | {header} |",
-        "|" + "---|" * (4 + len(SUMMARY_KEYS)),
+        f"| source | clips | zero | ref_errors | not_in_ref | agree | fetched_bytes | {header} |",
+        "|" + "---|" * (7 + len(SUMMARY_KEYS)),
     ]
     for row in report["sources"]:
-        cells = [
-            row["source"],
-            row["clips"],
-            row["zero"],
-            row["ref_errors"],
-            *(row[key] for key in SUMMARY_KEYS),
-        ]
+        counts = ("clips", "zero", "ref_errors", "not_in_ref", "agree", "fetched_bytes")
+        cells = [row["source"], *(row[key] for key in counts), *(row[key] for key in SUMMARY_KEYS)]
         lines.append("| " + " | ".join(_cell(c) for c in cells) + " |")
-    lines += ["", f"| source | clip | status | frames | tracks | {header} | error |"]
-    lines.append("|" + "---|" * (6 + len(SUMMARY_KEYS)))
+    lines += [
+        "",
+        f"| source | clip | status | frames | tracks | fetched_bytes | {header} | {agree} | agrees | error |",
+    ]
+    lines.append("|" + "---|" * (9 + len(SUMMARY_KEYS) + len(AGREEMENT_KEYS)))
     for row in report["clips"]:
-        metrics = [row.get(key, "") for key in SUMMARY_KEYS]
-        cells = [
-            row["source"],
-            row["clip"],
-            row["status"],
-            row.get("frames", ""),
-            row.get("tracks", ""),
-            *metrics,
-        ]
+        named = ("source", "clip", "status", "frames", "tracks", "fetched_bytes")
+        cells = [row.get(key, "") for key in (*named, *SUMMARY_KEYS, *AGREEMENT_KEYS, "agrees")]
         why = row.get("error", row.get("note", ""))
         lines.append("| " + " | ".join(_cell(c) for c in [*cells, why]) + " |")
     if report["only_in_new"]:
@@ -299,18 +386,42 @@ def markdown(report: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def benchmark_clips(ref_dir: str, new_dir: str, clips: list[str] | None) -> tuple[list[str], dict[str, str]]:
+    """The clips to score (``<source>/<clip>.npz``, in order) and REF's path of each: ``clips``, else
+    REF's own (sorted), else, for a REF that cannot be listed (HTTP), the release clips of NEW_DIR's
+    verdicts; ValueError when there is no way to know them."""
+    if is_http(ref_dir):
+        keys = clips if clips is not None else release_clip_keys(new_dir)
+        if keys is None:
+            raise ValueError(
+                f"{shown(ref_dir)} cannot be listed: give --clips, or compare a --release run "
+                "(its verdicts name the release's clips)"
+            )
+        return keys, {key: join(ref_dir, key) for key in keys}
+    ref = clip_keys(ref_dir)
+    return (sorted(ref) if clips is None else clips), ref
+
+
 def compare_dirs(
-    ref_dir: str, new_dir: str, limits: ReadLimits = DEFAULT_LIMITS, clips: list[str] | None = None
+    ref_dir: str,
+    new_dir: str,
+    limits: ReadLimits = DEFAULT_LIMITS,
+    clips: list[str] | None = None,
+    agree_mm: float = AGREE_MM,
+    client: HttpClient | None = None,
 ) -> dict:
-    """The full report (JSON-ready) of NEW_DIR's clips against REF_DIR's (sorted), or against the
-    entries ``clips`` (``<source>/<clip>.npz``) of REF_DIR in their order (each mean sums its clips
-    in that order, as tapnet sums a split's)."""
-    ref, new = clip_keys(ref_dir), clip_keys(new_dir)
-    benchmark = sorted(ref) if clips is None else clips
-    rows = [score_pair(key, ref.get(key), new.get(key), limits) for key in benchmark]
+    """The full report (JSON-ready) of NEW_DIR's clips against REF's (``benchmark_clips``, in their
+    order: each mean sums its clips in that order, as tapnet sums a split's); REF over HTTP through
+    ``client`` (one with the default policy when None)."""
+    benchmark, ref = benchmark_clips(ref_dir, new_dir, clips)
+    new = clip_keys(new_dir)
+    if client is None and is_http(ref_dir):
+        client = HttpClient(note=lambda text: print(text, file=sys.stderr))
+    rows = [score_pair(key, ref.get(key), new.get(key), limits, client, agree_mm) for key in benchmark]
     return {
-        "ref": ref_dir,
+        "ref": shown(ref_dir),
         "new": new_dir,
+        "agree_mm": agree_mm,
         "clips": rows,
         "sources": summarise(rows),
         "only_in_new": sorted(new.keys() - set(benchmark)),
@@ -320,16 +431,29 @@ def compare_dirs(
 def main(argv: list[str] | None = None) -> int:
     """The ``compare`` subcommand; exit status as the module doc says."""
     parser = StrictParser(prog="python -m pipeline.audit compare", description=__doc__)
-    parser.add_argument("ref_dir", help="reference output folder (<dir>/<source>/<clip>.npz): ground truth")
-    parser.add_argument("new_dir", help="output folder to score as the prediction")
+    parser.add_argument(
+        "ref_dir",
+        metavar="REF",
+        help="the reference: a folder or base URL of <source>/<clip>.npz files (e.g. the release's bucket)",
+    )
+    parser.add_argument("new_dir", metavar="NEW_DIR", help="output folder to score (e.g. a --release run)")
     parser.add_argument("--clips", help="score only these REF clips (a file of <source>/<clip>.npz lines)")
     parser.add_argument("--out", help="write OUT.md and OUT.json (default NEW_DIR/compare)")
+    parser.add_argument(
+        "--agree-mm",
+        type=float,
+        default=AGREE_MM,
+        help="a clip agrees fully when its query frames and visibility are REF's and the 95th "
+        "percentile of its track distance is at most this (millimetres; default %(default)s)",
+    )
     add_limit_argument(parser)
     args = parser.parse_args(argv)
     try:
         limits = limits_from(args.limit)
     except ValueError as error:
         parser.error(str(error))
+    if not args.agree_mm >= 0:
+        parser.error(f"--agree-mm {args.agree_mm}: must be a number of millimetres >= 0")
     for folder in (args.ref_dir, args.new_dir):
         if is_local(folder) and not os.path.isdir(folder):
             print(f"compare: {folder} is not a folder", file=sys.stderr)
@@ -339,30 +463,51 @@ def main(argv: list[str] | None = None) -> int:
     except (OSError, ValueError) as error:
         print(f"compare: cannot use --clips {args.clips}: {error}", file=sys.stderr)
         return 2
-    report = compare_dirs(args.ref_dir.rstrip("/"), args.new_dir.rstrip("/"), limits, clips)
+    ref_dir = args.ref_dir if is_http(args.ref_dir) else args.ref_dir.rstrip("/")
+    new_dir = args.new_dir.rstrip("/")
+    try:
+        report = compare_dirs(ref_dir, new_dir, limits, clips, args.agree_mm)
+    except ValueError as error:
+        print(f"compare: {error}", file=sys.stderr)
+        return 2
     text = markdown(report)
     print(text, end="")
-    prefix = args.out or f"{args.new_dir.rstrip('/')}/compare"
+    prefix = args.out or f"{new_dir}/compare"
     try:
         write_atomic(f"{prefix}.md", text.encode())
         write_atomic(f"{prefix}.json", json.dumps(json_ready(report), indent=1, allow_nan=False).encode())
+        updated = add_agreement(new_dir, report["clips"], args.agree_mm)
     except OSError as error:
         print(f"compare: cannot write the report {prefix}.md/.json: {error}", file=sys.stderr)
         return 2
+    return _closing(report, args.ref_dir, updated)
+
+
+def _closing(report: dict, ref_dir: str, updated: list[str]) -> int:
+    """The lines after the report (clips not scored, bytes fetched, verdicts updated); the status."""
     rows = report["clips"]
     for row in rows:
+        where = f"{row['source']}/{row['clip']}"
         if row["status"] == "zero":
-            print(
-                f"not scored: {row['source']}/{row['clip']}: {row['error']} (counted as 0)", file=sys.stderr
-            )
+            print(f"not scored: {where}: {row['error']} (counted as 0)", file=sys.stderr)
         elif row["status"] == "ref_error":
             print(
-                f"not scored: {row['source']}/{row['clip']}: {row['error']} (REF unreadable: left out "
-                "of the means; tapnet's evaluator would stop here)",
+                f"not scored: {where}: {row['error']} (REF unreadable: left out of the means; tapnet's "
+                "evaluator would stop here)",
                 file=sys.stderr,
             )
+        elif row["status"] == "not_in_ref":
+            print(f"not scored: {where}: not in REF ({row['error']}): left out of the means", file=sys.stderr)
+    total = report["sources"][-1]
+    if is_http(ref_dir) and rows:
+        print(
+            f"fetched {total['fetched_bytes']:,} bytes over HTTP for {len(rows)} clip(s), "
+            f"{total['fetched_bytes'] / len(rows):,.0f} a clip"
+        )
+    if updated:
+        print(f"agreement added to the verdicts in {', '.join(updated)}")
     if not rows:
-        print(f"no REF clip to score in {args.ref_dir}", file=sys.stderr)
+        print(f"no REF clip to score in {shown(ref_dir)}", file=sys.stderr)
         return 1
     if not any(row["status"] == "scored" for row in rows):
         print(f"none of the {len(rows)} prediction(s) could be scored", file=sys.stderr)

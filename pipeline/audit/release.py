@@ -7,19 +7,15 @@ reasons of each status, numbers and names folded so that alike reasons count tog
 
 from __future__ import annotations
 
-import json
-import os
 import re
 import sys
 from collections import Counter
 
 from pipeline import sources
+from pipeline.audit.verdicts import agreement_lines, agreement_summary, read_verdicts
 from pipeline.commandline import StrictParser
-from pipeline.export.layout import release_verdicts_path
-from pipeline.io.files import read_bytes
 from pipeline.release import SPLITS, STATUSES
 
-MAX_VERDICT_BYTES = 256 << 20
 SHOWN_REASONS = 3
 _NAMED = re.compile(r"\b(object id|object|sequence|segment|camera|unit) \S+?('s)?(?=[\s,;:)]|$)")
 _NUMBER = re.compile(r"\d[\d,.]*\d|\d")
@@ -28,23 +24,6 @@ _NUMBER = re.compile(r"\d[\d,.]*\d|\d")
 def reason_kind(reason: str) -> str:
     """A reason with its names and numbers folded (``object X``, ``N``), so alike reasons match."""
     return _NUMBER.sub("N", _NAMED.sub(lambda m: f"{m[1]} X{m[2] or ''}", reason))
-
-
-def read_verdicts(output: str, source: str) -> list[dict] | None:
-    """The verdict rows of ``source`` in ``output``, None when the run wrote none."""
-    path = release_verdicts_path(output, source)
-    if not os.path.exists(path) and "://" not in output:
-        return None
-    rows = []
-    for number, line in enumerate(read_bytes(path, MAX_VERDICT_BYTES).decode().splitlines(), 1):
-        try:
-            row = json.loads(line)
-            if row["status"] not in STATUSES or row["split"] not in SPLITS:
-                raise ValueError(f"status {row['status']!r}, split {row['split']!r}")
-        except (ValueError, KeyError, TypeError) as error:
-            raise ValueError(f"{path} line {number}: not a release verdict ({error})") from None
-        rows.append(row)
-    return rows
 
 
 def source_table(source: str, rows: list[dict]) -> str:
@@ -65,6 +44,9 @@ def source_table(source: str, rows: list[dict]) -> str:
                 row for row in rows if row["status"] == status and reason_kind(row["reason"]) == kind
             )
             lines.append(f"    {count:>6} x {kind}   (e.g. {example['clip']}: {example['reason']})")
+    agreement = agreement_summary(rows)
+    if agreement is not None:
+        lines += agreement_lines(agreement)
     return "\n".join(lines)
 
 

@@ -20,8 +20,8 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline import sources
-from pipeline.audit.release import read_verdicts
 from pipeline.audit.sweep import ClipCount, read_audit_table, run_record, totals
+from pipeline.audit.verdicts import read_verdicts
 from pipeline.core.config import config_from_dict
 from pipeline.export.layout import audit_path
 from pipeline.filters.flicker import passes_flicker

@@ -26,6 +26,7 @@ from pipeline.audit.report_data import counts_at, page_data
 from pipeline.audit.report_script import SCRIPT, STYLE
 from pipeline.audit.report_thumbs import MAX_TRACKS, thumbnails
 from pipeline.audit.sweep import matches_run
+from pipeline.audit.verdicts import agreement_summary
 from pipeline.commandline import StrictParser
 from pipeline.core.errors import InputError
 from pipeline.io.files import write_atomic
@@ -120,6 +121,7 @@ def source_json(output: str, data: dict, count: int) -> tuple[dict, list[str]]:
         "summary": summary,
         "named": data["named"],
         "missing": missing,
+        "agreement": None if data["verdicts"] is None else agreement_summary(data["verdicts"]),
         "thumbnails": images,
         "thumbnail_note": f"Thumbnails: the middle frame of {len(images)} written clip(s), evenly spaced by "
         f"name, at most {MAX_TRACKS} tracks drawn (large filled = visible, small grey = occluded); "

@@ -305,6 +305,28 @@ function buildMissing(src) {
     "they survive no threshold" }), table);
 }
 
+function buildAgreement(src) {
+  const summary = src.agreement;
+  if (!summary) return "";
+  const counts = el("table", { class: "clips" }, el("tr", {}, ...["split", "release clips", "scored",
+    "agree fully", "not in reference"].map((h) => el("th", { text: h }))));
+  for (const row of summary.splits) counts.append(el("tr", {}, ...[row.split, row.clips, row.scored,
+    row.agree, row.not_in_ref].map((t) => el("td", { text: String(t) }))));
+  const parts = [el("h3", { text: "agreement with the reference (audit compare)" }),
+    el("p", { class: "note", text: "Agree fully: the same query frames and visibility as the " +
+      `reference, tracks within ${summary.agree_mm} mm at the 95th percentile.` }), counts];
+  if (summary.least.length) {
+    const columns = ["query_frames_equal", "visibility", "median_mm", "p95_mm"];
+    const least = el("table", { class: "clips" }, el("tr", {}, ...["clip", "split", ...columns].map(
+      (h) => el("th", { text: h }))));
+    const cell = (v) => (v === null ? "-" : Number(v).toPrecision(4));
+    for (const row of summary.least) least.append(el("tr", {}, el("td", { text: row.clip }),
+      el("td", { text: row.split }), ...columns.map((c) => el("td", { text: cell(row[c]) }))));
+    parts.push(el("h3", { text: "least agreeing clips" }), least);
+  }
+  return el("div", { id: `${src.name}-agreement` }, ...parts);
+}
+
 function buildSource(src) {
   unpack(src);
   const view = { inputs: [], shown: [] };
@@ -330,7 +352,7 @@ function buildSource(src) {
   section.append(el("h3", { text: "filter funnel" }), buildFunnel(src, view));
   section.append(el("h3", { text: "statistics of all candidate tracks" }), buildHistograms(src, view));
   section.append(el("h3", { text: "clips" }), el("p", { class: "note", text: src.thumbnail_note }));
-  section.append(buildTable(src, view), buildMissing(src));
+  section.append(buildTable(src, view), buildMissing(src), buildAgreement(src));
   const run = recount(src, ...runIndices(src).slice(0, 2), src.sliders[2].run);
   if (src.summary === null) {
     check.textContent = `no run_${src.name}.json: the thresholds shown are the defaults`;

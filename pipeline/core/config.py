@@ -66,15 +66,90 @@ def _number(bound: float) -> str:
     return str(int(bound)) if bound == int(bound) else str(bound)
 
 
-def ranged(default, interval: str, *, even: bool = False, nonempty: bool = False):
-    """A field whose value (each item of a tuple) must lie in ``interval``, e.g. ``"(0, 10]"``."""
+@dataclasses.dataclass(frozen=True)
+class Choice:
+    """The allowed values of a string setting, named."""
+
+    values: tuple[str, ...]
+
+    def admits(self, value, kind, node) -> bool:
+        return value in self.values
+
+    def describe(self, kind, node, prefix: str) -> str:
+        return "one of " + ", ".join(self.values)
+
+
+# The rule sets a run follows (the ``rules`` setting): ``release`` makes the original generators'
+# choices, ``refined`` ours. A setting's default is its ``refined`` value; ``release=`` names the
+# release's value where it differs, or NOT_KNOWN where the release's is not known (ours is kept).
+RULE_SETS = ("release", "refined")
+
+
+class _NotKnown:
+    def __repr__(self) -> str:
+        return "not known"
+
+
+NOT_KNOWN = _NotKnown()
+_SAME = object()
+
+
+def _metadata(rule=None, release=_SAME) -> dict:
+    return {
+        **({} if rule is None else {"range": rule}),
+        **({} if release is _SAME else {"release": release}),
+    }
+
+
+def ranged(default, interval: str, *, even: bool = False, nonempty: bool = False, release=_SAME):
+    """A field whose value (each item of a tuple) must lie in ``interval``, e.g. ``"(0, 10]"``;
+    ``release``: the release's value, where it differs from ``default`` (ours), or NOT_KNOWN."""
     match = _INTERVAL.fullmatch(interval)
     if not match:
         raise ValueError(f"bad interval {interval!r}")
     opening, low, high, closing = match.groups()
     low, high = (text if text.isidentifier() else float(text) for text in (low, high))
     rule = Range(low, high, opening == "(", closing == ")", even, nonempty)
-    return dataclasses.field(default=default, metadata={"range": rule})
+    return dataclasses.field(default=default, metadata=_metadata(rule, release))
+
+
+def flag(default: bool, *, release=_SAME):
+    """A true-or-false field; ``release`` as in ``ranged``."""
+    return dataclasses.field(default=default, metadata=_metadata(release=release))
+
+
+def one_of(default: str, values: tuple[str, ...], *, release=_SAME):
+    """A string field that takes one of ``values``; ``release`` as in ``ranged``."""
+    return dataclasses.field(default=default, metadata=_metadata(Choice(values), release))
+
+
+def release_values(config, prefix: str = "") -> dict[str, object]:
+    """Key -> the release's value (or NOT_KNOWN) of every setting of ``config`` whose release value
+    is marked (``ranged(..., release=...)``, ``flag``), sections included."""
+    declared = {field.name: field.metadata for field in dataclasses.fields(config)}
+    found = {}
+    for name, value, _ in settings_items(config):
+        if dataclasses.is_dataclass(value):
+            found.update(release_values(value, f"{prefix}{name}."))
+        elif "release" in declared.get(name, {}):
+            found[prefix + name] = declared[name]["release"]
+    return found
+
+
+def with_rules(config, rules: str, keep: frozenset[str] = frozenset(), prefix: str = ""):
+    """``config`` with every setting whose release value is known at its value under ``rules``
+    (``release``: the release's; ``refined``: the field's default), except the keys in ``keep``."""
+    fields = {field.name: field for field in dataclasses.fields(config)}
+    for name, value, _ in settings_items(config):
+        key = prefix + name
+        if dataclasses.is_dataclass(value):
+            config = _with_setting(config, name, with_rules(value, rules, keep, f"{key}."))
+            continue
+        release = fields[name].metadata.get("release", _SAME) if name in fields else _SAME
+        if release is _SAME or release is NOT_KNOWN or key in keep:
+            continue
+        config = _with_setting(config, name, release if rules == "release" else fields[name].default)
+    return config
 
 
 def not_in_clips(default, interval: str | None = None):

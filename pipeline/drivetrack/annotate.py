@@ -110,7 +110,7 @@ def track_object(
         return f"object {run.object_id}'s box holds no lidar point on its frames"
     keys = point_keys(config.seed, name, pool.timestamps, pool.pixels)
     frames = range(run.start, run.stop)
-    given = given_queries(config.queries_from, "drivetrack", name) if config.queries_from else None
+    given = given_queries(config.queries_from, "drivetrack", name, config.http)
     if config.queries_from and given is None:
         return "--queries-from holds no clip of this name"  # it re-annotates only the clips it holds
     count = rules.oversample * rules.tracks_per_clip
@@ -144,7 +144,8 @@ def track_object(
 
 
 def stored_frames(unit: UnitInput, frames: list[int], undistorted: bool) -> dict[int, bytes]:
-    """The JPEG written for each of ``frames`` (unit frame indices), checked: Waymo's, or undistorted."""
+    """The JPEG written for each of ``frames`` (unit frame indices), checked: Waymo's, or undistorted
+    (``undistorts``)."""
     calibration = unit.calibration
     maps = undistortion_maps(calibration) if undistorted else None
     stored = {}
@@ -160,17 +161,17 @@ def stored_frames(unit: UnitInput, frames: list[int], undistorted: bool) -> dict
     return stored
 
 
-def unit_camera(unit: UnitInput, config: RunConfig) -> UnitCamera:
-    """The unit's camera model; frames are stored undistorted when ``drivetrack.undistort_frames``
-    and the lens has any distortion."""
+def unit_camera(unit: UnitInput) -> UnitCamera:
+    """The unit's camera model."""
     calibration = unit.calibration
-    return UnitCamera(
-        calibration,
-        unit.frames,
-        camera_from_world(unit.frames, calibration),
-        config.drivetrack.undistort_frames and bool(np.any(calibration.distortion != 0)),
-        f"camera_image/{unit.segment} camera {unit.camera}",
-    )
+    what = f"camera_image/{unit.segment} camera {unit.camera}"
+    return UnitCamera(calibration, unit.frames, camera_from_world(unit.frames, calibration), what)
+
+
+def undistorts(unit: UnitInput, undistort_frames: bool) -> bool:
+    """Whether the unit's frames are stored undistorted: ``drivetrack.undistort_frames``, when the
+    lens has any distortion."""
+    return undistort_frames and bool(np.any(unit.calibration.distortion != 0))
 
 
 def annotate_cameras(
@@ -191,14 +192,14 @@ def annotate_cameras(
     for i, unit in enumerate(units):
         try:
             world_from_frame = frame_poses(unit)
-            camera = unit_camera(unit, config)
+            camera = unit_camera(unit)
             runs, why = select_objects(unit, camera, world_from_frame, config, object_ids(unit, wanted[i]))
             why = {clip_name(unit.segment, unit.camera, object_id): text for object_id, text in why.items()}
             if not runs:
                 results[i] = UnitClips((), why)
                 continue
             item = CameraPass(unit, runs, camera, world_from_frame)
-            stored.append(stored_frames(unit, item.needed, camera.undistorted))
+            stored.append(stored_frames(unit, item.needed, undistorts(unit, rules.undistort_frames)))
         except Exception as error:  # noqa: BLE001 - the camera's failure, the others go on
             results[i] = error
             continue
@@ -206,7 +207,9 @@ def annotate_cameras(
         index.append(i)
         skipped.append(why)
     try:
-        evidence = gather_lidar_cameras(passes, rules.box_shrink_m, rules.occlusion_margin)
+        evidence = gather_lidar_cameras(
+            passes, rules.box_shrink_m, rules.occlusion_margin, rules.parallax_cleanup
+        )
     except Exception as error:  # noqa: BLE001 - the lidar is shared: every camera reading it fails
         evidence = [error] * len(passes)
     for i, item, frames, found, why in zip(index, passes, stored, evidence, skipped, strict=True):

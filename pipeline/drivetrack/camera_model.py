@@ -20,16 +20,19 @@ shutter included (docs/formats.md, section 3). Read from Waymo's C++ model
   from its pose.
 
 A point's camera coordinates are those at the instant it is seen (``Projection.points``); the
-frame's extrinsics are the camera's pose at the pose timestamp. Pixels follow TAP-Vid's convention,
-as Waymo's do (``InImage`` is 0 <= u < W): pixel [r, c] covers [c, c + 1) x [r, r + 1).
+frame's extrinsics are the camera's pose at the pose timestamp. A clip's pixels (queries, depth
+lookups, silhouettes) are the pinhole projections of those coordinates with the calibration's
+intrinsics (``Projection.pixels``), so ``fx_fy_cx_cy`` projects a track onto its query whatever the
+frames; where the lens put the point on the sensor is ``Projection.sensor``. Pixels follow TAP-Vid's
+convention, as Waymo's do (``InImage`` is 0 <= u < W): pixel [r, c] covers [c, c + 1) x [r, r + 1).
 
 
 A unit's poses per camera frame are checked here too (the vehicle in the world, the camera from the
 world: the vehicle frame at frame time holds boxes and lidar points; the camera frame at exposure has
 OpenCV axes, via the camera image's own vehicle pose), and frames are undistorted with OpenCV
 (``drivetrack.undistort_frames``): each stored pixel then shows what the sensor saw along that
-pinhole pixel's ray, so the clip's pinhole intrinsics are exact; the rolling shutter stays in the
-image, as in the tracks.
+pinhole pixel's ray, so a point appears where its pinhole pixel is; the rolling shutter stays in the
+image, as in the tracks. Waymo's frames, kept as they are, show a point at its sensor pixel.
 """
 
 from __future__ import annotations
@@ -73,11 +76,14 @@ class Readout:
 @dataclasses.dataclass(frozen=True)
 class Projection:
     """Points [N] seen in one frame: ``points`` [N, 3] camera coordinates (OpenCV axes, metres) at
-    the instant each is seen, ``pixels`` [N, 2] in the stored frame ((-1, -1) behind the camera),
-    ``in_view`` [N] bool: in front, on the sensor, and inside the stored frame."""
+    the instant each is seen; ``pixels`` [N, 2] their pinhole projection with the calibration's
+    intrinsics (where they appear in an undistorted frame; (-1, -1) behind the camera); ``sensor``
+    [N, 2] where the lens put them on the sensor (in Waymo's own frame); ``in_view`` [N] bool: in
+    front, the lens model holding, and both pixels inside the frame."""
 
     points: np.ndarray
     pixels: np.ndarray
+    sensor: np.ndarray
     in_view: np.ndarray
 
 
@@ -126,16 +132,17 @@ def _inside(u, v, width, height):
 
 
 @numba.njit(cache=True, nogil=True)
-def _stored_pixels(local, lens, width, height, undistorted, pixels, in_view):
-    """pixels [N, 2] and in_view [N] of camera points [N, 3] as seen (``Projection``): the sensor
-    pixel, or with ``undistorted`` the pinhole pixel of the same intrinsics; in view when in front,
-    the lens model holds and the sensor pixel (and the pinhole pixel) lies in the image."""
+def _stored_pixels(local, lens, width, height, pixels, sensor, in_view):
+    """pixels [N, 2], sensor [N, 2] and in_view [N] of camera points [N, 3] as seen (``Projection``):
+    the pinhole pixel of the intrinsics and the sensor pixel; in view when in front, the lens model
+    holds and both pixels lie in the image."""
     fx, fy, cx, cy = lens[0], lens[1], lens[2], lens[3]
     for m in range(local.shape[0]):
         x, y, z = local[m, 0], local[m, 1], local[m, 2]
         u, v, valid = _sensor_pixel(x, y, z, lens)
+        sensor[m, 0], sensor[m, 1] = u, v
         seen = valid and _inside(u, v, width, height)
-        if undistorted and z > 0:
+        if z > 0:
             u, v = fx * x / z + cx, fy * y / z + cy
             seen = seen and _inside(u, v, width, height)
         pixels[m, 0], pixels[m, 1], in_view[m] = u, v, seen
@@ -182,22 +189,14 @@ class UnitCamera:
     several frames at once.
 
     calibration, frames: the reader's records; cam_from_world: [T, 4, 4] OpenCV camera from world
-    at each frame's pose (``poses.camera_from_world``); undistorted: frames are stored undistorted
-    (pinhole pixels of the same intrinsics) instead of as the sensor took them; what: names the
-    camera in errors.
+    at each frame's pose (``poses.camera_from_world``); what: names the camera in errors.
     """
 
     def __init__(
-        self,
-        calibration: CameraCalibration,
-        frames: CameraFrames,
-        cam_from_world: np.ndarray,
-        undistorted: bool,
-        what: str,
+        self, calibration: CameraCalibration, frames: CameraFrames, cam_from_world: np.ndarray, what: str
     ):
         self.calibration = calibration
         self.cam_from_world = cam_from_world
-        self.undistorted = undistorted
         self.readouts = [
             self._readout(frames, t, f"{what} frame {frames.timestamps[t]}")
             for t in range(len(cam_from_world))
@@ -255,15 +254,17 @@ class UnitCamera:
             frame = np.repeat(np.arange(len(rolling)), counts[rolling])
             local[rows] = self._seen([self.readouts[frames[i]] for i in rolling], frame, local[rows])
         whole = self._stored(local)
-        parts = (np.split(array, bounds[1:-1]) for array in (whole.points, whole.pixels, whole.in_view))
+        arrays = (whole.points, whole.pixels, whole.sensor, whole.in_view)
+        parts = (np.split(array, bounds[1:-1]) for array in arrays)
         return [Projection(*frame) for frame in zip(*parts, strict=True)]
 
     def _stored(self, local: np.ndarray) -> Projection:
-        """Where camera points [N, 3], as seen, appear in the stored frames."""
+        """Where camera points [N, 3], as seen, appear: pinhole and sensor pixels."""
         c = self.calibration
-        pixels, in_view = np.empty((len(local), 2)), np.empty(len(local), np.bool_)
-        _stored_pixels(local, self._lens(), c.width, c.height, self.undistorted, pixels, in_view)
-        return Projection(local, pixels, in_view)
+        pixels, sensor = np.empty((len(local), 2)), np.empty((len(local), 2))
+        in_view = np.empty(len(local), np.bool_)
+        _stored_pixels(local, self._lens(), c.width, c.height, pixels, sensor, in_view)
+        return Projection(local, pixels, sensor, in_view)
 
     def _lens(self) -> np.ndarray:
         """[10] fx, fy, cx, cy, k1, k2, p1, p2, k3, reach: the kernels' lens (``_sensor_pixel``)."""

@@ -238,12 +238,15 @@ class LidarEvidence:
 
 
 def depth_samples(
-    world: np.ndarray, camera: UnitCamera, t: int, occlusion_margin: float
+    world: np.ndarray, camera: UnitCamera, t: int, occlusion_margin: float, parallax_cleanup: bool = True
 ) -> tuple[np.ndarray, np.ndarray]:
     """Pixels [M, 2] in the stored frame t and camera depths [M] of the lidar points [P, 3]
-    (world) that the camera sees: in view, and not hidden from it by a nearer lidar point."""
+    (world) that the camera sees: in view, and with ``parallax_cleanup`` not hidden from it by a
+    nearer lidar point."""
     seen = camera.project(t, world)
     uv, z = seen.pixels[seen.in_view], seen.points[seen.in_view, 2]
+    if not parallax_cleanup:
+        return uv, z
     kept = ~camera_occluded_lidar(uv, z, occlusion_margin)
     return uv[kept], z[kept]
 
@@ -281,10 +284,11 @@ class CameraPass:
 
 
 def gather_lidar_cameras(
-    passes: list[CameraPass], shrink: float, occlusion_margin: float
+    passes: list[CameraPass], shrink: float, occlusion_margin: float, parallax_cleanup: bool = True
 ) -> list[LidarEvidence]:
     """One pass over the TOP lidar frames any of one segment's cameras needs, each frame decoded and
-    placed in the world once for all of them: each camera's depth samples and in-box points."""
+    placed in the world once for all of them: each camera's depth samples (``depth_samples``) and
+    in-box points."""
     users: dict[int, list[tuple[int, int]]] = {}  # lidar timestamp -> [(pass index, camera frame)]
     for i, item in enumerate(passes):
         for t in item.needed:
@@ -308,7 +312,7 @@ def gather_lidar_cameras(
                 vehicle_from_world = invert_se3(pose)
                 in_vehicle[key] = vehicle_from_world, transform_points(vehicle_from_world, sweep.points)
             frame = (t, lidar.camera_projection, sweep, in_vehicle[key])
-            _camera_frame(passes[i], evidence[i], *frame, shrink, occlusion_margin)
+            _camera_frame(passes[i], evidence[i], *frame, shrink, occlusion_margin, parallax_cleanup)
     return evidence
 
 
@@ -321,6 +325,7 @@ def _camera_frame(
     in_vehicle: tuple[np.ndarray, np.ndarray],
     shrink: float,
     occlusion_margin: float,
+    parallax_cleanup: bool,
 ) -> None:
     """Camera frame t's share of a sweep: its depth samples and its objects' points, into ``evidence``.
 
@@ -329,7 +334,7 @@ def _camera_frame(
     world, camera = sweep.points, item.unit.camera
     in_camera = ((projection[..., 0] == camera) | (projection[..., 3] == camera))[sweep.kept]
     evidence.depth_uv[t], evidence.depth_z[t] = depth_samples(
-        world[in_camera], item.camera, t, occlusion_margin
+        world[in_camera], item.camera, t, occlusion_margin, parallax_cleanup
     )
     vehicle_from_world, vehicle = in_vehicle
     pixels = np.flatnonzero(sweep.kept)

@@ -5,17 +5,18 @@ from __future__ import annotations
 
 import dataclasses
 
-from pipeline.core.config import path_setting, ranged
+from pipeline.core.config import NOT_KNOWN, flag, path_setting, ranged
 
 
 @dataclasses.dataclass(frozen=True)
 class DriveTrackConfig:
-    """DriveTrack (Balasingam et al., CVPR 2024) choices, as the TAPVid-3D release used them.
+    """DriveTrack (Balasingam et al., CVPR 2024) choices: the generator's, and ours where marked
+    (``rules=release`` sets ours to the generator's: docs/release.md).
 
-    facing_test is ours, not the generator's: a track is also invisible where its surface
-    (normal estimated from the lidar points) faces away from the camera. Beyond ~30 m the
-    5% depth margin exceeds a car's width, so the depth test alone calls the far side of a
-    car visible. Set it false to reproduce the generator's decisions exactly.
+    facing_test and parallax_cleanup are ours, not the generator's. Beyond ~30 m the 5% depth
+    margin exceeds a car's width, so the depth test alone calls the far side of a car visible;
+    the lidar sits about 0.3 m above the camera and sees surfaces behind an occluder's edge that
+    the camera cannot.
 
     cameras: the unit cameras, Waymo camera names (1 FRONT, 2 FRONT_LEFT, 3 FRONT_RIGHT,
       4 SIDE_LEFT, 5 SIDE_RIGHT); the release's are 1-3.
@@ -31,22 +32,25 @@ class DriveTrackConfig:
       (1 - margin) x its own depth (the lidar's own parallax cleanup uses twice the margin).
     facing_test: a track is also invisible where its surface (normal from the lidar points) faces
       away from the camera; ours, not the generator's: false reproduces its decisions.
+    parallax_cleanup: before the depth lookup, drop the lidar points a nearer lidar point hides
+      from the camera (one of their 8 nearest projected neighbours, within twice the median point
+      spacing, nearer by more than twice occlusion_margin); ours, not the generator's.
     tracks_per_clip, oversample: tracks written per clip; candidates drawn = oversample x that.
     mask_min_agreement: keep a track when (visible frames on the object's mask) / (visible
       frames) >= this. 0.5 trims 1-3% of the sample world's candidates, the share the
       generator's Segment Anything masks trimmed (2-3%); 0.8 trimmed 13-22% there, mostly true
       surface points the one-sweep lidar silhouette missed.
     masks_dir: optional per-frame masks instead of the default lidar silhouette,
-      read as ``<masks_dir>/<clip name>/<frame id>.png`` (non-zero = object).
+      read as ``<masks_dir>/<clip name>/<frame id>.png`` (non-zero = object), on the undistorted
+      frames' pixels.
     mask_closing_px: kernel of the morphological closing of the lidar silhouette;
       0 picks it from the spacing of the projected lidar points in each frame.
     undistort_frames: Waymo's frames carry lens distortion (up to ~8 px at the corners of a
-      1920x1280 frame), which no pinhole ``fx_fy_cx_cy`` describes. True writes each frame
-      undistorted with OpenCV (same intrinsics, re-encoded JPEG), so the pinhole projection of
-      ``tracks_XYZ`` lands on the point in the stored frame; false keeps Waymo's JPEGs as the
-      release did, and queries sit where the point appears in them, off the pinhole projection by
-      the distortion (``pipeline.validate`` reports it per clip). Tracks and queries include the
-      rolling shutter either way (drivetrack/camera_model.py).
+      1920x1280 frame), which no pinhole ``fx_fy_cx_cy`` describes. Tracks and queries are the same
+      either way (queries are the pinhole projections of the tracks, rolling shutter included:
+      drivetrack/camera_model.py); true writes each frame undistorted with OpenCV (same intrinsics,
+      re-encoded JPEG), so a point appears in the stored frame at its query; false keeps Waymo's
+      JPEGs as the release did, where a point appears off its query by the lens distortion.
     """
 
     cameras: tuple[int, ...] = ranged((1, 2, 3), "[1, 5]", nonempty=True)
@@ -55,13 +59,14 @@ class DriveTrackConfig:
     min_contiguous_frames: int = ranged(24, "[1, 100000]")
     max_corner_distance_m: float = ranged(50.0, "(0, 10000]")
     occlusion_margin: float = ranged(0.05, "[0, 1)")
-    facing_test: bool = True
+    facing_test: bool = flag(True, release=False)
+    parallax_cleanup: bool = flag(True, release=False)
     tracks_per_clip: int = ranged(256, "[1, 100000]")
-    oversample: int = ranged(4, "[1, 10000]")
-    mask_min_agreement: float = ranged(0.5, "[0, 1]")
+    oversample: int = ranged(4, "[1, 10000]", release=NOT_KNOWN)
+    mask_min_agreement: float = ranged(0.5, "[0, 1]", release=NOT_KNOWN)
     masks_dir: str = path_setting()
-    mask_closing_px: int = ranged(0, "[0, 1000]")
-    undistort_frames: bool = True
+    mask_closing_px: int = ranged(0, "[0, 1000]", release=NOT_KNOWN)
+    undistort_frames: bool = flag(True, release=False)
 
 
 SETTINGS = DriveTrackConfig

@@ -99,27 +99,33 @@ def query_draws(keys: np.ndarray) -> np.ndarray:
 def match_given_queries(
     pool: np.ndarray, queries: np.ndarray, run: ObjectRun, camera: UnitCamera, clip: str
 ) -> np.ndarray:
-    """Index into the object's lidar points [P, 3] (box frame) of each given query [N, 3]: the
-    point that appears nearest (x, y) in the stored frame of the query's frame; it must lie within
-    half a pixel, as the release's queries are such points."""
+    """Index into the object's lidar points [P, 3] (box frame) of each given query [N, 3]: the point
+    that appears nearest (x, y) at the query's frame; every query must lie within half a pixel of
+    its point, as the release's queries are such points. Where a point appears is its pinhole pixel
+    (ours, the schema's) or, when that leaves a query farther, its sensor pixel (where Waymo's frames
+    show it): which of the two the release's queries are is not known, so a clip's queries are
+    matched by whichever puts every one within half a pixel."""
     frames = given_query_frames(queries, run.stop - run.start, clip)
-    chosen = np.empty(len(queries), np.int64)
+    pinhole, sensor = (np.empty(len(queries), np.int64) for _ in range(2))
+    misses = {"pinhole": np.empty(len(queries)), "sensor": np.empty(len(queries))}
     for t in np.unique(frames):
         rows = np.nonzero(frames == t)[0]
         seen = camera.project(run.start + t, transform_points(run.world_from_box[t], pool))
         shown = np.nonzero(seen.in_view)[0]
         if not len(shown):
             raise InputError(f"{clip}: no lidar point of the object is in view at frame {t}")
-        distance, nearest = cKDTree(seen.pixels[shown]).query(queries[rows, :2])
-        if distance.max() > 0.5:
-            k = int(np.argmax(distance))
-            x, y = queries[rows[k], :2]
-            raise InputError(
-                f"{clip}: given query {int(rows[k])} at ({x:.1f}, {y:.1f}, t={t}) is {distance[k]:.2f} px "
-                "from the nearest lidar point of the object"
-            )
-        chosen[rows] = shown[nearest]
-    return chosen
+        for chosen, kind, pixels in ((pinhole, "pinhole", seen.pixels), (sensor, "sensor", seen.sensor)):
+            distance, nearest = cKDTree(pixels[shown]).query(queries[rows, :2])
+            chosen[rows], misses[kind][rows] = shown[nearest], distance
+    for chosen, kind in ((pinhole, "pinhole"), (sensor, "sensor")):
+        if misses[kind].max() <= 0.5:
+            return chosen
+    k = int(np.argmax(misses["pinhole"]))
+    x, y, t = queries[k]
+    raise InputError(
+        f"{clip}: given query {k} at ({x:.1f}, {y:.1f}, t={int(t)}) is {misses['pinhole'][k]:.2f} px "
+        "from the nearest lidar point of the object"
+    )
 
 
 def query_frames(visibility: np.ndarray, draws: np.ndarray) -> np.ndarray:

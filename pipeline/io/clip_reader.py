@@ -10,8 +10,11 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+from typing import BinaryIO
 
+from pipeline.core.images import jpeg_size
 from pipeline.io.files import read_bytes
+from pipeline.io.http import HttpClient, is_http, open_remote, shown
 from pipeline.io.npz_reader import NpzArchive, NpzError
 
 FRAMES = "images_jpeg_bytes"
@@ -66,9 +69,16 @@ def limits_from(assignments: list[str]) -> ReadLimits:
     return ReadLimits(**values)
 
 
-def read_clip_file(path: str, limits: ReadLimits = DEFAULT_LIMITS, keys=CLIP_KEYS) -> dict:
-    """``read_clip_bytes`` of the file at ``path`` (any Beam filesystem), refusing an oversized file
-    before reading it."""
+def read_clip_file(
+    path: str, limits: ReadLimits = DEFAULT_LIMITS, keys=CLIP_KEYS, client: HttpClient | None = None
+) -> dict:
+    """``read_clip_bytes`` of the file at ``path``, refusing an oversized file before reading it: any
+    Beam filesystem's file is read whole; an ``http(s)://`` one by Range requests for the members of
+    ``keys`` only (through ``client``, or one made with the default policy). HttpError when a remote
+    file cannot be fetched (kind not_found: there is none)."""
+    if is_http(path):
+        with open_remote(client or HttpClient(), path, limits.max_file_bytes) as remote:
+            return read_clip_bytes(remote, shown(path), limits, keys)
     try:
         data = read_bytes(path, limits.max_file_bytes)
     except OSError as error:
@@ -76,13 +86,21 @@ def read_clip_file(path: str, limits: ReadLimits = DEFAULT_LIMITS, keys=CLIP_KEY
     return read_clip_bytes(data, path, limits, keys)
 
 
-def read_clip_bytes(data: bytes, name: str, limits: ReadLimits = DEFAULT_LIMITS, keys=CLIP_KEYS) -> dict:
-    """The members of ``keys`` the clip holds, as arrays (missing keys are absent from the result).
+def read_clip_bytes(
+    data: bytes | BinaryIO, name: str, limits: ReadLimits = DEFAULT_LIMITS, keys=CLIP_KEYS
+) -> dict:
+    """The members of ``keys`` the clip (its bytes, or a seekable file) holds, as arrays (missing keys
+    are absent from the result).
 
     Raises NpzError naming the file, the member and the cause: a member that would need pickle,
     a dtype other than bool/int/float/bytes, or a declared size beyond what T and N allow.
     """
-    archive = NpzArchive(data, name)
+    return read_clip_archive(NpzArchive(data, name), limits, keys)
+
+
+def read_clip_archive(archive: NpzArchive, limits: ReadLimits = DEFAULT_LIMITS, keys=CLIP_KEYS) -> dict:
+    """``read_clip_bytes`` of an opened archive."""
+    name = archive.name
     present = [key for key in keys if key in archive.keys]
     num_frames, num_tracks = clip_dimensions(archive, present)
     if num_frames > limits.max_frames or num_tracks > limits.max_tracks:
@@ -105,6 +123,25 @@ def read_clip_bytes(data: bytes, name: str, limits: ReadLimits = DEFAULT_LIMITS,
     if total > limits.max_clip_bytes:
         raise NpzError(name, f"members claim {total} bytes in all, more than {limits.max_clip_bytes} allowed")
     return {key: archive.read(key, caps.get(key, limits.max_clip_bytes), why) for key in present}
+
+
+# The first frame's size is read from its first FRAME_HEAD_BYTES (a JPEG's frame header comes after
+# its tables, within about 1 KB), else from the whole frame.
+FRAME_HEAD_BYTES = 2 << 10
+
+
+def first_frame_size(archive: NpzArchive, limits: ReadLimits = DEFAULT_LIMITS) -> tuple[int, int] | None:
+    """(height, width) of the clip's first frame from its JPEG header, reading only the start of that
+    frame (a remote clip's other frames are never fetched); None when it has no readable one."""
+    if FRAMES not in archive.keys:
+        return None
+    header = archive.header(FRAMES)
+    if header.dtype.kind != "S" or len(header.shape) != 1 or not header.shape[0]:
+        return None
+    size = jpeg_size(archive.read_head(FRAMES, min(header.dtype.itemsize, FRAME_HEAD_BYTES)))
+    if size is None and FRAME_HEAD_BYTES < header.dtype.itemsize <= limits.max_frame_bytes:
+        size = jpeg_size(archive.read_head(FRAMES, header.dtype.itemsize))
+    return size
 
 
 def clip_dimensions(archive: NpzArchive, keys: list[str]) -> tuple[int, int]:

@@ -2,53 +2,83 @@
 
 The clip ``<DIR>/<source>/<clip>.npz`` (or ``<DIR>/<clip>.npz``) is matched by name; only its
 ``queries_xyt`` member is read, through ``pipeline.io.clip_reader`` (nothing unpickled, its
-size bounded by the clip's own headers), so a released file or a stranger's works alike.
+size bounded by the clip's own headers), so a released file or a stranger's works alike. DIR may be
+an ``http(s)://`` base, such as the release's bucket: then ``<DIR>/<source>/<clip>.npz`` is read by
+Range requests (its directory and that member only), and a 404 means the release has no such clip.
 """
 
 from __future__ import annotations
+
+import functools
 
 import numpy as np
 from apache_beam.io.filesystems import FileSystems
 
 from pipeline.core.errors import InputError
 from pipeline.io.clip_reader import read_clip_file
+from pipeline.io.http import HttpConfig, HttpError, is_http, join, shared_client, shown
 from pipeline.io.npz_reader import NpzError
 
 
-def given_queries(queries_from: str, source: str, clip: str) -> np.ndarray | None:
-    """Queries [N, 3] (x, y, t) of the existing clip named ``clip``, or None if there is none.
+def given_queries(
+    queries_from: str, source: str, clip: str, http: HttpConfig | None = None
+) -> np.ndarray | None:
+    """Queries [N, 3] (x, y, t) of the existing clip named ``clip``, or None if there is none (or no
+    ``queries_from``) (over
+    HTTP under ``http``; the last few remote lookups of a process are kept: a source may ask twice).
 
     InputError naming the file when it is refused or unreadable, when the queries are not a finite
     [N, 3] float array, or when a query frame t is not a non-negative integer.
     """
     root = queries_from.rstrip("/")
+    if not root:
+        return None
+    if is_http(root):
+        found = _remote_queries(join(root, f"{source}/{clip}.npz"), http or HttpConfig())
+        return None if found is None else found.copy()
     for path in (f"{root}/{source}/{clip}.npz", f"{root}/{clip}.npz"):
-        if not FileSystems.exists(path):
-            continue
-        try:
-            arrays = read_clip_file(path, keys=("queries_xyt",))
-        except NpzError as error:
-            raise InputError(f"--queries-from {error}") from error
-        if "queries_xyt" not in arrays:
-            raise InputError(f"--queries-from {path}: no queries_xyt member")
-        queries = arrays["queries_xyt"]
-        if queries.dtype.kind != "f" or queries.ndim != 2 or queries.shape[1] != 3:
-            raise InputError(
-                f"--queries-from {path}: queries_xyt must be a float [N, 3] array, got {queries.dtype} "
-                f"{queries.shape}"
-            )
-        queries = queries.astype(np.float64)
-        if not np.isfinite(queries).all():
-            raise InputError(f"--queries-from {path}: queries_xyt holds non-finite values")
-        frames = queries[:, 2]
-        bad = (frames != np.round(frames)) | (frames < 0)
-        if bad.any():
-            raise InputError(
-                f"--queries-from {path}: query {int(np.flatnonzero(bad)[0])} has frame {frames[bad][0]!r}, "
-                "not a frame index (a non-negative integer)"
-            )
-        return queries
+        if FileSystems.exists(path):
+            return _read_queries(path)
     return None
+
+
+@functools.lru_cache(maxsize=8)
+def _remote_queries(url: str, http: HttpConfig) -> np.ndarray | None:
+    """``_read_queries`` of an HTTP(S) URL; None on 404 (not there)."""
+    try:
+        return _read_queries(url, http)
+    except HttpError as error:
+        if error.kind == "not_found":
+            return None
+        raise InputError(f"--queries-from {error.url}: {error}") from error
+
+
+def _read_queries(path: str, http: HttpConfig | None = None) -> np.ndarray:
+    """The checked queries [N, 3] float64 of the clip file at ``path``."""
+    try:
+        arrays = read_clip_file(path, keys=("queries_xyt",), client=shared_client(http) if http else None)
+    except NpzError as error:
+        raise InputError(f"--queries-from {error}") from error
+    path = shown(path)
+    if "queries_xyt" not in arrays:
+        raise InputError(f"--queries-from {path}: no queries_xyt member")
+    queries = arrays["queries_xyt"]
+    if queries.dtype.kind != "f" or queries.ndim != 2 or queries.shape[1] != 3:
+        raise InputError(
+            f"--queries-from {path}: queries_xyt must be a float [N, 3] array, got {queries.dtype} "
+            f"{queries.shape}"
+        )
+    queries = queries.astype(np.float64)
+    if not np.isfinite(queries).all():
+        raise InputError(f"--queries-from {path}: queries_xyt holds non-finite values")
+    frames = queries[:, 2]
+    bad = (frames != np.round(frames)) | (frames < 0)
+    if bad.any():
+        raise InputError(
+            f"--queries-from {path}: query {int(np.flatnonzero(bad)[0])} has frame {frames[bad][0]!r}, "
+            "not a frame index (a non-negative integer)"
+        )
+    return queries
 
 
 def given_query_frames(queries: np.ndarray, num_frames: int, what: str) -> np.ndarray:

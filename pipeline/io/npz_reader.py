@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 import io
 import math
+import struct
 import zipfile
 from typing import BinaryIO
 
@@ -21,6 +22,11 @@ import numpy as np
 
 # Kinds a TAPVid-3D file may hold: bool, integers, floats, fixed-width bytes (the JPEG frames).
 SAFE_KINDS = frozenset("biufS")
+# A member's local zip header: 30 bytes, its name, and an extra field (np.savez writes a 20-byte
+# zip64 one); a ``.npy`` header: usually 128 bytes. What a remote read fetches ahead for them.
+LOCAL_HEADER_FIXED = 30
+LOCAL_HEADER_BYTES = LOCAL_HEADER_FIXED + 64
+NPY_HEADER_BYTES = 256
 
 
 class NpzError(ValueError):
@@ -44,12 +50,14 @@ class ArrayHeader:
 
 
 class NpzArchive:
-    """The members of one ``.npz`` (its bytes, or a seekable binary file), read header first."""
+    """The members of one ``.npz`` (its bytes, or a seekable binary file), read header first. On a
+    remote file (``pipeline.io.http.RemoteFile``) each member's span is fetched in one request."""
 
     def __init__(self, data: bytes | BinaryIO, name: str, max_members: int = 64):
         self.name = name
+        self._file = io.BytesIO(data) if isinstance(data, bytes) else data
         try:
-            self._zip = zipfile.ZipFile(io.BytesIO(data) if isinstance(data, bytes) else data)
+            self._zip = zipfile.ZipFile(self._file)
         except (zipfile.BadZipFile, OSError, ValueError) as error:
             raise NpzError(name, f"not an .npz archive ({error})") from error
         infos = self._zip.infolist()
@@ -70,9 +78,19 @@ class NpzArchive:
             self._headers[key] = self._read_header(key)
         return self._headers[key]
 
+    def _prefetch(self, key: str, data_bytes: int) -> None:
+        """On a remote file that can (``RemoteFile.prefetch``), fetch the member's local header and its
+        first ``data_bytes`` bytes (its ``.npy`` header included) in one request."""
+        prefetch = getattr(self._file, "prefetch", None)
+        if prefetch is not None:
+            info = self._infos[key]
+            start = info.header_offset
+            prefetch(start, start + LOCAL_HEADER_BYTES + len(info.orig_filename.encode()) + data_bytes)
+
     def _read_header(self, key: str) -> ArrayHeader:
         info = self._infos[key]
         where = f"member {key!r}"
+        self._prefetch(key, NPY_HEADER_BYTES)
         try:
             with self._zip.open(info) as member:
                 version = np.lib.format.read_magic(member)
@@ -114,6 +132,30 @@ class NpzArchive:
                 f"more than the {_size(max_bytes)} allowed{limit}; refused",
             )
 
+    def read_head(self, key: str, count: int) -> bytes:
+        """The first ``count`` bytes (at most the member's) of the member's data, e.g. the start of
+        the first JPEG of a frames member, without reading the rest (a stored member's bytes are read
+        straight from the archive: exactly those, no read-ahead)."""
+        header = self.header(key)
+        info = self._infos[key]
+        count = min(count, header.nbytes)
+        self._prefetch(key, header.data_offset + count)
+        try:
+            if info.compress_type == zipfile.ZIP_STORED:
+                self._file.seek(info.header_offset)
+                local = self._file.read(LOCAL_HEADER_FIXED)
+                if len(local) != LOCAL_HEADER_FIXED or local[:4] != b"PK\x03\x04":
+                    raise zipfile.BadZipFile("bad local file header")
+                name_length, extra_length = struct.unpack("<HH", local[26:30])
+                self._file.seek(info.header_offset + LOCAL_HEADER_FIXED + name_length + extra_length)
+                self._file.seek(header.data_offset, io.SEEK_CUR)
+                return self._file.read(count)
+            with self._zip.open(info) as member:
+                member.read(header.data_offset)
+                return member.read(count)
+        except (OSError, zipfile.BadZipFile, EOFError, ValueError, struct.error) as error:
+            raise NpzError(self.name, f"member {key!r}: unreadable ({error})") from error
+
     def read(self, key: str, max_bytes: int, why: str = "", writable: bool = True) -> np.ndarray:
         """The member as an array, refused before reading when its data exceed ``max_bytes``;
         ``writable=False`` returns a read-only view of the bytes read (no copy: for large members
@@ -121,6 +163,7 @@ class NpzArchive:
         self.check_size(key, max_bytes, why)
         header = self.header(key)
         where = f"member {key!r}"
+        self._prefetch(key, header.data_offset + header.nbytes)
         try:
             with self._zip.open(self._infos[key]) as member:
                 member.read(header.data_offset)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from pipeline.core.config import path_setting, ranged
+from pipeline.core.config import NOT_KNOWN, path_setting, ranged
 
 
 @dataclasses.dataclass(frozen=True)
@@ -23,9 +23,9 @@ class PstudioConfig:
       angles fail because a nearer splat of the same surface holds the median; above it,
       points just behind an edge pass.
     max_attach_distance_m: a query whose unprojected point is farther than this from the
-      nearest foreground centre is refused (ours). The median depth is one splat's depth, so
-      the point lies within a footprint of some centre: on the sample world median 1.0 cm,
-      99% under 1.7 cm, 1 query in 2,449 beyond 3 cm (3.3 cm).
+      nearest foreground centre is refused (ours; 0: none is, as in the release). The median
+      depth is one splat's depth, so the point lies within a footprint of some centre: on the
+      sample world median 1.0 cm, 99% under 1.7 cm, 1 query in 2,449 beyond 3 cm (3.3 cm).
     mask_min_agreement: keep a track whose centre lies on the foreground mask in at least this
       fraction of the (frame, camera) pairs where it projects into the image.
     tracks_per_clip, oversample: tracks written per clip; candidates drawn = oversample x that.
@@ -33,11 +33,11 @@ class PstudioConfig:
 
     params_dir: str = path_setting()
     cameras: tuple[int, ...] = ranged((), "[0, 999]")
-    depth_delta_m: float = ranged(0.05, "(0, 10]")
-    max_attach_distance_m: float = ranged(0.03, "(0, 10]")
+    depth_delta_m: float = ranged(0.05, "(0, 10]", release=NOT_KNOWN)
+    max_attach_distance_m: float = ranged(0.03, "[0, 10]", release=0.0)
     mask_min_agreement: float = ranged(0.75, "[0, 1]")
     tracks_per_clip: int = ranged(50, "[1, 100000]")
-    oversample: int = ranged(8, "[1, 10000]")
+    oversample: int = ranged(8, "[1, 10000]", release=NOT_KNOWN)
 
 
 SETTINGS = PstudioConfig

@@ -64,8 +64,8 @@ def attach_queries(
     surface rendered at each pixel's centre to the nearest foreground Gaussian centre there.
 
     Returns (query frames [A], Gaussian indices [A], attachment distances [A] in metres) for the
-    attempts that hit a surface within ``max_attach_distance_m`` of a centre, in draw order,
-    each Gaussian at most once.
+    attempts that hit a surface within ``max_attach_distance_m`` of a centre (0: at any distance),
+    in draw order, each Gaussian at most once.
     """
     view = unit.views.index(unit.camera_id)
     intrinsics = unit.views.fx_fy_cx_cy[view]
@@ -76,6 +76,7 @@ def attach_queries(
     draws = rng.random(attempts)
     gaussian = np.full(attempts, -1)
     distance = np.full(attempts, np.nan)
+    within = config.pstudio.max_attach_distance_m or np.inf
     for t in np.unique(frames):
         on_mask = np.flatnonzero(unit.mask(view, int(t)))  # row-major, as np.nonzero's (row, column)
         picked = np.nonzero(frames == t)[0]
@@ -86,10 +87,8 @@ def attach_queries(
         pixels = np.stack([cols, rows], axis=1) + 0.5
         depth, surface = render_depth_at(splats_in_view(unit, view, int(t), pixels), pixels)
         points = transform_points(world_from_cam, unproject(pixels[surface], depth[surface], intrinsics))
-        nearest_distance, nearest = nearest_centres(
-            unit.gaussians.means[t], foreground, points, config.pstudio.max_attach_distance_m
-        )
-        close = nearest_distance <= config.pstudio.max_attach_distance_m
+        nearest_distance, nearest = nearest_centres(unit.gaussians.means[t], foreground, points, within)
+        close = nearest >= 0  # a centre within reach (nearest_centres gives -1 where none is)
         gaussian[picked[surface][close]] = foreground[nearest[close]]
         distance[picked[surface][close]] = nearest_distance[close]
     hit = np.nonzero(gaussian >= 0)[0]
@@ -248,7 +247,7 @@ def annotate_unit(unit: UnitInput, config: RunConfig) -> list[ClipRecord]:
     """One candidate clip (oversampled tracks with their statistics) for the unit."""
     settings = config.pstudio
     wanted = settings.tracks_per_clip * settings.oversample
-    queries = given_queries(config.queries_from, "pstudio", unit.clip_name) if config.queries_from else None
+    queries = given_queries(config.queries_from, "pstudio", unit.clip_name, config.http)
     if config.queries_from and queries is None:
         return []
     if queries is not None:

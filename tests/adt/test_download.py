@@ -13,12 +13,14 @@ from pipeline.adt.download import fetch_sequence, is_url_file, plan_download, re
 from pipeline.adt.reader import SequenceReader, required_files
 from pipeline.core.errors import InputError
 from pipeline.core.sizes import format_bytes
+from pipeline.io.http import HttpConfig
 from tests.support.adt_excerpt import SAMPLE, needs_excerpt
-from tests.support.adt_server import GROUPS, serve, write_layout
+from tests.support.adt_server import GROUPS, write_layout
+from tests.support.http_server import serve
 
 pytestmark = needs_excerpt
 SEQUENCE = SAMPLE.name
-FAST = {"retries": 2, "backoff": 0.001, "timeout": 10}
+FAST = {"http": HttpConfig(retries=2, backoff_s=0.001)}
 NEEDED = required_files(True)
 
 
@@ -208,27 +210,38 @@ def test_dropped_connections_are_retried(layout, server, scratch):
     assert server.requests(layout.filename("main_groundtruth")) == 3
 
 
-@pytest.mark.parametrize("fault, tail", [("truncate", " (connection broken)"), ("short", "")])
-def test_a_truncated_body_is_an_error(layout, server, scratch, fault, tail):
-    """Cut short under a full Content-Length (the connection breaks) or with none (a quiet end)."""
+@pytest.mark.parametrize("fault", ["truncate", "short"])
+def test_a_body_cut_short_is_resumed_where_it_stopped(layout, server, scratch, fault):
+    """Cut short under a full Content-Length (the connection breaks) or with none (a quiet end): the
+    next request asks for the rest only (Range), so the file's bytes are sent once, but for the
+    unfinished read (at most a chunk, 1 MiB) the broken connection took with it."""
     server.fail(layout.filename("depth"), fault)
+    size = layout.entry("depth")["file_size_bytes"]
+    with fetch_sequence(plan(layout.url_file), str(scratch), **FAST) as folder:
+        assert sha256(os.path.join(folder, "depth_images_with_skeleton.vrs")) == sha256(
+            SAMPLE / "depth_images_with_skeleton.vrs"
+        )
+    assert server.requests(layout.filename("depth")) == 2
+    assert size <= server.sent(layout.filename("depth")) < size + (1 << 20)
+
+
+@pytest.mark.parametrize("fault, tail", [("truncate", " (connection broken)"), ("short", "")])
+def test_a_body_cut_short_on_every_try_is_an_error(layout, server, scratch, fault, tail):
+    server.fail(layout.filename("depth"), fault, fault, fault)
     size = layout.entry("depth")["file_size_bytes"]
     message = fetch_error(layout.url_file, scratch)
     assert message.startswith(f"{SEQUENCE}: data group depth: truncated: got ")
     got = int(message.split("got ")[1].split(" of ")[0])
-    assert 0 < got < size
-    assert message.endswith(f" of {size} bytes{tail}")
-    assert server.requests(layout.filename("depth")) == 1
+    assert size // 2 < got < size  # each try got half of what was left
+    assert message.endswith(f" of {size} bytes{tail} after 3 tries")
+    assert server.requests(layout.filename("depth")) == 3
 
 
 def test_a_body_longer_than_the_url_files_size_is_an_error(layout, server, scratch):
     server.fail(layout.filename("segmentation"), "long")
     size = layout.entry("segmentation")["file_size_bytes"]
     message = fetch_error(layout.url_file, scratch)
-    assert (
-        message
-        == f"{SEQUENCE}: data group segmentation: too long: more than the {size} bytes file_size_bytes gives"
-    )
+    assert message == f"{SEQUENCE}: data group segmentation: too long: more than the {size} bytes expected"
 
 
 def test_a_wrong_sha1_is_an_error(layout, server, scratch):
@@ -244,7 +257,7 @@ def test_a_size_other_than_the_url_files_is_an_error(layout, server, scratch):
     message = fetch_error(url_file, scratch)
     assert message == (
         f"{SEQUENCE}: data group segmentation: size mismatch: "
-        f"Content-Length {size}, file_size_bytes {size + 1}"
+        f"Content-Length {size}, {size + 1} bytes expected"
     )
 
 
@@ -253,12 +266,13 @@ def test_a_missing_file_is_http_404(layout, server, scratch):
     assert fetch_error(url_file, scratch) == f"{SEQUENCE}: data group main_groundtruth: HTTP 404"
 
 
-def test_the_server_gone_fails_after_the_retries(tmp_path, scratch):
+def test_the_server_gone_fails_at_once(tmp_path, scratch):
+    """A refused connection is not retried (the host is left alone for a minute)."""
     with serve(tmp_path) as gone:
         layout = write_layout(SAMPLE, SEQUENCE, tmp_path, gone.base_url, mps=False)
         gone.stop()
         message = fetch_error(layout.url_file, scratch)
-    assert message == f"{SEQUENCE}: data group depth: connection refused after 3 tries"
+    assert message == f"{SEQUENCE}: data group depth: connection refused"
 
 
 def test_no_room_in_the_scratch_folder(layout, server, scratch):

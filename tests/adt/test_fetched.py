@@ -13,13 +13,14 @@ import pathlib
 import pytest
 
 from tests.support.adt_excerpt import ONE_FRAME_CHUNKS, SAMPLE, needs_excerpt
-from tests.support.adt_server import serve, write_layout
+from tests.support.adt_server import write_layout
 from tests.support.cli import clip_bytes, run_in_process
+from tests.support.http_server import serve
 
 pytestmark = needs_excerpt
 
 SEQUENCE = SAMPLE.name
-FAST_RETRIES = ("--set", "adt.download_retries=2", "--set", "adt.download_backoff_s=0.01")
+FAST_RETRIES = ("--set", "http.retries=2", "--set", "http.backoff_s=0.01")
 
 
 @pytest.fixture(scope="module")
@@ -98,7 +99,7 @@ def test_a_bad_download_fails_the_sequence_and_a_rerun_completes(served, local_c
     if fault == "sha1":
         url_file = layout.variant("wrong_sha1", "segmentation", sha1sum="0" * 40)
     else:
-        server.fail(layout.filename("segmentation"), fault)
+        server.fail(layout.filename("segmentation"), fault, fault, fault)  # every try
     out, scratch = tmp_path / "out", tmp_path / "scratch"
     result = fetch_run(url_file, out, scratch)
     assert result.returncode == 1
@@ -121,7 +122,7 @@ def test_the_server_gone_fails_the_sequence_and_a_rerun_completes(served, local_
     assert result.returncode == 1
     (failure,) = failures(out)
     assert "data group " in failure["error"]
-    assert "connection refused after 3 tries" in failure["error"]
+    assert failure["error"].endswith("connection refused")
     assert os.listdir(scratch) == []
     with serve(layout.folder) as again:  # back, on another port: the JSON names it
         url_file = write_layout(SAMPLE, SEQUENCE, layout.folder, again.base_url).url_file

@@ -14,7 +14,8 @@ from PIL import Image
 from pipeline.adt.reader import SequenceReader
 from pipeline.adt.rectify import Rectifier
 from pipeline.adt.source import EXCERPT_SETTINGS
-from pipeline.core.config import with_overrides
+from pipeline.core.config import with_overrides, with_rules
+from pipeline.core.errors import InputError
 from pipeline.settings import RunConfig
 from tests.support.adt_excerpt import SAMPLE, needs_excerpt
 from tests.support.units import adt_clips
@@ -175,3 +176,20 @@ def test_depth_is_bilinear_in_float_millimetres(generator, ours):
     errors = np.array(errors)
     assert len(errors) > 200
     assert errors.max() < 0.01, errors.max()  # millimetres; cut to whole ones it would be 0.5 on average
+
+
+def test_a_far_ground_truth_sample_fails_by_our_rule_and_passes_by_the_releases():
+    """The excerpt's depth stops one frame early: its second frame's nearest depth image is 33.2 ms
+    away. ``adt.max_gt_offset_ms`` 5 (refined) refuses it; 0 (release: the closest sample however
+    far, as the release's generator) reads it."""
+    refined = SequenceReader(str(SAMPLE), True, int(RunConfig().adt.max_gt_offset_ms * 1e6))
+    release_limit = with_rules(RunConfig(), "release").adt.max_gt_offset_ms
+    release = SequenceReader(str(SAMPLE), True, int(release_limit * 1e6))
+    try:
+        last = int(refined.frame_timestamps()[-1])
+        with pytest.raises(InputError, match="33.2 ms away"):
+            refined.depth_mm(last)
+        assert release.depth_mm(last).shape == refined.depth_mm(int(refined.frame_timestamps()[0])).shape
+    finally:
+        refined.close()
+        release.close()

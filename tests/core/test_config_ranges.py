@@ -34,7 +34,12 @@ REFUSED = [
     (["seed=true"], "--set seed=true: expected int; must be an integer in [0, 4294967295]"),
     (["adt.depth_delta_m=nan"], "--set adt.depth_delta_m=nan: must be a number in (0, 10]"),
     (["pstudio.depth_delta_m=inf"], "--set pstudio.depth_delta_m=inf: must be a number in (0, 10]"),
-    (["adt.max_gt_offset_ms=0"], "--set adt.max_gt_offset_ms=0: must be a number in (0, 1000]"),
+    (["adt.max_gt_offset_ms=-1"], "--set adt.max_gt_offset_ms=-1: must be a number in [0, 1000]"),
+    (
+        ["pstudio.max_attach_distance_m=-0.5"],
+        "--set pstudio.max_attach_distance_m=-0.5: must be a number in [0, 10]",
+    ),
+    (["rules=released"], "--set rules=released: must be one of release, refined"),
     (
         ["flicker.max_fraction=lots"],
         "--set flicker.max_fraction=lots: expected float; must be a number in [0, 1]",

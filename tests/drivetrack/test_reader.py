@@ -12,7 +12,6 @@ from pipeline.drivetrack import columns as C
 from pipeline.drivetrack.annotate import unit_camera
 from pipeline.drivetrack.reader import SegmentReader, list_segments, transforms_from_column
 from pipeline.samples.waymo_world import SEGMENT, camera_to_vehicle
-from pipeline.settings import RunConfig
 from tests.support.units import drivetrack_input
 
 
@@ -111,7 +110,7 @@ def test_bad_rolling_shutter_values_are_named(split_copy):
     with pytest.raises(
         InputError, match=rf"camera_image/{SEGMENT} camera {camera} frame {stamp}: rolling shutter"
     ):
-        unit_camera(drivetrack_input(split_copy, SEGMENT, camera), RunConfig())
+        unit_camera(drivetrack_input(split_copy, SEGMENT, camera))
     nan = np.asarray(table.column(done)).copy()
     nan[3] = np.nan
     pq.write_table(table.set_column(index, done, pa.array(nan)), path)

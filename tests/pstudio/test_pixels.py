@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline.core.config import with_rules
 from pipeline.core.geometry import project, rotation_from_roll_pitch_yaw, transform_points
 from pipeline.core.visibility import in_view
 from pipeline.pstudio.records import Gaussians, UnitInput, Views
@@ -16,10 +17,11 @@ FOCAL = 500.0
 PRINCIPAL = 16.0
 
 
-def unit_with(pixels, depths, opacities, mask: np.ndarray | None = None) -> UnitInput:
+def unit_with(pixels, depths, opacities, mask: np.ndarray | None = None, scale: float = 1e-6) -> UnitInput:
     """One frame, one camera (identity pose, f = 500, principal point (16, 16), 32 x 32) and
-    tiny foreground Gaussians (sigma 1 um: splats of 2D variance 0.3 px^2) whose centres project
-    to ``pixels`` [N, 2] at ``depths`` [N]; ``mask`` [32, 32] is the camera's foreground mask."""
+    foreground Gaussians (by default tiny: sigma ``scale`` 1 um, splats of 2D variance 0.3 px^2)
+    whose centres project to ``pixels`` [N, 2] at ``depths`` [N]; ``mask`` [32, 32] is the camera's
+    foreground mask."""
     pixels, depths = np.asarray(pixels, float), np.asarray(depths, float)
     means = np.column_stack([(pixels - PRINCIPAL) / FOCAL * depths[:, None], depths])
     count = len(depths)
@@ -37,7 +39,7 @@ def unit_with(pixels, depths, opacities, mask: np.ndarray | None = None) -> Unit
         gaussians=Gaussians(
             means=means[None],
             quaternions=np.tile([1.0, 0.0, 0.0, 0.0], (1, count, 1)),
-            scales=np.full((count, 3), 1e-6),
+            scales=np.full((count, 3), scale),
             opacities=np.asarray(opacities, float),
             foreground=np.ones(count, bool),
         ),
@@ -56,6 +58,22 @@ def test_a_query_pixel_is_rendered_at_its_centre():
     np.testing.assert_array_equal(frames, [0])
     np.testing.assert_array_equal(gaussians, [0])
     assert distance[0] < 1e-9
+
+
+def test_a_far_attachment_is_refused_by_our_rule_and_kept_by_the_releases():
+    """A wide Gaussian (sigma 0.1 m = 25 px at 2 m) centred on pixel (8.5, 8.5) covers mask pixel
+    (20, 8): the surface rendered there, at the Gaussian's depth, lies 12 px x 2 m / 500 = 4.8 cm from
+    its centre. ``pstudio.max_attach_distance_m`` 0.03 (refined) refuses that query; 0 (release)
+    attaches it."""
+    mask = np.zeros((SIZE, SIZE), bool)
+    mask[8, 20] = True
+    unit = unit_with([[8.5, 8.5]], [2.0], [0.9], mask, scale=0.1)
+    refused = attach_queries(unit, 4, RunConfig())
+    assert [len(part) for part in refused] == [0, 0, 0]
+    release = with_rules(RunConfig(), "release")
+    frames, gaussians, distance = attach_queries(unit, 4, release)
+    np.testing.assert_array_equal(gaussians, [0])
+    np.testing.assert_allclose(distance, [0.048], atol=1e-9)
 
 
 def test_a_mask_is_read_at_the_pixel_holding_the_projection():

@@ -197,11 +197,12 @@ def test_the_first_line_comes_before_the_work_and_finished_in_is_the_whole_comma
         text=True,
         env=env,
     )
-    first = process.stdout.readline()
+    first, second = process.stdout.readline(), process.stdout.readline()
     sample_done = (out / "sample_input" / "pstudio").exists()
     rest, _ = process.communicate(timeout=300)
     wall = time.monotonic() - started
-    assert first.startswith(
+    assert first.startswith("rules: refined (ours, measured better; docs/release.md): ")
+    assert second.startswith(
         f"no --input given: using the embedded sample world in {out}/sample_input/pstudio"
     )
     assert not sample_done  # said before writing it
@@ -354,8 +355,9 @@ def test_manifest_settings_resume_every_unit_and_rewrite_the_manifests(finished,
 
 
 def test_a_release_run_resumes_a_plain_runs_units(finished, tmp_path):
-    """The release's membership changes no clip's bytes: its run over a plain run's output redoes no
-    unit, and still says why each named clip it does not have is missing."""
+    """The release's membership changes no clip's bytes: its run over a plain run's output under the
+    same rules (``--set rules=refined``: a release run's own are the release's) redoes no unit, and
+    still says why each named clip it does not have is missing."""
     source_input, out = finished
     names = sorted(clip_bytes(out, "drivetrack"))  # crossing, lead, oncoming (camera 1), parked (camera 3)
     segment = names[0].split("_", 1)[1].rsplit("_1_", 1)[0]
@@ -365,7 +367,17 @@ def test_a_release_run_resumes_a_plain_runs_units(finished, tmp_path):
     release.write_text(json.dumps(splits))
     assert other_camera not in names
     assert parse_release(release.read_text()).names("drivetrack")
-    result = run_in_process("drivetrack", "--input", source_input, "--output", out, "--release", str(release))
+    result = run_in_process(
+        "drivetrack",
+        "--input",
+        source_input,
+        "--output",
+        out,
+        "--release",
+        str(release),
+        "--set",
+        "rules=refined",
+    )
     assert result.returncode == 0, result.stderr[-3000:]
     assert result.stderr.count(RESUMED) == 2  # the units of cameras 1 and 3, each named
     with open(os.path.join(out, "release_drivetrack.jsonl")) as handle:

@@ -2,30 +2,19 @@
 
 ``write_layout(source, sequence, folder, base_url)`` writes into ``folder`` one file per data group
 (the recording as a plain ``.vrs``, every other group a zip of its files) and ``urls.json``
-pointing at ``base_url`` with their real SHA-1s and sizes. ``serve(folder)`` runs an HTTP server
-on 127.0.0.1 (any free port) in a daemon thread for the ``with`` block; ``server.fail(filename,
-*actions)`` queues faults for one file, each used by one request: an HTTP status (``"500"``,
-``"429"``, ...), ``"truncate"`` (the full Content-Length, half the body, then the connection is
-closed), ``"short"`` / ``"long"`` (no Content-Length; half the body, or the body and 10 more
-bytes, then the connection is closed) or ``"drop"`` (the connection closed without an answer);
-``server.stop()`` takes the server away (connections are then refused);
-``server.requests(filename)`` counts the requests for a file, ``server.reset()`` forgets them.
+pointing at ``base_url`` with their real SHA-1s and sizes. ``serve(folder)`` serves them over HTTP with faults
+on demand (``tests/support/http_server.py``).
 """
 
 from __future__ import annotations
 
-import collections
-import contextlib
 import dataclasses
 import hashlib
-import http.server
 import json
 import pathlib
-import sys
-import threading
 import urllib.parse
 import zipfile
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 
 RECORDING = "video.vrs"
 # The excerpt's files by data group, as ADT ships them: the recording alone, the ground truth,
@@ -131,99 +120,3 @@ def write_layout(
     layout = Layout(folder, sequence, base_url, {"sequences": {sequence: entries}, "sequence_config": config})
     layout.url_file.write_text(json.dumps(layout.data, indent=1))
     return layout
-
-
-class _Server(http.server.ThreadingHTTPServer):
-    daemon_threads = True
-
-    def __init__(self, folder: pathlib.Path):
-        super().__init__(("127.0.0.1", 0), _Handler)
-        self.folder = folder
-        self.lock = threading.Lock()
-        self.faults: dict[str, collections.deque[str]] = collections.defaultdict(collections.deque)
-        self.counts: collections.Counter[str] = collections.Counter()
-
-    def handle_error(self, request, client_address):
-        """A client that hangs up early (it refused a body) is no error of the server's."""
-        if not isinstance(sys.exc_info()[1], ConnectionError):
-            super().handle_error(request, client_address)
-
-
-class _Handler(http.server.BaseHTTPRequestHandler):
-    server: _Server
-    protocol_version = "HTTP/1.1"
-
-    def log_message(self, format, *args):  # quiet
-        pass
-
-    def do_GET(self):
-        name = urllib.parse.unquote(urllib.parse.urlsplit(self.path).path).lstrip("/")
-        with self.server.lock:
-            self.server.counts[name] += 1
-            queue = self.server.faults[name]
-            action = queue.popleft() if queue else None
-        path = self.server.folder / name
-        if action == "drop":
-            self.close_connection = True
-        elif action is not None and action.isdigit():
-            self.send_error(int(action))
-        elif "/" in name or not path.is_file():
-            self.send_error(404)
-        else:
-            self._send(path.read_bytes(), action)
-
-    def _send(self, data: bytes, action: str | None) -> None:
-        self.send_response(200)
-        self.send_header("Content-Type", "application/octet-stream")
-        if action in ("short", "long"):  # the body ends where the connection does
-            self.send_header("Connection", "close")
-        else:
-            self.send_header("Content-Length", str(len(data)))
-        self.end_headers()
-        body = {"truncate": data[: len(data) // 2], "short": data[: len(data) // 2], "long": data + bytes(10)}
-        self.wfile.write(body.get(action, data))
-        self.close_connection = action in body
-
-
-class AdtServer:
-    """The running server: its base URL, fault queues and request counts."""
-
-    def __init__(self, folder: pathlib.Path):
-        self._server = _Server(pathlib.Path(folder))
-        self.base_url = f"http://127.0.0.1:{self._server.server_address[1]}"
-        self._thread = threading.Thread(target=self._server.serve_forever, args=(0.05,), daemon=True)
-        self._thread.start()
-        self._stopped = False
-
-    def fail(self, filename: str, *actions: str) -> None:
-        """Queue ``actions`` for the next requests of ``filename``, one each."""
-        with self._server.lock:
-            self._server.faults[filename].extend(actions)
-
-    def requests(self, filename: str) -> int:
-        with self._server.lock:
-            return self._server.counts[filename]
-
-    def reset(self) -> None:
-        """Forget the counts and the faults not used yet."""
-        with self._server.lock:
-            self._server.counts.clear()
-            self._server.faults.clear()
-
-    def stop(self) -> None:
-        """Take the server away: its port no longer accepts connections."""
-        if not self._stopped:
-            self._stopped = True
-            self._server.shutdown()
-            self._server.server_close()
-            self._thread.join(5)
-
-
-@contextlib.contextmanager
-def serve(folder: pathlib.Path) -> Iterator[AdtServer]:
-    """An ``AdtServer`` for the files of ``folder`` during the ``with`` block."""
-    server = AdtServer(folder)
-    try:
-        yield server
-    finally:
-        server.stop()
