@@ -28,7 +28,7 @@ from apache_beam.metrics.metric import MetricsFilter
 from pipeline import graph, sources
 from pipeline.commandline import StrictParser, UsageError, check_beam_args
 from pipeline.core.config import SettingsError
-from pipeline.core.errors import InputError, OutputError, root_cause
+from pipeline.core.errors import InputError, OutputError, interruption, root_cause
 from pipeline.core.outcomes import FILTER_ORDER
 from pipeline.core.progress import quiet_worker_logs, set_verbose, workers_silenced
 from pipeline.export.layout import failures_path, release_verdicts_path, run_record_path
@@ -323,9 +323,10 @@ def run(prepared: PreparedRun, started: float) -> int:
             job, plan, provenance(prepared, input_root, plan), prepared.release, prepared.restricted, metrics
         )
     except Exception as error:  # noqa: BLE001 - Beam wraps a step's error; say the cause in one line
+        interrupted = interruption(error)
+        if interrupted is not None:
+            raise interrupted from None
         cause = root_cause(error)
-        if isinstance(cause, KeyboardInterrupt):
-            raise cause from None
         if not isinstance(cause, (OSError, OutputError)):
             raise
         print(f"cannot finish: {cause}", file=sys.stderr)

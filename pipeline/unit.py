@@ -17,7 +17,7 @@ from collections.abc import Iterator, Mapping
 from typing import TYPE_CHECKING
 
 from pipeline.core.clip import ClipRecord
-from pipeline.core.errors import InputError, OutputError, root_cause
+from pipeline.core.errors import InputError, OutputError, interruption
 from pipeline.core.outcomes import ClipReport, Failure, UnitClips, UnitOutcome
 from pipeline.core.progress import progress
 from pipeline.export.audit_table import encode_parquet, outcome_table
@@ -85,11 +85,11 @@ class Filtered:
 
 def failure(unit: str, stage: str, error: BaseException, clip: str = "") -> Failure:
     """The Failure of an error; unexpected errors keep their innermost frame for debugging.
-    An error whose innermost cause is a Ctrl-C raises that KeyboardInterrupt: the run stops, the
-    unit has not failed (numba has reported a Ctrl-C taken during a kernel's call as a
-    SystemError, "returned a result with an exception set", caused by the KeyboardInterrupt)."""
-    if isinstance(cause := root_cause(error), KeyboardInterrupt):
-        raise cause
+    An error with a Ctrl-C in its chain raises that KeyboardInterrupt: the run stops, the unit has
+    not failed (numba has reported a Ctrl-C taken during a kernel's call as a SystemError,
+    "returned a result with an exception set", caused by the KeyboardInterrupt)."""
+    if (interrupted := interruption(error)) is not None:
+        raise interrupted
     where = ""
     if not isinstance(error, (InputError, OutputError)):
         frame = traceback.extract_tb(error.__traceback__)[-1]

@@ -29,6 +29,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
+import math
 import os
 import posixpath
 import re
@@ -36,22 +37,29 @@ import shutil
 import tempfile
 import zipfile
 from collections.abc import Iterable, Iterator, Mapping
+from fractions import Fraction
 
 from projectaria_tools.tools.dataset_downloader.dataset_downloader import MPS_DATA_TYPE_TO_SAVE_PATH
 from projectaria_tools.tools.dataset_downloader.dataset_downloader_utils import load_data_groups_from_cdn
 
 from pipeline.core.errors import InputError
+from pipeline.core.progress import progress
 from pipeline.core.sizes import format_bytes
+from pipeline.io.files import PARTIAL, is_abandoned, writer_host
 from pipeline.io.http import HttpClient, HttpConfig, HttpError
 
 RECORDING_GROUP = "main_vrs"
 MAX_URL_FILE_BYTES = 64 << 20
-# A zip whose members declare more than this many times its own size (and more than the floor),
-# or more than the cap in all, is refused before anything is unpacked.
-MAX_UNPACK_RATIO = 64
-UNPACK_FLOOR_BYTES = 64 << 20
-MAX_UNPACK_BYTES = 1 << 40
+# What the scratch estimate assumes a zip's needed files unpack to, per byte of the zip: a VRS file
+# holds compressed images and depth and shrinks by under 5% in a zip (the real excerpt's); any other
+# (CSV, JSON) text, which deflate shrinks 2 to 14 times on the excerpt. A zip whose needed files
+# declare more than that is refused before anything is unpacked.
+UNPACK_RATIOS = {".vrs": Fraction("1.1")}
+TEXT_UNPACK_RATIO = Fraction(20)
 CHUNK_BYTES = 1 << 20
+# A fetch's folder in the scratch folder: recognisably ours, named for its host and process, so that
+# a later run reclaims a folder a killed run left (``reclaim_scratch``) and never another's.
+FETCH_FOLDER = ".adt-fetch"
 _SHA1 = re.compile(r"[0-9a-fA-F]{40}")
 
 
@@ -92,14 +100,24 @@ class GroupDownload:
     folder: str
     is_recording: bool
 
+    @property
+    def unpacked(self) -> int:
+        """The most its needed files may take once unpacked: the recording's size, or the zip's size
+        times the largest ``UNPACK_RATIOS`` of its files' kinds (the estimate, and the cap)."""
+        if self.is_recording:
+            return self.size
+        ratio = max(UNPACK_RATIOS.get(posixpath.splitext(name)[1], TEXT_UNPACK_RATIO) for name in self.files)
+        return math.ceil(self.size * ratio)
+
 
 @dataclasses.dataclass(frozen=True)
 class SequenceDownload:
     """The groups of one sequence to fetch, in fetch order: zips largest first, the recording last.
 
-    ``peak_bytes`` is the most the scratch folder holds meanwhile, assuming a zip's needed content
-    is as large as the zip (VRS barely compresses) and each zip is deleted once unpacked: the
-    largest over the zips of (bytes kept from earlier groups + 2 x the zip), and the total.
+    ``peak_bytes`` is the most the scratch folder holds meanwhile, each zip's needed files taking
+    at most ``GroupDownload.unpacked`` (unpacking refuses more) and each zip deleted once unpacked:
+    the largest over the zips of (bytes kept from earlier groups + the zip + its files), and the
+    total kept.
     """
 
     sequence: str
@@ -277,8 +295,8 @@ def _group_download(url_file: UrlFile, sequence: str, group: str, files: list[st
 def _peak_bytes(groups: Iterable[GroupDownload]) -> int:
     kept = peak = 0
     for group in groups:
-        peak = max(peak, kept + (group.size if group.is_recording else 2 * group.size))
-        kept += group.size
+        peak = max(peak, kept + group.unpacked + (0 if group.is_recording else group.size))
+        kept += group.unpacked
     return max(peak, kept)
 
 
@@ -298,8 +316,13 @@ def fetch_sequence(
     """
     _check_sequence_name(download.sequence)
     os.makedirs(scratch_dir, exist_ok=True)
+    reclaimed = reclaim_scratch(scratch_dir)
+    if reclaimed:
+        left = f"{format_bytes(reclaimed)} left in {scratch_dir} by a killed run"
+        progress(f"{download.sequence}: reclaimed {left}")
     _check_free_space(download, scratch_dir)
-    workdir = tempfile.mkdtemp(prefix=".adt-fetch-", dir=scratch_dir)
+    prefix = f"{FETCH_FOLDER}{PARTIAL}{writer_host()}-{os.getpid()}-"
+    workdir = tempfile.mkdtemp(prefix=prefix, dir=scratch_dir)
     try:
         folder = os.path.join(workdir, download.sequence)
         os.mkdir(folder)
@@ -312,6 +335,26 @@ def fetch_sequence(
         yield folder
     finally:
         shutil.rmtree(workdir, ignore_errors=True)
+
+
+def reclaim_scratch(scratch_dir: str) -> int:
+    """Delete the fetch folders (``FETCH_FOLDER``) whose process is gone (killed, or on another host
+    long ago: ``pipeline.io.files.is_abandoned``) from ``scratch_dir``, nothing else; the bytes freed."""
+    freed = 0
+    with os.scandir(scratch_dir) as entries:
+        found = [entry for entry in entries if entry.name.startswith(FETCH_FOLDER + PARTIAL)]
+    for entry in found:
+        if entry.is_dir(follow_symlinks=False) and is_abandoned(entry.path, entry.stat().st_mtime):
+            size = _tree_bytes(entry.path)
+            shutil.rmtree(entry.path, ignore_errors=True)
+            freed += size if not os.path.exists(entry.path) else 0
+    return freed
+
+
+def _tree_bytes(folder: str) -> int:
+    return sum(
+        os.lstat(os.path.join(root, name)).st_size for root, _, names in os.walk(folder) for name in names
+    )
 
 
 def _check_free_space(download: SequenceDownload, scratch_dir: str) -> None:
@@ -341,34 +384,43 @@ def _fetch_group(client: HttpClient, group: GroupDownload, path: str, folder: st
 
 
 def _unpack(path: str, group: GroupDownload, folder: str) -> None:
-    """Write the zip's members for ``group.files`` into ``folder`` after checking all members."""
+    """Write the zip's members for ``group.files`` into ``folder`` after checking every member's name and
+    what the needed ones declare."""
     try:
         with zipfile.ZipFile(path) as archive:
-            _check_members(archive.infolist(), group.size)
+            _check_names(archive.infolist())
             members = {info.filename: info for info in archive.infolist()}
+            wanted = {}
             for name in group.files:
                 member = posixpath.relpath(name, group.folder) if group.folder else name
                 if member not in members or members[member].is_dir():
                     raise _GroupError(f"the zip holds no {member}")
+                wanted[name] = members[member]
+            _check_unpacked(wanted, group)
+            for name, info in wanted.items():
                 target = os.path.join(folder, *name.split("/"))
                 os.makedirs(os.path.dirname(target), exist_ok=True)
-                with archive.open(members[member]) as source, open(target, "wb") as out:
-                    shutil.copyfileobj(source, out, CHUNK_BYTES)
+                with archive.open(info) as source, open(target, "wb") as out:
+                    shutil.copyfileobj(source, out, CHUNK_BYTES)  # at most the size it declares
     except (zipfile.BadZipFile, zipfile.LargeZipFile, NotImplementedError, RuntimeError, EOFError) as error:
         raise _GroupError(f"cannot unpack the zip: {_one_line(error) or type(error).__name__}") from error
 
 
-def _check_members(members: Iterable[zipfile.ZipInfo], zip_size: int) -> None:
-    """Refuse a member named by an absolute path or with '..', and absurd declared sizes."""
-    total = 0
+def _check_names(members: Iterable[zipfile.ZipInfo]) -> None:
+    """Refuse a member named by an absolute path or with '..'."""
     for info in members:
         name = info.filename
         if name.startswith(("/", "\\")) or re.match(r"[A-Za-z]:", name) or ".." in re.split(r"[/\\]", name):
             raise _GroupError(f"unsafe member {name!r} in the zip (absolute or with '..'), refused")
-        total += info.file_size
-    limit = min(MAX_UNPACK_BYTES, max(MAX_UNPACK_RATIO * zip_size, UNPACK_FLOOR_BYTES))
-    if total > limit:
+
+
+def _check_unpacked(wanted: dict[str, zipfile.ZipInfo], group: GroupDownload) -> None:
+    """Refuse the zip when its needed members declare more than the scratch estimate allows them."""
+    declared = sum(info.file_size for info in wanted.values())
+    if declared > group.unpacked:
+        largest = max(wanted, key=lambda name: wanted[name].file_size)
         raise _GroupError(
-            f"the zip's members declare {format_bytes(total)} unpacked, more than the "
-            f"{format_bytes(limit)} allowed for a {format_bytes(zip_size)} zip, refused"
+            f"its needed files unpack to {format_bytes(declared)} ({largest}: "
+            f"{format_bytes(wanted[largest].file_size)}), more than the {format_bytes(group.unpacked)} "
+            f"the scratch estimate allows a {format_bytes(group.size)} zip of them; refused"
         )

@@ -166,8 +166,11 @@ def check_csv(path: str) -> None:
     quaternions (any other is no rotation)."""
     name = os.path.basename(path)
     label, translation, quaternion = CSV_COLUMNS[name]
-    with open(path, newline="") as handle:
-        rows = list(csv.reader(handle))
+    try:
+        with open(path, newline="") as handle:
+            rows = list(csv.reader(handle))
+    except (csv.Error, UnicodeDecodeError) as error:
+        raise InputError(f"{name} is not a readable CSV ({error})") from None
     header = rows[0] if rows else []
     missing = [column for column in (*label, *translation, *quaternion) if column not in header]
     if missing:

@@ -14,7 +14,7 @@ import re
 import tempfile
 from typing import TYPE_CHECKING
 
-from pipeline.adt.download import is_url_file, plan_download, read_url_file
+from pipeline.adt.download import is_url_file, plan_download, read_url_file, reclaim_scratch
 from pipeline.adt.frames import open_reader
 from pipeline.adt.reader import list_sequences, required_files, v1_name
 from pipeline.core.errors import InputError
@@ -202,8 +202,12 @@ def list_fetched(url_path: str, config: RunConfig, named: dict[str, set[int]] | 
         }
     peak = max((d.peak_bytes for d in downloads), default=0)
     total = sum(d.download_bytes for d in downloads)
-    note = (
+    scratch = scratch_folder(config)
+    notes = [
         f"adt: {len({u[0] for u in units})} sequence(s) to fetch from {url_path} ({format_bytes(total)}), "
-        f"each into {scratch_folder(config)} and deleted after its chunks"
-    )
-    return UnitPlan(units, expected=expected, absent=absent, notes=(note,), scratch_per_worker=peak)
+        f"each into {scratch} and deleted after its chunks"
+    ]
+    reclaimed = reclaim_scratch(scratch) if os.path.isdir(scratch) else 0
+    if reclaimed:
+        notes.append(f"adt: reclaimed {format_bytes(reclaimed)} left in {scratch} by a killed run")
+    return UnitPlan(units, expected=expected, absent=absent, notes=tuple(notes), scratch_per_worker=peak)

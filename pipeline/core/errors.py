@@ -15,3 +15,16 @@ def root_cause(error: BaseException) -> BaseException:
     while (error.__cause__ or error.__context__) is not None:
         error = error.__cause__ or error.__context__
     return error
+
+
+def interruption(error: BaseException) -> KeyboardInterrupt | None:
+    """The Ctrl-C behind ``error``, if any exception of its chain (causes and contexts) is one: a
+    Ctrl-C taken while another error was being handled (a retry's wait) has that error as its
+    context, and Beam or numba may wrap it in turn."""
+    seen: list[BaseException] = []
+    while error is not None and not any(error is other for other in seen):
+        if isinstance(error, KeyboardInterrupt):
+            return error
+        seen.append(error)
+        error = error.__cause__ or error.__context__
+    return None

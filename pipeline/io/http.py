@@ -231,10 +231,13 @@ class HttpClient:
             try:
                 return self._answer(url, clock, headers or {})
             except _Retry as failure:
-                self.retry_or_fail(url, clock, tries, failure)
+                problem = failure
+            self.retry_or_fail(url, clock, tries, problem)
 
     def retry_or_fail(self, url: str, clock: FileClock, tries: int, failure: _Retry) -> None:
-        """After the ``tries``-th try failed with ``failure``: wait for the next, or raise HttpError."""
+        """After the ``tries``-th try failed with ``failure``: wait for the next, or raise HttpError.
+        Callers call it outside their ``except`` block, so that a Ctrl-C in the wait is a plain one,
+        not an error raised while handling another."""
         if tries > self.config.retries:
             after = f" after {tries} tries" if tries > 1 else ""
             raise HttpError(f"{failure}{after}", url, failure.kind, failure.status) from None
@@ -287,13 +290,19 @@ class HttpClient:
         connection is lost or a read times out before the body ends."""
         got = 0
         try:
-            for chunk in response.iter_content(CHUNK_BYTES):  # each read bounded by the read timeout
+            while True:
+                # At most one socket read (bounded by the read timeout) per chunk: the file's clock sees
+                # every arrival, so a trickle is caught by the stall rule in time.
+                try:
+                    chunk = response.raw.read1(CHUNK_BYTES, decode_content=True)
+                except (requests.RequestException, urllib3.exceptions.HTTPError, ConnectionError) as error:
+                    raise _Retry(_failure(error)[1], "broken") from None
+                if not chunk:
+                    break
                 got += len(chunk)
                 self.fetched += len(chunk)
                 clock.got(len(chunk))
                 sink(chunk)
-        except (requests.RequestException, urllib3.exceptions.HTTPError) as error:
-            raise _Retry(_failure(error)[1], "broken") from None
         finally:
             response.close()
         return got
@@ -306,8 +315,6 @@ class HttpClient:
         while True:
             tries += 1
             done = sum(len(part) for part in parts)
-            if start + done >= stop:
-                return b"".join(parts)
             try:
                 response = self._answer(url, clock, {"Range": f"bytes={start + done}-{stop - 1}"})
                 first, _, _ = content_range(response)
@@ -324,10 +331,12 @@ class HttpClient:
                     self.body(response, clock, parts.append)
                 except _Retry as lost:
                     raise _Retry(self.short(parts, start, stop, f" ({lost})"), "truncated") from None
-                if start + sum(len(part) for part in parts) < stop:
-                    raise _Retry(self.short(parts, start, stop), "truncated")
+                if start + sum(len(part) for part in parts) >= stop:
+                    return b"".join(parts)
+                raise _Retry(self.short(parts, start, stop), "truncated")
             except _Retry as failure:
-                self.retry_or_fail(url, clock, tries, failure)
+                problem = failure
+            self.retry_or_fail(url, clock, tries, problem)
 
     @staticmethod
     def short(parts: list[bytes], start: int, stop: int, cause: str = "") -> str:
@@ -362,7 +371,8 @@ class HttpClient:
                 self._download_body(url, response, clock, out, digest, got, size)
                 return digest.hexdigest()
             except _Retry as failure:
-                self.retry_or_fail(url, clock, tries, failure)
+                problem = failure
+            self.retry_or_fail(url, clock, tries, problem)
 
     def _download_body(self, url, response, clock, out: BinaryIO, digest, got: int, size: int) -> None:
         """``download``'s body from byte ``got`` on, to byte ``size`` (else _Retry)."""
@@ -552,7 +562,8 @@ def open_remote(client: HttpClient, url: str, max_bytes: int) -> RemoteFile | io
                 return RemoteFile(client, url, clock, total, data)
             return _whole(client, url, clock, response, max_bytes)
         except _Retry as failure:
-            client.retry_or_fail(url, clock, tries, failure)
+            problem = failure
+        client.retry_or_fail(url, clock, tries, problem)
 
 
 def _whole(
