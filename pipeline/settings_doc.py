@@ -21,6 +21,7 @@ import sys
 from pipeline import sources
 from pipeline.commandline import StrictParser
 from pipeline.core.config import settings_items
+from pipeline.pipes import run_command
 from pipeline.settings import RunConfig
 
 COMMAND = "python -m pipeline.settings_doc > docs/configuration.md"
@@ -155,4 +156,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_command(main)

@@ -15,6 +15,7 @@ import importlib
 import sys
 
 from pipeline.commandline import closest
+from pipeline.pipes import run_command
 
 COMMANDS = {
     "sweep": "pipeline.audit.sweep",
@@ -41,4 +42,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_command(main)
