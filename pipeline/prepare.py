@@ -81,20 +81,23 @@ def check_writable(output: str) -> None:
     remove_quietly([probe])
 
 
-def check_inputs(input_root: str | None, config: RunConfig) -> None:
-    """CannotStart unless every local path the run will read exists: ``--input`` and every setting
-    declared a path (``core.config.path_setting``) that is set."""
-    paths = {"--input": input_root, **path_settings(config)}
+def check_inputs(input_root: str | None, config: RunConfig, release: str | None = None) -> None:
+    """CannotStart unless every local path the run will read exists: ``--input``, ``--release`` and
+    every setting declared a path (``core.config.path_setting``) that is set, each named as the user
+    gave it (``--set drivetrack.masks_dir=DIR``)."""
+    paths = {"--input": input_root, "--release": release, **path_settings(config)}
     for what, path in paths.items():
         if path:
             storage.check_scheme(path)
         if path and is_local(path) and not os.path.exists(path):
-            raise CannotStart(f"{what} {path} does not exist")
+            given = f"{what} {path}" if what.startswith("--") else f"--set {what}={path}"
+            raise CannotStart(f"{given} does not exist")
 
 
 def settings(args: argparse.Namespace) -> tuple[RunConfig, Release | None]:
     """The run's config (defaults, ``--set``, the command's flags) and the release it follows."""
     config = with_overrides(RunConfig(), args.overrides)
+    given_splits = config.splits_file
     splits = absolute(args.release or "") or absolute(config.splits_file)
     if args.release and config.splits_file and absolute(config.splits_file) != splits:
         raise CannotStart("--release and --set splits_file name different files; give one")
@@ -104,8 +107,9 @@ def settings(args: argparse.Namespace) -> tuple[RunConfig, Release | None]:
         queries_from=absolute(args.queries_from or config.queries_from),
         splits_file=splits,
     )
-    check_inputs(args.input, config)
-    return config, read_release(splits, "--release" if args.release else "splits_file") if splits else None
+    check_inputs(args.input, config, args.release)
+    label = f"--release {args.release}" if args.release else f"--set splits_file={given_splits}"
+    return config, read_release(splits, label) if splits else None
 
 
 def prepare_run(args: argparse.Namespace, beam_args: list[str]) -> PreparedRun:

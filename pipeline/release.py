@@ -15,6 +15,8 @@ import json
 from collections import Counter
 from collections.abc import Iterable, Mapping
 
+from pipeline import sources
+from pipeline.commandline import closest
 from pipeline.core.errors import InputError
 from pipeline.core.outcomes import FILTER_ORDER, ClipReport, UnitOutcome
 from pipeline.io.files import read_bytes
@@ -37,8 +39,13 @@ class Release:
         return frozenset(self.clips.get(source, {}))
 
 
+class UnknownSource(ValueError):
+    """A splits JSON naming a source that is not registered (a typo: ``drivetrak``)."""
+
+
 def parse_release(text: str, path: str = "") -> Release:
-    """The Release of a splits JSON's text; ValueError saying what is wrong with it."""
+    """The Release of a splits JSON's text; ValueError saying what is wrong with it (UnknownSource
+    for a source that is not registered)."""
     try:
         data = json.loads(text)
     except ValueError as error:
@@ -56,6 +63,12 @@ def parse_release(text: str, path: str = "") -> Release:
             for names in entry.values()
         ):
             raise ValueError(f"'{keys.get(split, split)}' must map each source to a list of clip file names")
+        for source in entry:
+            if source not in sources.names():
+                near = closest(source, sources.names())
+                hint = f"did you mean {near}?" if near else f"the sources are {', '.join(sources.names())}"
+                where = keys.get(split, split)
+                raise UnknownSource(f"'{where}' names source {source!r}, not a source; {hint}")
         for source, names in entry.items():
             for name in names:
                 clip = name[: -len(".npz")] if name.endswith(".npz") else name
@@ -65,13 +78,16 @@ def parse_release(text: str, path: str = "") -> Release:
     return Release(path, clips)
 
 
-def read_release(path: str, what: str = "--release") -> Release:
-    """``parse_release`` of the file at ``path``; InputError naming it (``what``: the option or
-    setting that gave it) and the problem."""
+def read_release(path: str, given: str = "") -> Release:
+    """``parse_release`` of the file at ``path``; InputError naming it as the user gave it (``given``,
+    e.g. ``--set splits_file=FILE``; default ``--release PATH``) and the problem."""
+    given = given or f"--release {path}"
     try:
         return parse_release(read_bytes(path, MAX_RELEASE_BYTES).decode(), path)
+    except UnknownSource as error:
+        raise InputError(f"{given}: {error}") from error
     except (OSError, UnicodeDecodeError, ValueError) as error:
-        raise InputError(f"{what} {path}: not the release's splits JSON ({error})") from error
+        raise InputError(f"{given}: not the release's splits JSON ({error})") from error
 
 
 @dataclasses.dataclass(frozen=True)

@@ -35,8 +35,8 @@ Every setting below is set with `--set KEY=VALUE` on `python -m pipeline.run` (r
 as comma-separated integers, a boolean as `true` or `false`). Before any work, every value is
 checked against its allowed range, and every problem is reported, one line each, under `cannot
 start: N problem(s) with the settings:` with exit status 2 (e.g. `--set adt.image_size=0: must be an
-integer in [2, 8192] and even`); an unknown key is refused with the list of valid keys (and the
-nearest one, when close). The run record (`<out>/run_<source>.json`) holds every value a run used.
+integer in [2, 8192] and even`); an unknown key is refused with the nearest keys, when close, and a
+pointer to this page. The run record (`<out>/run_<source>.json`) holds every value a run used.
 
 Marks: **path**, a file or folder the run reads, checked to exist before any work; **not in
 clips**, a setting that never changes a clip's bytes, so changing it re-annotates no unit (resume

@@ -29,6 +29,7 @@ from pipeline.audit.sweep import matches_run
 from pipeline.commandline import StrictParser
 from pipeline.core.errors import InputError
 from pipeline.io.files import write_atomic
+from pipeline.io.storage import StorageError, check_scheme
 
 THUMBNAILS = 12  # per source, by default
 SUMMARY_KEYS = ("candidate_tracks", "dropped_by_filter", "tracks_passing_filters", "clips_below_target")
@@ -186,8 +187,12 @@ def main(argv: list[str]) -> int:
     args = parser.parse_args(argv)
     if args.thumbnails < 0:
         parser.error(f"--thumbnails {args.thumbnails}: must be 0 or more")
-    if os.path.isdir(args.out):
+    if os.path.isdir(args.out) or args.out.endswith("/"):
         parser.error(f"--out {args.out} is a folder: name the HTML file to write")
+    try:
+        check_scheme(args.out)
+    except StorageError as error:
+        parser.error(f"--out {args.out}: {error}")
     output = os.path.abspath(args.output) if "://" not in args.output else args.output
     try:
         found = page_data(output, args.source or list(sources.names()))
@@ -198,9 +203,14 @@ def main(argv: list[str]) -> int:
             raise ValueError(f"no audit tables in {output}/audit/: run python -m pipeline.run first")
         parts = [source_json(output, data, args.thumbnails) for data in found]
         page = page_html(output, [part for part, _ in parts]).encode()
-        write_atomic(args.out, page)
     except (ValueError, KeyError, OSError, pa.ArrowException, InputError) as error:
         print(f"report: {error}", file=sys.stderr)
+        return 2
+    try:
+        write_atomic(args.out, page)
+    except (OSError, ValueError) as error:  # said of --out, never of the hidden temporary it goes through
+        cause = getattr(error, "strerror", None) or type(error).__name__
+        print(f"report: cannot write --out {args.out} ({cause})", file=sys.stderr)
         return 2
     for data, (part, problems) in zip(found, parts, strict=True):
         for line in problems:

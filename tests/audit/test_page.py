@@ -187,6 +187,22 @@ def test_help_and_one_line_refusals(out, tmp_path, capsys):
     assert not (tmp_path / "p.html").exists()
 
 
+
+def test_an_unwritable_out_is_named_as_given_never_its_temporary(out, tmp_path, capsys):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    target = blocker / "p.html"
+    assert audit_main(["report", str(out), "--out", str(target), "--thumbnails", "0"]) == 2
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.startswith(f"report: cannot write --out {target} (")
+    assert ".partial" not in line
+    with pytest.raises(SystemExit) as stop:
+        audit_main(["report", str(out), "--out", f"{tmp_path}/new.html/", "--thumbnails", "0"])
+    assert stop.value.code == 2
+    assert "is a folder: name the HTML file to write" in capsys.readouterr().err
+    assert sorted(os.listdir(tmp_path)) == ["a_file"]
+
+
 def tree(folder) -> dict:
     """path -> (size, mtime) of every file under ``folder``."""
     found = {}
@@ -288,7 +304,7 @@ def shown(driver, ident: str) -> int:
 @pytest.mark.parametrize("source", ["pstudio", "drivetrack"])
 def test_sliders_show_the_sweeps_counts(loaded, out, source, tmp_path):
     grid = [arg for value in GRIDS[source] for arg in ("--grid", value)]
-    command = ["sweep", "--source", source, "--output", str(out), *grid, "--report", str(tmp_path)]
+    command = ["sweep", str(out), "--source", source, *grid, "--out", str(tmp_path)]
     assert audit_main(command) == 0
     rows = pq.read_table(tmp_path / "sweep.parquet").to_pylist()
     clips = len(load_statistics(str(out), source))

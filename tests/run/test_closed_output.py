@@ -23,7 +23,7 @@ def command(name: str, run: str, given: str, tmp: str) -> list[str]:
     folder (which holds a release_pstudio.jsonl)."""
     return {
         "run": ["pipeline.run", "--source", "pstudio", "--input", given, "--output", tmp],
-        "audit sweep": ["pipeline.audit", "sweep", "--source", "pstudio", "--output", run, "--report", tmp],
+        "audit sweep": ["pipeline.audit", "sweep", run, "--source", "pstudio", "--out", tmp],
         "audit release": ["pipeline.audit", "release", tmp],
         "audit report": ["pipeline.audit", "report", run, "--out", f"{tmp}/r.html"],
         "audit compare": ["pipeline.audit", "compare", run, run, "--out", f"{tmp}/c"],

@@ -89,11 +89,45 @@ def test_every_bad_setting_is_reported_in_one_list(tmp_path):
     lines = result.stderr.splitlines()
     assert lines[0] == "cannot start: 3 problem(s) with the settings:"
     assert lines[1] == "  --set flicker.max_fraction=abc: expected float; must be a number in [0, 1]"
-    assert lines[2].startswith(
-        "  --set flicker.max_fracton: unknown setting; did you mean flicker.max_fraction?"
+    assert lines[2] == (
+        "  --set flicker.max_fracton: unknown setting; did you mean flicker.max_fraction? "
+        "every key: docs/configuration.md"
     )
     assert lines[3] == "  --set drivetrack.tracks_per_clip=-5: must be an integer in [1, 100000]"
     assert not (tmp_path / "out").exists()
+
+
+def test_a_misspelt_source_gets_the_nearest_name(tmp_path):
+    result = run_in_process("drivetrak", "--output", str(tmp_path / "out"))
+    assert (result.returncode, result.stderr) == (
+        2,
+        "python -m pipeline.run: --source drivetrak: unknown; did you mean drivetrack?\n",
+    )
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("option", ["--release", "--set"])
+def test_a_splits_file_naming_no_source_is_refused_at_the_door_as_given(tmp_path, option):
+    """A typo in a splits file's source key is said before any work, naming the option the user
+    typed; a file that is not there too."""
+    splits = tmp_path / "splits.json"
+    splits.write_text(json.dumps({"minival": {"pstudio": ["dome_3.npz"]}, "full_eval": {"drivetrak": []}}))
+    if option == "--release":
+        given, missing = ["--release", str(splits)], ["--release", "missing.json"]
+        shown = "--release missing.json"
+    else:
+        given, missing = ["--set", f"splits_file={splits}"], ["--set", "splits_file=missing.json"]
+        shown = "--set splits_file=" + os.path.abspath("missing.json")
+    out = tmp_path / "out"
+    result = run_in_process("pstudio", "--output", str(out), *given)
+    assert result.returncode == 2
+    assert result.stderr == (
+        f"cannot start: {' '.join(given)}: 'full_eval' names source 'drivetrak', not a source; "
+        "did you mean drivetrack?\n"
+    )
+    result = run_in_process("pstudio", "--output", str(out), *missing)
+    assert (result.returncode, result.stderr) == (2, f"cannot start: {shown} does not exist\n")
+    assert not out.exists()
 
 
 def test_an_output_that_is_a_file_is_said_so(tmp_path):
@@ -111,17 +145,21 @@ COMMANDS = [
     ("pipeline.audit", "sweep"),
     ("pipeline.audit", "release"),
     ("pipeline.audit", "compare"),
+    ("pipeline.audit", "report"),
     ("pipeline.viz",),
     ("pipeline.viz", "stats"),
+    ("pipeline.settings_doc",),
     ("benchmarks",),
 ]
 
 
 @pytest.mark.parametrize("words", COMMANDS, ids=" ".join)
-def test_help_goes_to_stdout_with_exit_0(words):
+def test_help_goes_to_stdout_as_plain_text_with_exit_0(words):
     result = command(*words, "--help")
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip()
+    assert "``" not in result.stdout  # the docstrings' reStructuredText marks are not shown
+    assert not re.search(r"::$", result.stdout, re.M)
     assert result.stderr == ""
 
 
@@ -153,7 +191,7 @@ def test_grid_problems_are_blamed_on_the_grid_in_one_list(reference_run, capsys)
         "--grid",
         "pstudio.depth_delta_m=0.1",
     ]
-    assert audit_main(["sweep", "--source", "pstudio", "--output", out, *grid]) == 2
+    assert audit_main(["sweep", out, "--source", "pstudio", *grid]) == 2
     lines = capsys.readouterr().err.splitlines()
     assert lines[0] == "sweep: 4 problem(s):"
     assert lines[1].startswith(
