@@ -27,6 +27,7 @@ from pipeline.settings import RunConfig
 from pipeline.sources import Source, UnitPlan
 
 DASK_RUNNER = "apache_beam.runners.dask.dask_runner.DaskRunner"
+SAMPLE_WORLD = "the sample world"
 PROBE_BYTES = 4 << 20
 
 
@@ -143,12 +144,21 @@ def sample_input(prepared: PreparedRun) -> str:
 
 
 def plan_units(prepared: PreparedRun, input_root: str) -> UnitPlan:
-    """The source's units (on a release run, those its clips need); CannotStart when unlistable."""
+    """The source's units (on a release run, those its clips need); CannotStart when unlistable. A
+    run on the sample world was given no ``--input``: its reasons say ``the sample world`` where a
+    source's listing says ``--input``."""
     names = prepared.release.names(prepared.source.name) if prepared.restricted else None
     try:
-        return prepared.source.list_units(input_root, prepared.config, names)
+        plan = prepared.source.list_units(input_root, prepared.config, names)
     except (InputError, OSError) as error:
         raise CannotStart(str(error)) from None
+    if prepared.input_root is not None:
+        return plan
+    in_sample = {
+        name: {clip: reason.replace("--input", SAMPLE_WORLD) for clip, reason in reasons.items()}
+        for name, reasons in (("absent", plan.absent), ("not_made", plan.not_made))
+    }
+    return dataclasses.replace(plan, **in_sample)
 
 
 def concurrent_workers(options: PipelineOptions) -> int | None:

@@ -11,6 +11,7 @@ unit or the clip itself failed: the error's line), with its track counts.
 from __future__ import annotations
 
 import dataclasses
+import importlib.resources
 import json
 from collections import Counter
 from collections.abc import Iterable, Mapping
@@ -26,6 +27,11 @@ SPLITS = ("minival", "full_eval")
 SPLIT_ALIASES = {"full_test": "full_eval"}
 STATUSES = ("written", "not_produced", "input_absent", "failed")
 MAX_RELEASE_BYTES = 64 << 20
+# A splits file of the sample worlds' clips, shipped with the package: every clip the samples make,
+# and a few they cannot (an object of another camera, absent segments and sequences, a camera the
+# sequence lacks, a chunk past the ADT excerpt's end), so that a release run on the samples shows
+# every status with its reason (``make demo`` runs it).
+SAMPLE_RELEASE = str(importlib.resources.files("pipeline.samples") / "sample_splits.json")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -172,7 +178,7 @@ def verdicts(
 
 def _from_outcome(clip: str, split: str, unit: str | None, outcome: UnitOutcome | None, min_tracks: int):
     if unit is None:
-        return Verdict(clip, split, "input_absent", 0, "no unit of --input makes this clip")
+        return Verdict(clip, split, "input_absent", 0, "no unit of the input makes this clip")
     if outcome is None:
         return Verdict(clip, split, "failed", 0, f"unit {unit} left no record (the run stopped before it)")
     report = next((r for r in outcome.reports if r.clip == clip), None)

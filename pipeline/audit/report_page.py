@@ -88,21 +88,30 @@ def about(data: dict) -> str:
     return text
 
 
+def missing_json(data: dict) -> list[dict]:
+    """The release verdicts of clips without an audit table (input absent, not made, failed)."""
+    made = {clip["clip"] for clip in data["clips"]}
+    return [
+        {key: row[key] for key in ("clip", "split", "status", "reason")}
+        for row in data["verdicts"] or []
+        if row["clip"] not in made
+    ]
+
+
 def source_json(output: str, data: dict, count: int) -> tuple[dict, list[str]]:
     """The page's data of one source, and the lines on thumbnails that could not be drawn."""
     clips = data["clips"]
+    if not clips:
+        note = "A release run that annotated no clip of this source: its verdicts "
+        note += f"(release_{data['name']}.jsonl)."
+        return {"name": data["name"], "verdicts_only": True, "about": note, "missing": missing_json(data)}, []
     names = [clip["clip"] for clip in clips]
     images, problems = thumbnails(output, data["name"], names, count)
     splits = None
     if data["verdicts"] is not None:
         split_of = {row["clip"]: row["split"] for row in data["verdicts"]}
         splits = [split_of.get(name) for name in names]
-    made = set(names)
-    missing = [
-        {key: row[key] for key in ("clip", "split", "status", "reason")}
-        for row in data["verdicts"] or []
-        if row["clip"] not in made
-    ]
+    missing = missing_json(data)
     summary = None if data["summary"] is None else {key: data["summary"][key] for key in SUMMARY_KEYS}
     return {
         "name": data["name"],
@@ -200,7 +209,7 @@ def main(argv: list[str]) -> int:
         if absent:
             raise ValueError(f"--source {absent[0]}: no audit tables in {output}/audit/{absent[0]}/")
         if not found:
-            raise ValueError(f"no audit tables in {output}/audit/: run python -m pipeline.run first")
+            raise ValueError(f"no audit tables nor release verdicts in {output}: run python -m pipeline.run")
         parts = [source_json(output, data, args.thumbnails) for data in found]
         page = page_html(output, [part for part, _ in parts]).encode()
     except (ValueError, KeyError, OSError, pa.ArrowException, InputError) as error:
@@ -215,6 +224,10 @@ def main(argv: list[str]) -> int:
     for data, (part, problems) in zip(found, parts, strict=True):
         for line in problems:
             print(f"report: {data['name']}: {line}", file=sys.stderr)
+        if not data["clips"]:
+            verdicts = len(data["verdicts"])
+            print(f"{data['name']}: no audit tables; the page shows its {verdicts} release verdicts")
+            continue
         print(
             f"{data['name']}: {len(data['clips'])} clips, {len(part['thumbnails'])} thumbnails; "
             f"at the run's thresholds the page {run_check(data)}"

@@ -89,3 +89,19 @@ def test_a_closed_output_ends_the_command_quietly(name, same_pipe, reference_run
     assert result.returncode == 141, result.stderr
     assert not result.stderr
 
+
+def test_head_on_a_long_table_ends_the_command_quietly(scratch):
+    """A real ``| head -3`` on a table longer than the pipe holds: the write that finds the reader
+    gone ends the command, 141, stderr silent."""
+    shell = f"{sys.executable} -m pipeline.audit release {scratch} | head -3"
+    result = subprocess.run(
+        ["bash", "-o", "pipefail", "-c", shell], cwd=REPO, capture_output=True, text=True, timeout=120
+    )
+    assert result.returncode == 141, result.stderr
+    assert result.stderr == ""
+    assert len(result.stdout.splitlines()) == 3
+    full = subprocess.run(
+        [sys.executable, "-m", *command("audit release", "", "", scratch)], cwd=REPO, capture_output=True
+    )
+    assert full.returncode == 0
+    assert len(full.stdout) > 1 << 16  # more than a pipe's buffer: the command was still writing
