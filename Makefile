@@ -1,5 +1,6 @@
 # Two commands for a fresh machine: `make demo` (set up, run the main job on the embedded
-# sample world, validate its clips) and `make test` (set up, lint, run the tests).
+# sample world as a release run, validate its clips, show its verdicts) and `make test` (set up,
+# lint, run the tests).
 PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
@@ -8,6 +9,9 @@ OUT ?= out/demo
 # tests and the benchmarks read the same one (pipeline.adt.source.excerpt_path reads $ADT_EXCERPT).
 ADT_EXCERPT ?= ../shared/data/adt_sample/aria_digital_twin_test_data
 export ADT_EXCERPT
+# The samples' splits file (pipeline.release.SAMPLE_RELEASE): the demo is a release run of it, so
+# its verdicts show clips written, not produced and input absent, each with its reason.
+SAMPLE_RELEASE := pipeline/samples/sample_splits.json
 
 .PHONY: setup demo test bench bench-full
 
@@ -28,13 +32,14 @@ $(VENV)/.installed: pyproject.toml
 	touch $@
 
 demo: setup
-	$(PY) -m pipeline.run --source drivetrack --runner DirectRunner --output $(OUT)
-	$(PY) -m pipeline.run --source pstudio --runner DirectRunner --output $(OUT)
+	$(PY) -m pipeline.run --source drivetrack --runner DirectRunner --output $(OUT) --release $(SAMPLE_RELEASE)
+	$(PY) -m pipeline.run --source pstudio --runner DirectRunner --output $(OUT) --release $(SAMPLE_RELEASE)
 	@if [ -d "$(ADT_EXCERPT)" ]; then \
 	  $(PY) -m pipeline.run --source adt --runner DirectRunner --output $(OUT) --input $(ADT_EXCERPT) \
-	    --set adt.chunk_frames=2 --set adt.min_frames=2 --set adt.max_gt_offset_ms=40; \
+	    --set adt.chunk_frames=2 --set adt.min_frames=2 --set adt.max_gt_offset_ms=40 --release $(SAMPLE_RELEASE); \
 	else echo "no ADT excerpt at $(ADT_EXCERPT): ADT skipped (python -m pipeline.run --source adt says how to get ADT)"; fi
 	$(PY) -m pipeline.validate $(OUT)
+	$(PY) -m pipeline.audit release $(OUT)
 
 # The suite on every core (at most 4 worker processes), one test file per worker so a file's
 # module-scoped runs happen once; `$(PY) -m pytest tests/<file>` runs one file in this process.

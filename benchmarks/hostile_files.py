@@ -55,8 +55,8 @@ def run_case(root: str, out: str, command: list[str], interrupt: bool = False, s
         process = subprocess.Popen(command, cwd=REPO, stdout=out_lines, stderr=err, preexec_fn=limits)
         if interrupt:
             while True:
-                err.seek(0)
-                if "unit dome/camera_" in err.read() or process.poll() is not None:
+                out_lines.seek(0)
+                if "unit dome/camera_" in out_lines.read() or process.poll() is not None:
                     break
                 time.sleep(0.2)
             process.send_signal(signal.SIGINT)

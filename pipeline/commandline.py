@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import difflib
+import re
 import sys
 from collections.abc import Iterable
 
@@ -24,10 +25,27 @@ def closest(name: str, valid: Iterable[str], cutoff: float = 0.6) -> str | None:
     return found[0] if found else None
 
 
-def unknown_message(unknown: list[str], valid: Iterable[str]) -> str:
-    """One line naming the unknown arguments, each with the nearest valid option (a plain argument
-    right after an unknown option is taken for its value)."""
+def did_you_mean(value: str, valid: Iterable[str], what: str) -> str:
+    """One line refusing ``value`` (``what``: the option that gave it, e.g. ``--source``), with the
+    nearest valid name, else the valid names."""
+    valid = list(valid)
+    near = closest(value, valid)
+    hint = f"did you mean {near}?" if near else f"valid: {', '.join(valid)}"
+    return f"{what} {value}: unknown; {hint}"
+
+
+def plain_text(text: str) -> str:
+    """A docstring as ``--help`` shows it: reStructuredText's double backticks dropped, a ``::`` that
+    opens a literal block shown as ``:``."""
+    return re.sub(r"::$", ":", text.replace("``", ""), flags=re.M)
+
+
+def unknown_message(unknown: list[str], valid: Iterable[str], renamed: dict[str, str] | None = None) -> str:
+    """One line naming the unknown arguments, each with the nearest valid option or, for an option
+    ``renamed`` lists, what replaced it (a plain argument right after an unknown option is taken for
+    its value)."""
     valid = sorted(set(valid))
+    renamed = renamed or {}
     parts = []
     for index, argument in enumerate(unknown):
         if not argument.startswith("-"):
@@ -36,17 +54,30 @@ def unknown_message(unknown: list[str], valid: Iterable[str]) -> str:
             continue
         name = argument.split("=", 1)[0]
         near = closest(name, valid)
-        parts.append(f"unknown option {name}" + (f" (did you mean {near}?)" if near else ""))
+        if name in renamed:
+            parts.append(f"{name} {renamed[name]}")
+        else:
+            parts.append(f"unknown option {name}" + (f" (did you mean {near}?)" if near else ""))
     return "; ".join(parts) + " (--help lists the options)"
 
 
 class StrictParser(argparse.ArgumentParser):
-    """An ArgumentParser that takes no abbreviation, names the nearest valid option of an unknown one,
-    and reports every problem in one line on stderr with exit status 2."""
+    """An ArgumentParser that takes no abbreviation, names the nearest valid option of an unknown one
+    (or, for an old spelling in ``renamed``, what replaced it: ``{"--report": "is now --out"}``),
+    reports every problem in one line on stderr with exit status 2, and shows its help as plain text."""
 
-    def __init__(self, *args, **kwargs):
+    def __init__(self, *args, renamed: dict[str, str] | None = None, **kwargs):
         kwargs.setdefault("allow_abbrev", False)
         super().__init__(*args, **kwargs)
+        self.renamed = dict(renamed or {})
+
+    def format_help(self) -> str:
+        return plain_text(super().format_help())
+
+    def _check_value(self, action, value):  # argparse's check of ``choices``: name the nearest one
+        if action.choices is not None and value not in action.choices:
+            what = action.option_strings[0] if action.option_strings else action.dest
+            raise argparse.ArgumentError(None, did_you_mean(value, action.choices, what))
 
     def option_names(self) -> list[str]:
         return [name for action in self._actions for name in action.option_strings]
@@ -60,7 +91,7 @@ class StrictParser(argparse.ArgumentParser):
         self.refuse_unknown_options(args)
         parsed, unknown = self.parse_known_args(args, namespace)
         if unknown:
-            self.error(unknown_message(unknown, self.option_names()))
+            self.error(unknown_message(unknown, self.option_names(), self.renamed))
         return parsed
 
     def refuse_unknown_options(self, args: list[str], also_valid: Iterable[str] = ()) -> None:
@@ -68,7 +99,7 @@ class StrictParser(argparse.ArgumentParser):
         valid = {*self.option_names(), *also_valid}
         unknown = [a for a in args if a.startswith("--") and a != "--" and a.split("=", 1)[0] not in valid]
         if unknown:
-            self.error(unknown_message(unknown, valid))
+            self.error(unknown_message(unknown, valid, self.renamed))
 
 
 def beam_parser(error_class=UsageError) -> argparse.ArgumentParser:

@@ -2,18 +2,16 @@
 
 Workers write each unit's record when it is done (``pipeline/unit.py``); the monitor polls the
 records folder from a thread of the main process, so it reports the same on every runner and any
-number of worker processes. On a terminal it draws a live tqdm bar and writes the unit lines above
-it; piped, it prints plain lines, each with the count done, the elapsed time and an estimate of
-what is left. A closed output (``| head``) sets ``OUTPUT_CLOSED`` and stops the main thread with
+number of worker processes. The unit lines are the run's account and go to stdout, each with the
+count done, the elapsed time and an estimate of what is left; when stderr is a terminal a live tqdm
+bar is drawn there too (then a unit line shown on the same terminal leaves the counting to the bar).
+A closed output (``| head``) sets ``pipes.READER_GONE`` and stops the main thread with
 KeyboardInterrupt (``_thread.interrupt_main``) so the run ends promptly instead of running on.
 """
 
 from __future__ import annotations
 
 import _thread
-import os
-import select
-import stat
 import sys
 import threading
 import time
@@ -23,37 +21,8 @@ from tqdm import tqdm
 
 from pipeline.core.outcomes import UnitOutcome
 from pipeline.export.layout import unit_record_path
+from pipeline.pipes import READER_GONE
 from pipeline.resume import outcome_of, read_unit_record
-
-# Set when a report could not be written because the reader went away (a closed pipe).
-OUTPUT_CLOSED = threading.Event()
-
-
-def watch_output_pipes(interval_s: float = 0.5) -> None:
-    """From a daemon thread, stop the main thread (KeyboardInterrupt, with ``OUTPUT_CLOSED`` set) as
-    soon as the reader of the command's stdout or stderr pipe goes away (``| head``), even while
-    nothing is being printed (Linux reports a pipe whose reader closed as POLLERR on its write end)."""
-    pipes = [fd for fd in (1, 2) if _is_pipe(fd)]
-    if not pipes:
-        return
-    poller = select.poll()
-    for fd in pipes:
-        poller.register(fd, select.POLLERR | select.POLLHUP)
-
-    def watch() -> None:
-        while not poller.poll(interval_s * 1000):
-            pass
-        OUTPUT_CLOSED.set()
-        _thread.interrupt_main()
-
-    threading.Thread(target=watch, name="output-watch", daemon=True).start()
-
-
-def _is_pipe(fd: int) -> bool:
-    try:
-        return stat.S_ISFIFO(os.fstat(fd).st_mode)
-    except OSError:
-        return False
 
 
 def clock(seconds: float) -> str:
@@ -78,11 +47,22 @@ def describe(outcome: UnitOutcome) -> str:
 
 
 class RunMonitor:
-    """Reports the units of a run (``names``) as their records, stamped with ``run_id``, appear."""
+    """Reports the units of a run (``names``) as their records, stamped with ``run_id``, appear: a
+    line each on ``lines`` (default stdout), a live bar on ``bar_stream`` when it is a terminal."""
 
-    def __init__(self, output: str, source: str, names: list[str], run_id: str, started: float, stream=None):
+    def __init__(
+        self,
+        output: str,
+        source: str,
+        names: list[str],
+        run_id: str,
+        started: float,
+        bar_stream=None,
+        lines=None,
+    ):
         self.output, self.source, self.run_id, self.started = output, source, run_id, started
-        self.stream = stream if stream is not None else sys.stderr
+        self.lines = lines if lines is not None else sys.stdout
+        bar_stream = bar_stream if bar_stream is not None else sys.stderr
         self.paths = {unit_record_path(output, source, name): name for name in names}
         self.pattern = f"{output}/units/{source}/*.json"
         self.seen: dict[str, float] = {}
@@ -90,10 +70,13 @@ class RunMonitor:
         self.closed = False
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        interactive = getattr(self.stream, "isatty", lambda: False)()
         self.bar = (
-            tqdm(total=len(names), file=self.stream, unit="unit", dynamic_ncols=True) if interactive else None
+            tqdm(total=len(names), file=bar_stream, unit="unit", dynamic_ncols=True)
+            if _is_terminal(bar_stream)
+            else None
         )
+        # A line shown on the bar's terminal leaves the counting to the bar.
+        self.counted = self.bar is None or not _is_terminal(self.lines)
 
     def __enter__(self) -> RunMonitor:
         self._thread = threading.Thread(target=self._watch, name="run-monitor", daemon=True)
@@ -136,19 +119,19 @@ class RunMonitor:
     def _say(self, outcome: UnitOutcome) -> None:
         if self.closed:
             return
+        line = describe(outcome)
+        if self.counted:
+            line = f"[{len(self.done)}/{len(self.paths)}] {line}; {self.timing()}"
         try:
             if self.bar is not None:
-                self.bar.write(describe(outcome), file=self.stream)
+                self.bar.clear()  # the line takes the bar's place on a shared terminal
+            print(line, file=self.lines, flush=True)
+            if self.bar is not None:
                 self.bar.update(1)
-            else:
-                print(
-                    f"[{len(self.done)}/{len(self.paths)}] {describe(outcome)}; {self.timing()}",
-                    file=self.stream,
-                    flush=True,
-                )
+                self.bar.refresh()
         except (BrokenPipeError, ValueError):  # ValueError: the stream was closed
             self.closed = True
-            OUTPUT_CLOSED.set()
+            READER_GONE.set()
 
     def timing(self) -> str:
         """Elapsed time and, from the units annotated so far (resumed ones cost nothing), an estimate
@@ -159,3 +142,7 @@ class RunMonitor:
         if not made or not left:
             return f"elapsed {clock(elapsed)}"
         return f"elapsed {clock(elapsed)}, about {clock(elapsed / len(made) * left)} left"
+
+
+def _is_terminal(stream) -> bool:
+    return getattr(stream, "isatty", lambda: False)()

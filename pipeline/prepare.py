@@ -35,6 +35,7 @@ from pipeline.settings import RunConfig
 from pipeline.sources import Source, UnitPlan
 
 DASK_RUNNER = "apache_beam.runners.dask.dask_runner.DaskRunner"
+SAMPLE_WORLD = "the sample world"
 PROBE_BYTES = 4 << 20
 
 
@@ -90,16 +91,18 @@ def check_writable(output: str) -> None:
     remove_quietly([probe])
 
 
-def check_inputs(input_root: str | None, config: RunConfig) -> None:
-    """CannotStart unless every local path the run will read exists: ``--input`` and every setting
-    declared a path (``core.config.path_setting``) that is set. ``--queries-from`` may also be an
-    ``http(s)://`` base (``pipeline.io.given_queries``)."""
-    paths = {"--input": input_root, **path_settings(config)}
+def check_inputs(input_root: str | None, config: RunConfig, release: str | None = None) -> None:
+    """CannotStart unless every local path the run will read exists: ``--input``, ``--release`` and
+    every setting declared a path (``core.config.path_setting``) that is set, each named as the user
+    gave it (``--set drivetrack.masks_dir=DIR``). ``--queries-from`` may also be an ``http(s)://``
+    base (``pipeline.io.given_queries``)."""
+    paths = {"--input": input_root, "--release": release, **path_settings(config)}
     for what, path in paths.items():
         if path and not (what == "--queries-from" and is_http(path)):
             storage.check_scheme(path)
         if path and is_local(path) and not os.path.exists(path):
-            raise CannotStart(f"{what} {path} does not exist")
+            given = f"{what} {path}" if what.startswith("--") else f"--set {what}={path}"
+            raise CannotStart(f"{given} does not exist")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -188,6 +191,7 @@ def settings(args: argparse.Namespace) -> tuple[RunConfig, Release | None]:
     given = with_overrides(RunConfig(), args.overrides)
     rules = given.rules if "rules" in explicit else "release" if args.release else "refined"
     config = with_overrides(with_rules(RunConfig(), rules), args.overrides)
+    given_splits = config.splits_file
     splits = absolute(args.release or "") or absolute(config.splits_file)
     if args.release and config.splits_file and absolute(config.splits_file) != splits:
         raise CannotStart("--release and --set splits_file name different files; give one")
@@ -197,8 +201,9 @@ def settings(args: argparse.Namespace) -> tuple[RunConfig, Release | None]:
         queries_from=absolute(args.queries_from or config.queries_from),
         splits_file=splits,
     )
-    check_inputs(args.input, config)
-    return config, read_release(splits, "--release" if args.release else "splits_file") if splits else None
+    check_inputs(args.input, config, args.release)
+    label = f"--release {args.release}" if args.release else f"--set splits_file={given_splits}"
+    return config, read_release(splits, label) if splits else None
 
 
 def prepare_run(args: argparse.Namespace, beam_args: list[str]) -> PreparedRun:
@@ -242,12 +247,21 @@ def sample_input(prepared: PreparedRun) -> str:
 
 
 def plan_units(prepared: PreparedRun, input_root: str) -> UnitPlan:
-    """The source's units (on a release run, those its clips need); CannotStart when unlistable."""
+    """The source's units (on a release run, those its clips need); CannotStart when unlistable. A
+    run on the sample world was given no ``--input``: its reasons say ``the sample world`` where a
+    source's listing says ``--input``."""
     names = prepared.release.names(prepared.source.name) if prepared.restricted else None
     try:
-        return prepared.source.list_units(input_root, prepared.config, names)
+        plan = prepared.source.list_units(input_root, prepared.config, names)
     except (InputError, OSError) as error:
         raise CannotStart(str(error)) from None
+    if prepared.input_root is not None:
+        return plan
+    in_sample = {
+        name: {clip: reason.replace("--input", SAMPLE_WORLD) for clip, reason in reasons.items()}
+        for name, reasons in (("absent", plan.absent), ("not_made", plan.not_made))
+    }
+    return dataclasses.replace(plan, **in_sample)
 
 
 def concurrent_workers(options: PipelineOptions) -> int | None:

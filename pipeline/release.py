@@ -11,10 +11,13 @@ unit or the clip itself failed: the error's line), with its track counts.
 from __future__ import annotations
 
 import dataclasses
+import importlib.resources
 import json
 from collections import Counter
 from collections.abc import Iterable, Mapping
 
+from pipeline import sources
+from pipeline.commandline import closest
 from pipeline.core.errors import InputError
 from pipeline.core.outcomes import FILTER_ORDER, ClipReport, UnitOutcome
 from pipeline.io.files import read_bytes
@@ -24,6 +27,11 @@ SPLITS = ("minival", "full_eval")
 SPLIT_ALIASES = {"full_test": "full_eval"}
 STATUSES = ("written", "not_produced", "input_absent", "failed")
 MAX_RELEASE_BYTES = 64 << 20
+# A splits file of the sample worlds' clips, shipped with the package: every clip the samples make,
+# and a few they cannot (an object of another camera, absent segments and sequences, a camera the
+# sequence lacks, a chunk past the ADT excerpt's end), so that a release run on the samples shows
+# every status with its reason (``make demo`` runs it).
+SAMPLE_RELEASE = str(importlib.resources.files("pipeline.samples") / "sample_splits.json")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -37,8 +45,13 @@ class Release:
         return frozenset(self.clips.get(source, {}))
 
 
+class UnknownSource(ValueError):
+    """A splits JSON naming a source that is not registered (a typo: ``drivetrak``)."""
+
+
 def parse_release(text: str, path: str = "") -> Release:
-    """The Release of a splits JSON's text; ValueError saying what is wrong with it."""
+    """The Release of a splits JSON's text; ValueError saying what is wrong with it (UnknownSource
+    for a source that is not registered)."""
     try:
         data = json.loads(text)
     except ValueError as error:
@@ -56,6 +69,12 @@ def parse_release(text: str, path: str = "") -> Release:
             for names in entry.values()
         ):
             raise ValueError(f"'{keys.get(split, split)}' must map each source to a list of clip file names")
+        for source in entry:
+            if source not in sources.names():
+                near = closest(source, sources.names())
+                hint = f"did you mean {near}?" if near else f"the sources are {', '.join(sources.names())}"
+                where = keys.get(split, split)
+                raise UnknownSource(f"'{where}' names source {source!r}, not a source; {hint}")
         for source, names in entry.items():
             for name in names:
                 clip = name[: -len(".npz")] if name.endswith(".npz") else name
@@ -65,13 +84,16 @@ def parse_release(text: str, path: str = "") -> Release:
     return Release(path, clips)
 
 
-def read_release(path: str, what: str = "--release") -> Release:
-    """``parse_release`` of the file at ``path``; InputError naming it (``what``: the option or
-    setting that gave it) and the problem."""
+def read_release(path: str, given: str = "") -> Release:
+    """``parse_release`` of the file at ``path``; InputError naming it as the user gave it (``given``,
+    e.g. ``--set splits_file=FILE``; default ``--release PATH``) and the problem."""
+    given = given or f"--release {path}"
     try:
         return parse_release(read_bytes(path, MAX_RELEASE_BYTES).decode(), path)
+    except UnknownSource as error:
+        raise InputError(f"{given}: {error}") from error
     except (OSError, UnicodeDecodeError, ValueError) as error:
-        raise InputError(f"{what} {path}: not the release's splits JSON ({error})") from error
+        raise InputError(f"{given}: not the release's splits JSON ({error})") from error
 
 
 @dataclasses.dataclass(frozen=True)
@@ -156,7 +178,7 @@ def verdicts(
 
 def _from_outcome(clip: str, split: str, unit: str | None, outcome: UnitOutcome | None, min_tracks: int):
     if unit is None:
-        return Verdict(clip, split, "input_absent", 0, "no unit of --input makes this clip")
+        return Verdict(clip, split, "input_absent", 0, "no unit of the input makes this clip")
     if outcome is None:
         return Verdict(clip, split, "failed", 0, f"unit {unit} left no record (the run stopped before it)")
     report = next((r for r in outcome.reports if r.clip == clip), None)

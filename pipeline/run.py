@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import logging
-import os
 import sys
 import time
 import uuid
@@ -34,8 +33,8 @@ from pipeline.core.progress import quiet_worker_logs, set_verbose, workers_silen
 from pipeline.export.layout import failures_path, release_verdicts_path, run_record_path
 from pipeline.finish import RunSummary, finish_run
 from pipeline.io.http import shown
-from pipeline.monitor import OUTPUT_CLOSED as OUTPUT_WENT_AWAY
-from pipeline.monitor import RunMonitor, watch_output_pipes
+from pipeline.monitor import RunMonitor
+from pipeline.pipes import INTERRUPTED, OUTPUT_CLOSED, READER_GONE, run_command, silence_output
 from pipeline.prepare import (
     CannotStart,
     PreparedRun,
@@ -52,7 +51,7 @@ from pipeline.settings import RunConfig
 from pipeline.sources import NoSample, UnitPlan
 from pipeline.unit import UnitJob
 
-NOTHING_PRODUCED, INTERRUPTED, OUTPUT_CLOSED = 3, 130, 141
+NOTHING_PRODUCED = 3
 
 
 def command_parser() -> StrictParser:
@@ -140,7 +139,7 @@ def run_pipeline(prepared: PreparedRun, job: UnitJob, plan: UnitPlan):
     names = [prepared.source.unit_name(unit) for unit in plan.units]
     with (
         workers_silenced() as report,
-        RunMonitor(job.output, job.source.name, names, job.run_id, time.monotonic(), report),
+        RunMonitor(job.output, job.source.name, names, job.run_id, time.monotonic(), bar_stream=report),
     ):
         p = beam.Pipeline(options=prepared.options)
         _ = p | "RegenerateClips" >> graph.RegenerateClips(job, plan.units, prepared.options)
@@ -232,7 +231,7 @@ def stopped(prepared: PreparedRun) -> int:
     """After a Ctrl-C or a closed output: this process's partial files removed, one line (when the
     output is still open); 130, or 141 for a closed output."""
     removed = remove_partial_files(prepared.output, prepared.source.name, include_own=True)
-    if OUTPUT_WENT_AWAY.is_set():
+    if READER_GONE.is_set():
         silence_output()
         return OUTPUT_CLOSED
     note = f"; removed {removed} partial file(s)" if removed else ""
@@ -241,17 +240,6 @@ def stopped(prepared: PreparedRun) -> int:
         file=sys.stderr,
     )
     return INTERRUPTED
-
-
-def silence_output() -> None:
-    """Point stdout and stderr at /dev/null: their reader is gone, and a late flush must not fail."""
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    for stream in (sys.stdout, sys.stderr):
-        try:
-            os.dup2(devnull, stream.fileno())
-        except (OSError, ValueError, AttributeError):
-            continue
-    os.close(devnull)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -278,7 +266,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         return stopped(prepared)
     except BrokenPipeError:
-        OUTPUT_WENT_AWAY.set()
+        READER_GONE.set()
         return stopped(prepared)
 
 
@@ -349,9 +337,4 @@ def stop_workers() -> None:
 
 
 if __name__ == "__main__":
-    watch_output_pipes()
-    status = main()
-    if status in (INTERRUPTED, OUTPUT_CLOSED):
-        stop_workers()
-        os._exit(status)  # Beam's worker threads are not daemons: do not wait for them
-    sys.exit(status)
+    run_command(main, stop=stop_workers)

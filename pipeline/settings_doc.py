@@ -21,6 +21,7 @@ import sys
 from pipeline import sources
 from pipeline.commandline import StrictParser
 from pipeline.core.config import NOT_KNOWN, settings_items
+from pipeline.pipes import run_command
 from pipeline.settings import RunConfig
 
 COMMAND = "python -m pipeline.settings_doc > docs/configuration.md"
@@ -34,8 +35,8 @@ Every setting below is set with `--set KEY=VALUE` on `python -m pipeline.run` (r
 as comma-separated integers, a boolean as `true` or `false`). Before any work, every value is
 checked against its allowed range, and every problem is reported, one line each, under `cannot
 start: N problem(s) with the settings:` with exit status 2 (e.g. `--set adt.image_size=0: must be an
-integer in [2, 8192] and even`); an unknown key is refused with the list of valid keys (and the
-nearest one, when close). The run record (`<out>/run_<source>.json`) holds every value a run used.
+integer in [2, 8192] and even`); an unknown key is refused with the nearest keys, when close, and a
+pointer to this page. The run record (`<out>/run_<source>.json`) holds every value a run used.
 
 Rule sets: `rules=refined` (the default of every run but a `--release` one) takes the **default**
 column; `rules=release` (the default of a `--release` run) takes the **release** column, the
@@ -179,4 +180,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_command(main)

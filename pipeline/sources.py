@@ -39,7 +39,8 @@ class UnitPlan:
     units: the units of work (small picklable values), sorted.
     expected: on a release run, unit name -> the release's clips that unit is to make.
     absent: on a release run, release clip -> why no unit of the input makes it (the segment,
-      sequence or camera is not in ``--input``).
+      sequence or camera is not in ``--input``; a run on the sample world says ``the sample world``
+      instead, ``prepare.plan_units``).
     not_made: on a release run, release clip -> why the input, as the settings read it, makes no
       clip of that name (a chunk past a sequence's end, a camera the settings leave out).
     notes: lines to print before the run starts (what the run will fetch, where).

@@ -16,6 +16,7 @@ from pipeline.commandline import StrictParser
 from pipeline.export.validator import FINDINGS, FLICKER_MAX_FRACTION, NO_FINDINGS, inspect_clip_bytes
 from pipeline.io.clip_reader import add_limit_argument, limits_from
 from pipeline.io.files import file_size, is_local, list_files, read_bytes, write_atomic
+from pipeline.pipes import run_command
 
 
 def findings_table(rows: list[dict]) -> str:
@@ -90,4 +91,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_command(main)

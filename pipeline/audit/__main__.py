@@ -1,10 +1,11 @@
 """``python -m pipeline.audit {sweep,release,compare,report} ...``: audit a run's thresholds, its verdicts
-on the release's clips, or compare clips.
+on the release's clips, or compare clips. The audited run's folder is the positional ``OUT``; what a
+command writes goes to ``--out``.
 
-sweep    replay the filter stage at other thresholds from the recorded statistics
-release  the verdict on every release clip of a --release run, per source and split, with reasons
-compare  TAPVid-3D metrics of one folder of clips against another (e.g. the release)
-report   one self-contained HTML page: the filter funnel, histograms, a slider per threshold
+sweep    OUT --source S --grid KEY=V1,V2  replay the filter stage at other thresholds
+release  OUT                              each release clip's verdict, per split, with reasons
+compare  REF NEW                          TAPVid-3D metrics of one folder of clips against another
+report   OUT --out FILE.html              one HTML page: the filter funnel, a slider per threshold
 
 ``python -m pipeline.audit <command> --help`` describes each.
 """
@@ -14,7 +15,8 @@ from __future__ import annotations
 import importlib
 import sys
 
-from pipeline.commandline import closest
+from pipeline.commandline import closest, plain_text
+from pipeline.pipes import run_command
 
 COMMANDS = {
     "sweep": "pipeline.audit.sweep",
@@ -27,7 +29,7 @@ COMMANDS = {
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] in (["-h"], ["--help"]):
-        print(__doc__)
+        print(plain_text(__doc__))
         return 0
     if not argv:
         print(f"python -m pipeline.audit: name a command: {', '.join(COMMANDS)} (--help)", file=sys.stderr)
@@ -41,4 +43,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_command(main)

@@ -1,8 +1,9 @@
 """``python -m pipeline.audit release OUT``: the release verdicts of a run, per source and split.
 
 Reads ``<OUT>/release_<source>.jsonl`` (written by a ``--release`` run) and prints, per source, a
-table of the verdicts per split (written, not produced, input absent, failed) and the most common
-reasons of each status, numbers and names folded so that alike reasons count together.
+table of the verdicts per split (written, not produced, input absent, failed), the most common
+reasons of each status (numbers and names folded so that alike reasons count together), then a row
+per clip: its verdict, the tracks each filter dropped (never_visible, flicker, mask) and its reason.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from collections import Counter
 from pipeline import sources
 from pipeline.audit.verdicts import agreement_lines, agreement_summary, read_verdicts
 from pipeline.commandline import StrictParser
+from pipeline.core.outcomes import FILTER_ORDER
 from pipeline.release import SPLITS, STATUSES
 
 SHOWN_REASONS = 3
@@ -24,6 +26,34 @@ _NUMBER = re.compile(r"\d[\d,.]*\d|\d")
 def reason_kind(reason: str) -> str:
     """A reason with its names and numbers folded (``object X``, ``N``), so alike reasons match."""
     return _NUMBER.sub("N", _NAMED.sub(lambda m: f"{m[1]} X{m[2] or ''}", reason))
+
+
+# The per-clip table's columns: header, and the cell of a verdict row. The reason comes last.
+CLIP_COLUMNS = (
+    ("clip", lambda row: row["clip"]),
+    ("split", lambda row: row["split"]),
+    ("status", lambda row: row["status"]),
+    ("tracks", lambda row: row["tracks"]),
+    ("candidates", lambda row: row["candidates"]),
+    *((name, lambda row, name=name: row["dropped"][name]) for name in FILTER_ORDER),
+    ("passed", lambda row: row["passed"]),
+    ("reason", lambda row: row["reason"]),
+)
+
+
+def clip_table(rows: list[dict]) -> str:
+    """A row per clip (``CLIP_COLUMNS``), columns padded to their widest cell, numbers to the right."""
+    cells = [[header for header, _ in CLIP_COLUMNS]]
+    cells += [[cell(row) for _, cell in CLIP_COLUMNS] for row in rows]
+    padded = len(CLIP_COLUMNS) - 1
+    widths = [max(len(str(line[i])) for line in cells) for i in range(padded)]
+    numeric = [all(isinstance(line[i], int) for line in cells[1:]) for i in range(padded)]
+
+    def shown(line: list) -> str:
+        fields = [f"{line[i]:{'>' if numeric[i] else '<'}{widths[i]}}" for i in range(padded)]
+        return "  ".join([*fields, str(line[-1])])
+
+    return "\n".join(map(shown, cells))
 
 
 def source_table(source: str, rows: list[dict]) -> str:
@@ -44,6 +74,7 @@ def source_table(source: str, rows: list[dict]) -> str:
                 row for row in rows if row["status"] == status and reason_kind(row["reason"]) == kind
             )
             lines.append(f"    {count:>6} x {kind}   (e.g. {example['clip']}: {example['reason']})")
+    lines += [f"  per clip: tracks dropped by each filter ({', '.join(FILTER_ORDER)})", clip_table(rows)]
     agreement = agreement_summary(rows)
     if agreement is not None:
         lines += agreement_lines(agreement)

@@ -120,16 +120,18 @@ def run_config(record: dict | None) -> RunConfig:
 
 
 def source_data(output: str, source: Source) -> dict | None:
-    """Everything the page shows of one source, None when ``output`` holds no audit table of it.
+    """Everything the page shows of one source, None when ``output`` holds neither an audit table of
+    it nor release verdicts (a release run that annotated no clip has verdicts alone: ``clips`` is
+    then empty).
 
     On a release run (``release_<source>.jsonl``) only the release's clips count, as in the sweep.
     """
     paths = list_files(audit_path(output, source.name, "*"))
-    if not paths:
+    verdicts = read_verdicts(output, source.name)
+    if not paths and verdicts is None:
         return None
     record = run_record(output, source.name)
     config = run_config(record)
-    verdicts = read_verdicts(output, source.name)
     splits = None if verdicts is None else {row["clip"]: row["split"] for row in verdicts}
     flicker_grid = fraction_grid(config.flicker.max_fraction)
     mask_grid = fraction_grid(source.mask_min_agreement(config))

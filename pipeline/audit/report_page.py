@@ -30,6 +30,7 @@ from pipeline.audit.verdicts import agreement_summary
 from pipeline.commandline import StrictParser
 from pipeline.core.errors import InputError
 from pipeline.io.files import write_atomic
+from pipeline.io.storage import StorageError, check_scheme
 
 THUMBNAILS = 12  # per source, by default
 SUMMARY_KEYS = ("candidate_tracks", "dropped_by_filter", "tracks_passing_filters", "clips_below_target")
@@ -88,21 +89,30 @@ def about(data: dict) -> str:
     return text
 
 
+def missing_json(data: dict) -> list[dict]:
+    """The release verdicts of clips without an audit table (input absent, not made, failed)."""
+    made = {clip["clip"] for clip in data["clips"]}
+    return [
+        {key: row[key] for key in ("clip", "split", "status", "reason")}
+        for row in data["verdicts"] or []
+        if row["clip"] not in made
+    ]
+
+
 def source_json(output: str, data: dict, count: int) -> tuple[dict, list[str]]:
     """The page's data of one source, and the lines on thumbnails that could not be drawn."""
     clips = data["clips"]
+    if not clips:
+        note = "A release run that annotated no clip of this source: its verdicts "
+        note += f"(release_{data['name']}.jsonl)."
+        return {"name": data["name"], "verdicts_only": True, "about": note, "missing": missing_json(data)}, []
     names = [clip["clip"] for clip in clips]
     images, problems = thumbnails(output, data["name"], names, count)
     splits = None
     if data["verdicts"] is not None:
         split_of = {row["clip"]: row["split"] for row in data["verdicts"]}
         splits = [split_of.get(name) for name in names]
-    made = set(names)
-    missing = [
-        {key: row[key] for key in ("clip", "split", "status", "reason")}
-        for row in data["verdicts"] or []
-        if row["clip"] not in made
-    ]
+    missing = missing_json(data)
     summary = None if data["summary"] is None else {key: data["summary"][key] for key in SUMMARY_KEYS}
     return {
         "name": data["name"],
@@ -188,8 +198,12 @@ def main(argv: list[str]) -> int:
     args = parser.parse_args(argv)
     if args.thumbnails < 0:
         parser.error(f"--thumbnails {args.thumbnails}: must be 0 or more")
-    if os.path.isdir(args.out):
+    if os.path.isdir(args.out) or args.out.endswith("/"):
         parser.error(f"--out {args.out} is a folder: name the HTML file to write")
+    try:
+        check_scheme(args.out)
+    except StorageError as error:
+        parser.error(f"--out {args.out}: {error}")
     output = os.path.abspath(args.output) if "://" not in args.output else args.output
     try:
         found = page_data(output, args.source or list(sources.names()))
@@ -197,16 +211,25 @@ def main(argv: list[str]) -> int:
         if absent:
             raise ValueError(f"--source {absent[0]}: no audit tables in {output}/audit/{absent[0]}/")
         if not found:
-            raise ValueError(f"no audit tables in {output}/audit/: run python -m pipeline.run first")
+            raise ValueError(f"no audit tables nor release verdicts in {output}: run python -m pipeline.run")
         parts = [source_json(output, data, args.thumbnails) for data in found]
         page = page_html(output, [part for part, _ in parts]).encode()
-        write_atomic(args.out, page)
     except (ValueError, KeyError, OSError, pa.ArrowException, InputError) as error:
         print(f"report: {error}", file=sys.stderr)
+        return 2
+    try:
+        write_atomic(args.out, page)
+    except (OSError, ValueError) as error:  # said of --out, never of the hidden temporary it goes through
+        cause = getattr(error, "strerror", None) or type(error).__name__
+        print(f"report: cannot write --out {args.out} ({cause})", file=sys.stderr)
         return 2
     for data, (part, problems) in zip(found, parts, strict=True):
         for line in problems:
             print(f"report: {data['name']}: {line}", file=sys.stderr)
+        if not data["clips"]:
+            verdicts = len(data["verdicts"])
+            print(f"{data['name']}: no audit tables; the page shows its {verdicts} release verdicts")
+            continue
         print(
             f"{data['name']}: {len(data['clips'])} clips, {len(part['thumbnails'])} thumbnails; "
             f"at the run's thresholds the page {run_check(data)}"

@@ -3,7 +3,11 @@
 
 The recount is ``report_data.counts_at`` in JavaScript: per clip, the (flicker bucket, mask bucket)
 pair counts with flicker bucket <= the flicker slider's index and mask bucket > the mask slider's
-index survive; a clip is written at ``min_tracks`` survivors. When the page is built it sets
+index survive; a clip is written at ``min_tracks`` survivors. The clip table shows, per clip, the
+tracks each filter drops at the sliders' values (its columns are ``clipColumns``), and marks a clip
+too short for the flicker threshold to mean anything: with T frames and max_fraction x T < 1, a
+single visibility flip (one occlusion) drops a track. A source with release verdicts but no audit
+table shows its verdicts alone. When the page is built it sets
 ``document.documentElement.dataset.ready`` and ``window.auditReadyMs`` (ms since navigation).
 """
 
@@ -37,6 +41,7 @@ table.clips td.name { word-break: break-all; max-width: 30em; }
 table.clips img { width: 160px; cursor: zoom-in; display: block; }
 table.clips img.big { width: 320px; cursor: zoom-out; }
 tr.dropped { color: #999; }
+td.short { color: #b06000; font-weight: bold; }
 .pager button { margin: 0 0.3em; }
 """
 
@@ -70,7 +75,8 @@ function decode(text, Type) {
   return new Type(bytes.buffer);
 }
 
-// Exact totals at slider indices (kf, km) and min_tracks mt; survivors per clip in `alive`.
+// Exact totals at slider indices (kf, km) and min_tracks mt; per clip, survivors in `alive` and the
+// tracks the flicker and mask filters drop in `flickerDropped`, `maskDropped`.
 function recount(src, kf, km, mt) {
   const c = src.clips, p = src.pairs, n = c.clip.length;
   const r = { candidates: 0, dropped: { never_visible: 0, flicker: 0, mask: 0 }, passed: 0,
@@ -83,6 +89,8 @@ function recount(src, kf, km, mt) {
       else alive += p.count[j];
     }
     src.alive[i] = alive;
+    src.flickerDropped[i] = flicker;
+    src.maskDropped[i] = mask;
     r.candidates += c.candidates[i];
     r.dropped.never_visible += c.never_visible[i];
     r.dropped.flicker += flicker;
@@ -107,7 +115,12 @@ function unpack(src) {
     count: decode(p.count, p.count_bytes === 2 ? Uint16Array : Uint32Array),
   };
   src.alive = new Int32Array(src.clips.clip.length);
+  src.flickerDropped = new Int32Array(src.clips.clip.length);
+  src.maskDropped = new Int32Array(src.clips.clip.length);
 }
+
+// A clip of T frames at flicker.max_fraction f: a single flip drops a track when f x T < 1 (f > 0).
+const tooShort = (frames, f) => f > 0 && f * frames < 1;
 
 function runIndices(src) {
   return src.sliders.map((s) => s.values.indexOf(s.run));
@@ -235,8 +248,29 @@ function buildFunnel(src, view) {
   return table;
 }
 
+// The clip table's columns: header, the cell of clip i at min_tracks mt and flicker fraction f (text,
+// and its class). Add a column here.
+function clipColumns(src, release) {
+  const c = src.clips;
+  const written = (i, mt) => src.alive[i] >= mt;
+  return [
+    { head: "clip", cell: (i) => [c.clip[i], "name"] },
+    ...(release ? [{ head: "split", cell: (i) => [c.split[i] || "-", ""] }] : []),
+    { head: "frames", cell: (i, mt, f) => tooShort(c.frames[i], f) ?
+      [`${fmt(c.frames[i])} *`, "num short"] : [fmt(c.frames[i]), "num"] },
+    { head: "candidates", cell: (i) => [fmt(c.candidates[i]), "num"] },
+    { head: "dropped: never visible", cell: (i) => [fmt(c.never_visible[i]), "num"] },
+    { head: "dropped: flicker", cell: (i) => [fmt(src.flickerDropped[i]), "num"] },
+    { head: "dropped: mask", cell: (i) => [fmt(src.maskDropped[i]), "num"] },
+    { head: "passing", cell: (i) => [fmt(src.alive[i]), "num"] },
+    { head: "target", cell: (i) => [fmt(c.target[i]), "num"] },
+    { head: "written", cell: (i, mt) => [written(i, mt) ? (src.alive[i] < c.target[i] ? "yes, below target" :
+      "yes") : "no", ""] },
+  ];
+}
+
 function buildTable(src, view) {
-  const c = src.clips, release = src.named !== null;
+  const c = src.clips, release = src.named !== null, columns = clipColumns(src, release);
   const show = el("select", { id: `${src.name}-table-show` });
   const options = [["thumbs", "clips with a thumbnail"], ["all", "all clips"],
     ["dropped", "clips not written"], ["below", "clips below target"]];
@@ -246,17 +280,18 @@ function buildTable(src, view) {
   for (const [value, text] of [["name", "by name"], ["fewest", "fewest passing tracks first"]]) {
     order.append(el("option", { value, text }));
   }
-  const head = ["thumbnail", "clip", ...(release ? ["split"] : []), "frames", "candidates", "never visible",
-    "target", "passing", "written"];
+  const head = ["thumbnail", ...columns.map((column) => column.head)];
   const body = el("tbody", { id: `${src.name}-table-body` });
   const header = el("tr", {}, ...head.map((h) => el("th", { text: h })));
   const table = el("table", { class: "clips" }, el("thead", {}, header), body);
   const status = el("span", { class: "note" });
+  const short = el("p", { class: "note", id: `${src.name}-short-note` });
   const prev = el("button", { type: "button", text: "previous" });
   const next = el("button", { type: "button", text: "next" });
   let start = 0;
   const render = () => {
     const mt = src.sliders[2].values[view.inputs[2].value];
+    const f = src.sliders[0].values[view.inputs[0].value];
     let rows = Array.from({ length: c.clip.length }, (_, i) => i);
     if (show.value === "thumbs") rows = rows.filter((i) => c.clip[i] in src.thumbnails);
     if (show.value === "dropped") rows = rows.filter((i) => src.alive[i] < mt);
@@ -271,18 +306,20 @@ function buildTable(src, view) {
         img.addEventListener("click", () => img.classList.toggle("big"));
         thumb.append(img);
       }
-      const written = src.alive[i] >= mt;
-      const cells = [el("td", { class: "name", text: c.clip[i] })];
-      if (release) cells.push(el("td", { text: c.split[i] || "-" }));
-      const nums = [c.frames[i], c.candidates[i], c.never_visible[i], c.target[i], src.alive[i]].map(
-        (v) => el("td", { class: "num", text: fmt(v) }));
-      const verdict = written ? (src.alive[i] < c.target[i] ? "yes, below target" : "yes") : "no";
-      const row = el("tr", { class: written ? "" : "dropped" }, thumb, ...cells, ...nums);
-      row.append(el("td", { text: verdict }));
-      body.append(row);
+      const cells = columns.map((column) => {
+        const [text, kind] = column.cell(i, mt, f);
+        return el("td", { class: kind, text });
+      });
+      body.append(el("tr", { class: src.alive[i] >= mt ? "" : "dropped" }, thumb, ...cells));
     }
     status.textContent = rows.length ? ` rows ${start + 1}-${Math.min(start + PAGE_ROWS, rows.length)} of ` +
       `${fmt(rows.length)}` : " no clip";
+    const shortClips = c.frames.filter((frames) => tooShort(frames, f)).length;
+    short.dataset.value = shortClips;
+    short.textContent = shortClips ? `* ${fmt(shortClips)} clip(s) shorter than 1 / ${f} = ` +
+      `${fmt(Math.ceil(1 / f - 1e-9))} frames: there flicker.max_fraction x T < 1, so a single visibility ` +
+      "flip (one occlusion) drops a track; the flicker threshold cannot tell flicker from occlusion " +
+      "on clips this short." : "";
     prev.disabled = start === 0;
     next.disabled = start + PAGE_ROWS >= rows.length;
   };
@@ -291,7 +328,8 @@ function buildTable(src, view) {
   show.addEventListener("change", () => { start = 0; render(); });
   order.addEventListener("change", () => { start = 0; render(); });
   view.renderTable = render;
-  return el("div", {}, el("div", { class: "pager" }, "show ", show, " ", order, prev, next, status), table);
+  return el("div", {}, el("div", { class: "pager" }, "show ", show, " ", order, prev, next, status), short,
+    table);
 }
 
 function buildMissing(src) {
@@ -404,8 +442,16 @@ function buildSource(src) {
   return section;
 }
 
+// A release run's source without audit tables (no clip annotated): its verdicts alone.
+function buildVerdictsOnly(src) {
+  const section = el("section", { id: src.name });
+  section.append(el("h2", { text: `${src.name}: no audit tables` }));
+  section.append(el("p", { class: "note", text: src.about }), buildMissing(src));
+  return section;
+}
+
 const main = document.getElementById("sources");
-for (const src of DATA.sources) main.append(buildSource(src));
+for (const src of DATA.sources) main.append(src.verdicts_only ? buildVerdictsOnly(src) : buildSource(src));
 document.documentElement.dataset.ready = "true";
 window.auditReadyMs = performance.now();
 """

@@ -1,11 +1,13 @@
-"""``python -m pipeline.audit sweep``: replay the filter stage at other thresholds.
+"""``python -m pipeline.audit sweep OUT --source S --grid KEY=V1,V2``: replay the filter stage at
+other thresholds.
 
-The filter stage records every candidate track's statistics in ``<out>/audit/<source>/*.parquet``
-(one table per clip). The sweep reads them (running the pipeline first when a run's records are
-missing) and evaluates every combination of the ``--grid`` thresholds with the filter stage's
-own rule (``verdicts_from_stats``), without annotating again. It writes ``report.md`` (a table
-per combination, statistic summaries), ``sweep.parquet`` (the same table) and two PNGs:
-the survival curve of each filter and the histogram of each statistic.
+The filter stage records every candidate track's statistics in ``OUT/audit/<source>/*.parquet`` (one
+table per clip). The sweep reads them and evaluates every combination of the ``--grid`` thresholds
+with the filter stage's own rule (``verdicts_from_stats``), without annotating again. It writes, into
+``--out`` (default ``OUT/sweep_<source>``), ``report.md`` (a table per combination, statistic
+summaries), ``sweep.parquet`` (the same table) and two PNGs: the survival curve of each filter and
+the histogram of each statistic. A folder holding no run of the source is refused, unless
+``--run-sample`` asks to run the pipeline on the source's sample world into it first.
 
 On a release run (``--release``, or the run's own), only the release's clips are replayed, and each
 combination also counts, per split, the release clips that survive it: written, with at least
@@ -302,26 +304,59 @@ def run_summary_and_config(record: dict | None, overrides: list[str]) -> tuple[d
 def release_of(given: str | None, record: dict | None) -> Release | None:
     """The release a sweep counts: ``--release``, else the one the run was restricted to."""
     path = given or (record or {}).get("release")
-    return read_release(path, "--release" if given else "the run's release") if path else None
+    return read_release(path, f"--release {path}" if given else f"the run's release {path}") if path else None
 
 
-def main(argv: list[str]) -> int:
-    parser = StrictParser(prog="python -m pipeline.audit sweep", description=__doc__)
-    parser.add_argument("--source", required=True, choices=sources.names())
-    parser.add_argument("--input", help="source data, for a run when --output holds none yet")
-    parser.add_argument(
-        "--output", default="tapvid3d_out", help="the run's output folder (default %(default)s)"
+# Old spellings of the options, and what replaced them.
+RENAMED = {
+    "--output": "is now the positional OUT (python -m pipeline.audit sweep OUT --source S ...)",
+    "--report": "is now --out",
+    "--input": "is gone: run python -m pipeline.run --source S --input DIR --output OUT first",
+}
+
+
+def command_parser() -> StrictParser:
+    parser = StrictParser(
+        prog="python -m pipeline.audit sweep",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        renamed=RENAMED,
     )
-    parser.add_argument("--grid", action="append", default=[], metavar="KEY=V1,V2,...")
-    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
-    parser.add_argument("--report", help="report folder (default <output>/sweep_<source>)")
+    parser.add_argument("output", metavar="OUT", help="the output folder of the run to replay")
+    parser.add_argument("--source", required=True, choices=sources.names(), help="the source to replay")
+    parser.add_argument(
+        "--grid",
+        action="append",
+        default=[],
+        metavar="KEY=V1,V2,...",
+        help="a threshold and the values to try, e.g. flicker.max_fraction=0.05,0.2 (repeatable)",
+    )
+    parser.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="change a setting of the run before replaying it (repeatable)",
+    )
+    parser.add_argument("--out", metavar="DIR", help="the report's folder (default OUT/sweep_<source>)")
     parser.add_argument(
         "--release",
         metavar="SPLITS_JSON",
         help="count, per split, the release's clips that survive each combination (default: the run's "
-        "own --release); a run made for the sweep is restricted to them",
+        "own --release); a run made with --run-sample is restricted to them",
     )
-    args = parser.parse_args(argv)
+    parser.add_argument(
+        "--run-sample",
+        action="store_true",
+        help="when OUT holds no run of the source, first run the pipeline on its sample world into OUT "
+        "(python -m pipeline.run --source S --output OUT)",
+    )
+    return parser
+
+
+def main(argv: list[str]) -> int:
+    args = command_parser().parse_args(argv)
     try:
         return sweep(args)
     except SettingsError as problem:
@@ -334,6 +369,20 @@ def main(argv: list[str]) -> int:
         return 2
 
 
+def holds_run(output: str, source: str) -> bool:
+    """Whether ``output`` holds a run of ``source``: its run record or its audit tables."""
+    return run_record(output, source) is not None or bool(list_files(audit_path(output, source, "*")))
+
+
+def run_sample(output: str, source: str, release: str | None, overrides: list[str]) -> int:
+    """``python -m pipeline.run`` on the source's sample world into ``output``; its exit status."""
+    from pipeline import run
+
+    print(f"--run-sample: running the pipeline on the {source} sample world into {output} first")
+    command = ["--source", source, "--output", output] + (["--release", release] if release else [])
+    return run.main(command + [f"--set={o}" for o in overrides])
+
+
 def sweep(args: argparse.Namespace) -> int:
     """The sweep of ``main``'s arguments; raises ValueError, KeyError, OSError or ArrowException on
     bad input, which ``main`` prints as one line."""
@@ -341,18 +390,17 @@ def sweep(args: argparse.Namespace) -> int:
     grid = parse_grid(args.grid, source, with_overrides(RunConfig(), args.overrides))
     output = os.path.abspath(args.output) if "://" not in args.output else args.output
     if "://" not in output and os.path.isfile(output):
-        raise ValueError(f"--output {output} is a file, not a folder")
-    if not load_statistics(output, args.source):
-        from pipeline import run
-
-        print(f"no recorded statistics in {output}/audit/{args.source}/: running the pipeline once")
-        command = ["--source", args.source, "--output", output] + (
-            ["--input", args.input] if args.input else []
-        )
-        command += ["--release", args.release] if args.release else []
-        code = run.main(command + [f"--set={o}" for o in args.overrides])
-        if code == 2:
-            return code
+        raise ValueError(f"OUT {output} is a file, not a folder")
+    if not holds_run(output, args.source):
+        if not args.run_sample:
+            print(
+                f"sweep: no {args.source} run in {output} (no run_{args.source}.json, no audit tables): run "
+                f"python -m pipeline.run --source {args.source} --output {output} first, or add --run-sample",
+                file=sys.stderr,
+            )
+            return 2
+        if run_sample(output, args.source, args.release, args.overrides) == 2:
+            return 2
     record = run_record(output, args.source)
     run_summary, base = run_summary_and_config(record, args.overrides)
     release = release_of(args.release, record)
@@ -361,7 +409,8 @@ def sweep(args: argparse.Namespace) -> int:
     if splits is not None:
         clips = [clip for clip in clips if clip["clip"] in splits]
     if not clips:
-        print(f"no audit tables in {output}/audit/{args.source}/", file=sys.stderr)
+        which = " of the release's clips" if splits is not None else ""
+        print(f"sweep: no audit tables{which} in {output}/audit/{args.source}/", file=sys.stderr)
         return 1
     keys = list(grid)
     rows = [{"values": {k: _current(base, k) for k in keys}, "result": evaluate(clips, source, base, splits)}]
@@ -375,7 +424,7 @@ def sweep(args: argparse.Namespace) -> int:
         )
     if run_summary is not None:
         rows[0]["matches_run"] = matches_run(rows[0]["result"], run_summary)
-    report = args.report or sweep_folder(output, args.source)
+    report = args.out or sweep_folder(output, args.source)
     os.makedirs(report, exist_ok=True)
     statistics = numeric_statistics(clips)
     survival_figure(clips, source, base, f"{report}/survival.png")

@@ -8,11 +8,14 @@ import json
 import os
 
 from pipeline import sources
+from pipeline.core.outcomes import FILTER_ORDER
 from pipeline.export.layout import release_verdicts_path
 from pipeline.io.files import read_bytes, write_atomic
 from pipeline.release import SPLITS, STATUSES
 
 MAX_VERDICT_BYTES = 256 << 20
+# The fields of a verdict row (``pipeline.release.Verdict``) the audit commands read.
+ROW_FIELDS = ("clip", "split", "status", "tracks", "reason", "candidates", "dropped", "passed")
 
 
 def read_verdicts(output: str, source: str) -> list[dict] | None:
@@ -26,6 +29,11 @@ def read_verdicts(output: str, source: str) -> list[dict] | None:
             row = json.loads(line)
             if row["status"] not in STATUSES or row["split"] not in SPLITS:
                 raise ValueError(f"status {row['status']!r}, split {row['split']!r}")
+            missing = [key for key in ROW_FIELDS if key not in row] + [
+                f"dropped {name}" for name in FILTER_ORDER if name not in row["dropped"]
+            ]
+            if missing:
+                raise ValueError(f"no {', '.join(missing)}")
         except (ValueError, KeyError, TypeError) as error:
             raise ValueError(f"{path} line {number}: not a release verdict ({error})") from None
         rows.append(row)

@@ -351,7 +351,7 @@ def _replace_path(node, path: list[str], text: str, key: str, root, option: str,
         valid = setting_keys(root)
         near = difflib.get_close_matches(key, valid, n=1, cutoff=0.6)
         hint = f"did you mean {near[0]}? " if near else ""
-        raise ValueError(f"{option} {key}: unknown setting; {hint}valid keys: {', '.join(valid)}")
+        raise ValueError(f"{option} {key}: unknown setting; {hint}every key: docs/configuration.md")
     current = getattr(node, name)
     if dataclasses.is_dataclass(current):
         if len(path) == 1:

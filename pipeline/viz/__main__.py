@@ -10,6 +10,7 @@ import sys
 
 from pipeline.commandline import StrictParser
 from pipeline.io.clip_reader import ReadLimits, add_limit_argument, limits_from
+from pipeline.pipes import run_command
 from pipeline.viz.clip_figure import OUTPUT_KINDS, write_clip_figure
 from pipeline.viz.recording import write_recording
 from pipeline.viz.stats_figure import dataset_stats, format_table, write_stats_figure
@@ -135,4 +136,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_command(main)

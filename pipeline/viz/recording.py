@@ -9,12 +9,15 @@ Timeline ``frame``: the frame index 0..T-1. Entities (positions in metres, pixel
   every position below is in camera coordinates.
 - ``world/camera/image``: the pinhole (the clip's fx, fy, cx, cy; width and height from the first
   JPEG's header) and each frame's JPEG as stored (an encoded image, not re-encoded).
-- ``world/camera/image/tracks``: frame t's tracks in front of the camera (Z > 0) in pixels,
-  x = fx X / Z + cx, y = fy Y / Z + cy.
+- ``world/camera/image/tracks``: frame t's tracks that land inside the image (Z > 0, 0 <= x < W,
+  0 <= y < H) in pixels, x = fx X / Z + cx, y = fy Y / Z + cy.
 - ``world/tracks``: frame t's tracks in the world, camera-to-world applied to ``tracks_XYZ[t]``.
 - ``world/tracks/trails``: per track, a line through its last ``tail`` + 1 world positions.
 - ``world/queries``: at frame t, the world positions of the tracks queried at frame t
   (``queries_xyt[:, 2]``), larger; empty at the other frames.
+
+The recording carries its blueprint (``recording_blueprint``): the viewer opens on the 3D scene
+beside the frame with its projected tracks, and the time panel, and makes no view of its own.
 
 Every track keeps one colour over all frames (``track_colors``). A visible point is drawn in its
 track's colour at ``VISIBLE_RADIUS_UI``; an occluded one smaller (``OCCLUDED_RADIUS_UI``) in that
@@ -28,6 +31,7 @@ import os
 
 import numpy as np
 import rerun as rr
+import rerun.blueprint as rrb
 
 from pipeline.core.geometry import invert_se3, project
 from pipeline.core.images import jpeg_size
@@ -56,9 +60,35 @@ def camera_to_world(clip: dict[str, np.ndarray]) -> np.ndarray:
     return np.tile(np.eye(4), (len(clip["tracks_XYZ"]), 1, 1))
 
 
-def log_camera(recording: rr.RecordingStream, clip: dict[str, np.ndarray], c2w: np.ndarray) -> None:
-    """The static pinhole, and the camera's pose: per frame with extrinsics, else static identity."""
-    height, width = jpeg_size(bytes(clip[IMAGES_KEY][0]))
+def recording_blueprint() -> rrb.Blueprint:
+    """The viewer's layout: the 3D scene (``world``) beside the frame and its projected tracks
+    (``world/camera/image``), the time panel open; no view the viewer would add on its own."""
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial3DView(origin="world", name="tracks in 3D"),
+            rrb.Spatial2DView(origin="world/camera/image", name="frame and projected tracks"),
+        ),
+        rrb.BlueprintPanel(state="collapsed"),
+        rrb.SelectionPanel(state="collapsed"),
+        rrb.TimePanel(state="expanded"),
+        auto_layout=False,
+        auto_views=False,
+    )
+
+
+def inside_image(pixels: np.ndarray, depth: np.ndarray, width: int, height: int) -> np.ndarray:
+    """[K] bool: points in front of the camera (``depth`` [K] > 0) whose ``pixels`` [K, 2] land in
+    the image, 0 <= x < width and 0 <= y < height."""
+    x, y = pixels[:, 0], pixels[:, 1]
+    return (depth > 0) & (x >= 0) & (x < width) & (y >= 0) & (y < height)
+
+
+def log_camera(
+    recording: rr.RecordingStream, clip: dict[str, np.ndarray], c2w: np.ndarray, size: tuple[int, int]
+) -> None:
+    """The static pinhole (``size``: height, width of the frames), and the camera's pose: per frame
+    with extrinsics, else static identity."""
+    height, width = size
     fx, fy, cx, cy = clip["fx_fy_cx_cy"].astype(np.float64)
     pinhole = rr.Pinhole(
         focal_length=[fx, fy],
@@ -102,24 +132,25 @@ def write_recording(
     # corner at (0, 0), centre at (c + 0.5, r + 0.5)): the clip's own convention, so its pixel
     # coordinates are logged as they are, with no half-pixel shift.
     pixels = project(tracks, clip["fx_fy_cx_cy"].astype(np.float64))
+    height, width = jpeg_size(bytes(clip[IMAGES_KEY][0]))
 
     name = os.path.splitext(os.path.basename(clip_path))[0]
     recording = rr.new_recording(APPLICATION_ID, recording_id=name)
     try:
-        recording.save(out)
+        recording.save(out, default_blueprint=recording_blueprint())
     except RuntimeError as error:  # rerun's file sink cannot create the file
         raise OSError(str(error)) from error
-    log_camera(recording, clip, c2w)
+    log_camera(recording, clip, c2w, (height, width))
     for t in range(num_frames):
         recording.set_time_sequence(TIMELINE, t)
         image = rr.EncodedImage(contents=bytes(clip[IMAGES_KEY][t]), media_type="image/jpeg")
         recording.log("world/camera/image", image)
         shown, radii = point_style(visibility[t], colors)
         recording.log("world/tracks", rr.Points3D(world[t], colors=shown, radii=radii))
-        front = tracks[t, :, 2] > 0
+        seen = inside_image(pixels[t], tracks[t, :, 2], width, height)
         recording.log(
             "world/camera/image/tracks",
-            rr.Points2D(pixels[t, front], colors=shown[front], radii=radii[front]),
+            rr.Points2D(pixels[t, seen], colors=shown[seen], radii=radii[seen]),
         )
         queried = query_frames == t
         recording.log(

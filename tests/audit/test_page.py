@@ -187,6 +187,21 @@ def test_help_and_one_line_refusals(out, tmp_path, capsys):
     assert not (tmp_path / "p.html").exists()
 
 
+def test_an_unwritable_out_is_named_as_given_never_its_temporary(out, tmp_path, capsys):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    target = blocker / "p.html"
+    assert audit_main(["report", str(out), "--out", str(target), "--thumbnails", "0"]) == 2
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.startswith(f"report: cannot write --out {target} (")
+    assert ".partial" not in line
+    with pytest.raises(SystemExit) as stop:
+        audit_main(["report", str(out), "--out", f"{tmp_path}/new.html/", "--thumbnails", "0"])
+    assert stop.value.code == 2
+    assert "is a folder: name the HTML file to write" in capsys.readouterr().err
+    assert sorted(os.listdir(tmp_path)) == ["a_file"]
+
+
 def tree(folder) -> dict:
     """path -> (size, mtime) of every file under ``folder``."""
     found = {}
@@ -288,7 +303,7 @@ def shown(driver, ident: str) -> int:
 @pytest.mark.parametrize("source", ["pstudio", "drivetrack"])
 def test_sliders_show_the_sweeps_counts(loaded, out, source, tmp_path):
     grid = [arg for value in GRIDS[source] for arg in ("--grid", value)]
-    command = ["sweep", "--source", source, "--output", str(out), *grid, "--report", str(tmp_path)]
+    command = ["sweep", str(out), "--source", source, *grid, "--out", str(tmp_path)]
     assert audit_main(command) == 0
     rows = pq.read_table(tmp_path / "sweep.parquet").to_pylist()
     clips = len(load_statistics(str(out), source))
@@ -324,3 +339,36 @@ def test_sliders_show_the_sweeps_counts(loaded, out, source, tmp_path):
     assert len({row["passed"] for row in rows}) > 4
     assert len({row["clips_written"] for row in rows}) > 1
     assert severe(loaded) == []
+
+
+def test_the_clip_table_shows_each_filters_drops_and_marks_clips_too_short(loaded, out, page):
+    """At the run's thresholds each clip's drops per filter are its verdict's; at flicker 0.02 a clip
+    of fewer than 50 frames is marked (0.02 x T < 1: one flip drops a track) and the note counts them."""
+    source = "drivetrack"
+    for index, slider in enumerate(("flicker", "mask", "min_tracks")):
+        data = {s["name"]: s for s in embedded(page)["sources"]}[source]["sliders"][index]
+        move(loaded, source, slider, data["values"].index(data["run"]), len(data["values"]) - 1)
+    Select(loaded.find_element(By.ID, f"{source}-table-show")).select_by_value("all")
+    heads = [th.text for th in loaded.find_elements(By.CSS_SELECTOR, f"#{source} table.clips thead th")]
+    table = loaded.find_element(By.ID, f"{source}-table-body")
+    rows = [
+        [td.text for td in tr.find_elements(By.TAG_NAME, "td")]
+        for tr in table.find_elements(By.TAG_NAME, "tr")
+    ]
+    verdicts = {row["clip"]: row for row in map(json.loads, (out / f"release_{source}.jsonl").open())}
+    assert len(rows) == 3
+    for cells in rows:
+        row = dict(zip(heads, cells, strict=True))
+        dropped = verdicts[row["clip"]]["dropped"]
+        for name, head in (("never_visible", "never visible"), ("flicker", "flicker"), ("mask", "mask")):
+            assert int(row[f"dropped: {head}"].replace(",", "")) == dropped[name], (row["clip"], name)
+    assert sum(verdicts[cells[heads.index("clip")]]["dropped"]["flicker"] for cells in rows) > 0
+    note = loaded.find_element(By.ID, f"{source}-short-note")
+    assert (note.get_attribute("data-value"), note.text) == ("0", "")  # 0.1 x T >= 1 on every clip
+    assert move(loaded, source, "flicker", 2, 100) == "0.02"
+    frames = {s["name"]: s for s in embedded(page)["sources"]}[source]["clips"]["frames"]
+    short = sum(count < 50 for count in frames)
+    assert short > 0
+    assert int(note.get_attribute("data-value")) == short
+    assert note.text.startswith(f"* {short} clip(s) shorter than 1 / 0.02 = 50 frames")
+    assert len(table.find_elements(By.CSS_SELECTOR, "td.short")) == short

@@ -1,14 +1,18 @@
-"""``pipeline.audit sweep``: replayed thresholds equal what real runs at those thresholds count."""
+"""``pipeline.audit sweep``: replayed thresholds equal what real runs at those thresholds count; a folder
+without a run is refused unless ``--run-sample`` asks for one; the old option spellings name the new."""
 
 from __future__ import annotations
 
 import json
+import os
 
 import pyarrow.parquet as pq
 import pytest
 
 from pipeline.audit.__main__ import main as audit_main
 from pipeline.run import main as run_main
+from pipeline.samples.waymo_world import SAMPLE_VERSION
+from tests.conftest import link_tree
 
 
 def summary(out, source):
@@ -24,7 +28,7 @@ def pstudio_run(pstudio_sample, tmp_path_factory):
 
 def test_sweep_at_run_thresholds_reproduces_the_run(pstudio_run, capsys):
     code = audit_main(
-        ["sweep", "--source", "pstudio", "--output", str(pstudio_run), "--grid", "flicker.max_fraction=0.1"]
+        ["sweep", str(pstudio_run), "--source", "pstudio", "--grid", "flicker.max_fraction=0.1"]
     )
     assert code == 0
     report = (pstudio_run / "sweep_pstudio" / "report.md").read_text()
@@ -47,7 +51,7 @@ def test_sweep_predicts_a_rerun_at_other_thresholds(pstudio_sample, pstudio_run,
     report_dir = tmp_path / "report"
     assert (
         audit_main(
-            ["sweep", "--source", "pstudio", "--output", str(pstudio_run), *grid, "--report", str(report_dir)]
+            ["sweep", str(pstudio_run), "--source", "pstudio", *grid, "--out", str(report_dir)]
         )
         == 0
     )
@@ -66,40 +70,52 @@ def test_sweep_predicts_a_rerun_at_other_thresholds(pstudio_sample, pstudio_run,
     assert loose[0]["passed"] > row["passed"]
 
 
-def test_drivetrack_sweep_reproduces_its_run(sample_split, tmp_path):
+def test_run_sample_runs_the_pipeline_into_an_empty_folder_then_sweeps_it(sample_split, tmp_path, capsys):
+    """``--run-sample`` runs the sample world into OUT first (here already written there, as a run
+    without --input leaves it), and the sweep of that run reproduces it."""
     out = tmp_path / "dt"
-    assert run_main(["--source", "drivetrack", "--input", sample_split[0], "--output", str(out)]) == 0
-    assert (
-        audit_main(
-            [
-                "sweep",
-                "--source",
-                "drivetrack",
-                "--output",
-                str(out),
-                "--grid",
-                "drivetrack.mask_min_agreement=0.5,0.8",
-            ]
-        )
-        == 0
-    )
+    link_tree(sample_split[0], str(out / "sample_input" / "drivetrack"))
+    (out / "sample_input" / "drivetrack" / f".complete-v{SAMPLE_VERSION}").touch()
+    grid = ["--grid", "drivetrack.mask_min_agreement=0.5,0.8"]
+    assert audit_main(["sweep", str(out), "--source", "drivetrack", "--run-sample", *grid]) == 0
+    printed = capsys.readouterr().out
+    assert printed.startswith(f"--run-sample: running the pipeline on the drivetrack sample world into {out}")
+    assert (out / "run_drivetrack.json").exists()
     report = (out / "sweep_drivetrack" / "report.md").read_text()
     assert "reproduces the run's counts" in report
 
 
+def test_a_folder_without_a_run_is_refused_and_left_as_it_was(tmp_path, capsys):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    absent = tmp_path / "absent"
+    for folder in (empty, absent):
+        assert audit_main(["sweep", str(folder), "--source", "pstudio"]) == 2
+        (line,) = capsys.readouterr().err.splitlines()
+        assert line.startswith(f"sweep: no pstudio run in {folder} (no run_pstudio.json, no audit tables)")
+        assert line.endswith("or add --run-sample")
+    assert os.listdir(empty) == []
+    assert not absent.exists()
+
+
+@pytest.mark.parametrize(
+    "old, message",
+    [
+        ("--output", "--output is now the positional OUT"),
+        ("--report", "--report is now --out"),
+        ("--input", "--input is gone: run python -m pipeline.run"),
+    ],
+)
+def test_an_old_spelling_names_the_new_one(pstudio_run, tmp_path, capsys, old, message):
+    with pytest.raises(SystemExit) as stop:
+        audit_main(["sweep", str(pstudio_run), "--source", "pstudio", old, str(tmp_path)])
+    assert stop.value.code == 2
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.startswith(f"python -m pipeline.audit sweep: {message}")
+    assert os.listdir(tmp_path) == []
+
+
 def test_sweep_refuses_a_setting_that_needs_annotation(pstudio_run, capsys):
-    assert (
-        audit_main(
-            [
-                "sweep",
-                "--source",
-                "pstudio",
-                "--output",
-                str(pstudio_run),
-                "--grid",
-                "pstudio.depth_delta_m=0.1",
-            ]
-        )
-        == 2
-    )
+    grid = ["--grid", "pstudio.depth_delta_m=0.1"]
+    assert audit_main(["sweep", str(pstudio_run), "--source", "pstudio", *grid]) == 2
     assert "needs a new run" in capsys.readouterr().err

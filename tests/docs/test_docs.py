@@ -1,7 +1,8 @@
 """The documentation cannot drift from the code: docs/configuration.md is the settings' own table, every
-link between the pages resolves, and every command line the README (and each topic page) shows is
-accepted by the command it names: its options by that command's parser, its ``--set`` and ``--grid``
-keys by the settings, its ``make`` targets by the Makefile."""
+link between the pages resolves, and every command line the README, each topic page and the Makefile
+show is accepted by the command it names (options in their current spelling, the audited run as the
+positional OUT): its options by that command's parser, its ``--set`` and ``--grid`` keys by the
+settings, its ``make`` targets by the Makefile."""
 
 from __future__ import annotations
 
@@ -235,11 +236,15 @@ def inline_commands(text: str) -> list[tuple[str, str, list[str]]]:
     return found
 
 
-def test_every_option_the_readme_names_inline_exists():
-    """Inline spans may be fragments (``python -m pipeline.validate DIR``): each option they name must
-    exist on the command they name, and each setting they assign must be known."""
+@pytest.mark.parametrize("page", PAGES, ids=relative)
+def test_every_option_a_page_names_inline_exists(page):
+    """Inline spans of the package's commands may be fragments (``python -m pipeline.validate DIR``):
+    each option they name must exist on the command they name (an old spelling, ``audit sweep
+    --output``, does not), and each setting they assign must be known (``KEY`` stands for any)."""
     unknown = []
-    for span, module, words in inline_commands(read(README)):
+    for span, module, words in inline_commands(read(page)):
+        if module.split(".")[0] != "pipeline" and module != "benchmarks":
+            continue  # another tool (python -m build), or a benchmark script run as it is
         options = {word.split("=", 1)[0] for word in words if word.startswith("--")}
         if module == "pipeline.run":
             valid = run_options()
@@ -248,8 +253,40 @@ def test_every_option_the_readme_names_inline_exists():
         unknown += [f"{option} (in `{span}`)" for option in sorted(options - valid)]
         keys = setting_keys(RunConfig())
         assigned = setting_assignments(words, "--set") + setting_assignments(words, "--grid")
-        unknown += [f"{key} (in `{span}`)" for key in assigned if key.split("=")[0] not in keys]
-    for target in re.findall(r"`make (?:[A-Z]+=\S+ )*([a-z][\w-]*)", read(README)):
+        named = [
+            key.split("=")[0] for key in assigned if not key.split("=")[0].isupper()
+        ]  # KEY: a placeholder
+        unknown += [f"{key} (in `{span}`)" for key in named if key not in keys]
+    for target in re.findall(r"`make (?:[A-Z]+=\S+ )*([a-z][\w-]*)", read(page)):
         if target not in makefile_targets():
             unknown.append(f"make {target}")
-    assert not unknown, "README.md names what no command accepts: " + ", ".join(unknown)
+    assert not unknown, f"{relative(page)} names what no command accepts: " + ", ".join(unknown)
+
+
+def makefile_commands() -> list[tuple[str, list[str]]]:
+    """(module, arguments) of each of the package's commands (``$(PY) -m pipeline...`` or
+    ``benchmarks``) the Makefile's recipes run, its variables given the values they take
+    (continuations joined, the shell's ``;`` ending a command)."""
+    text = read(os.path.join(REPO, "Makefile")).replace("\\\n", " ")
+    values = dict(re.findall(r"^([A-Z_]+) *[?:]?= *(.*)$", text, re.M))
+    recipes = "\n".join(line for line in text.splitlines() if line.startswith("\t"))
+    commands = []
+    for line in re.findall(r"\$\(PY\) -m ((?:pipeline|benchmarks)[^;\n]*)", recipes):
+        words = shlex.split(re.sub(r"\$\(([A-Z_]+)\)", lambda m: values.get(m[1], "x"), line))
+        commands.append((words[0], words[1:]))
+    return commands
+
+
+MAKEFILE_COMMANDS = makefile_commands()
+
+
+@pytest.mark.parametrize(
+    ("module", "words"), MAKEFILE_COMMANDS, ids=[f"{m} {shlex.join(w)[:80]}" for m, w in MAKEFILE_COMMANDS]
+)
+def test_each_command_the_makefile_runs_is_accepted(module, words):
+    check_command(module, words)
+
+
+def test_the_makefile_commands_are_found():
+    assert ("pipeline.audit", ["release", "out/demo"]) in MAKEFILE_COMMANDS
+    assert sum(module == "pipeline.run" for module, _ in MAKEFILE_COMMANDS) == 3

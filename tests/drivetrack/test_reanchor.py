@@ -4,9 +4,10 @@ clips and tracks. A float32 pose 15 km out is rounded by up to ~1 mm, so camera-
 within 3 mm, queries within a fraction of a pixel, and visibility but for decisions within rounding
 of a threshold.
 
-Default settings: candidates are drawn by per-point keys (``point_keys`` in ``pipeline/drivetrack/tracks.py``) and the
-filter stage keeps the survivors with the lowest keys (``pipeline/filters/select.py``), so a filter
-verdict within rounding of its threshold changes that track only, never the rest of the clip.
+Default settings: candidates are drawn by per-point keys (``point_keys`` in
+``pipeline/drivetrack/tracks.py``) and the filter stage keeps the survivors with the lowest keys
+(``pipeline/filters/select.py``), so a filter verdict within rounding of its threshold changes that
+track only, never the rest of the clip.
 """
 
 import os

@@ -89,11 +89,45 @@ def test_every_bad_setting_is_reported_in_one_list(tmp_path):
     lines = result.stderr.splitlines()
     assert lines[0] == "cannot start: 3 problem(s) with the settings:"
     assert lines[1] == "  --set flicker.max_fraction=abc: expected float; must be a number in [0, 1]"
-    assert lines[2].startswith(
-        "  --set flicker.max_fracton: unknown setting; did you mean flicker.max_fraction?"
+    assert lines[2] == (
+        "  --set flicker.max_fracton: unknown setting; did you mean flicker.max_fraction? "
+        "every key: docs/configuration.md"
     )
     assert lines[3] == "  --set drivetrack.tracks_per_clip=-5: must be an integer in [1, 100000]"
     assert not (tmp_path / "out").exists()
+
+
+def test_a_misspelt_source_gets_the_nearest_name(tmp_path):
+    result = run_in_process("drivetrak", "--output", str(tmp_path / "out"))
+    assert (result.returncode, result.stderr) == (
+        2,
+        "python -m pipeline.run: --source drivetrak: unknown; did you mean drivetrack?\n",
+    )
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("option", ["--release", "--set"])
+def test_a_splits_file_naming_no_source_is_refused_at_the_door_as_given(tmp_path, option):
+    """A typo in a splits file's source key is said before any work, naming the option the user
+    typed; a file that is not there too."""
+    splits = tmp_path / "splits.json"
+    splits.write_text(json.dumps({"minival": {"pstudio": ["dome_3.npz"]}, "full_eval": {"drivetrak": []}}))
+    if option == "--release":
+        given, missing = ["--release", str(splits)], ["--release", "missing.json"]
+        shown = "--release missing.json"
+    else:
+        given, missing = ["--set", f"splits_file={splits}"], ["--set", "splits_file=missing.json"]
+        shown = "--set splits_file=" + os.path.abspath("missing.json")
+    out = tmp_path / "out"
+    result = run_in_process("pstudio", "--output", str(out), *given)
+    assert result.returncode == 2
+    assert result.stderr == (
+        f"cannot start: {' '.join(given)}: 'full_eval' names source 'drivetrak', not a source; "
+        "did you mean drivetrack?\n"
+    )
+    result = run_in_process("pstudio", "--output", str(out), *missing)
+    assert (result.returncode, result.stderr) == (2, f"cannot start: {shown} does not exist\n")
+    assert not out.exists()
 
 
 def test_an_output_that_is_a_file_is_said_so(tmp_path):
@@ -111,17 +145,21 @@ COMMANDS = [
     ("pipeline.audit", "sweep"),
     ("pipeline.audit", "release"),
     ("pipeline.audit", "compare"),
+    ("pipeline.audit", "report"),
     ("pipeline.viz",),
     ("pipeline.viz", "stats"),
+    ("pipeline.settings_doc",),
     ("benchmarks",),
 ]
 
 
 @pytest.mark.parametrize("words", COMMANDS, ids=" ".join)
-def test_help_goes_to_stdout_with_exit_0(words):
+def test_help_goes_to_stdout_as_plain_text_with_exit_0(words):
     result = command(*words, "--help")
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip()
+    assert "``" not in result.stdout  # the docstrings' reStructuredText marks are not shown
+    assert not re.search(r"::$", result.stdout, re.M)
     assert result.stderr == ""
 
 
@@ -153,7 +191,7 @@ def test_grid_problems_are_blamed_on_the_grid_in_one_list(reference_run, capsys)
         "--grid",
         "pstudio.depth_delta_m=0.1",
     ]
-    assert audit_main(["sweep", "--source", "pstudio", "--output", out, *grid]) == 2
+    assert audit_main(["sweep", out, "--source", "pstudio", *grid]) == 2
     lines = capsys.readouterr().err.splitlines()
     assert lines[0] == "sweep: 4 problem(s):"
     assert lines[1].startswith(
@@ -210,9 +248,10 @@ def test_the_first_line_comes_before_the_work_and_finished_in_is_the_whole_comma
     assert finished >= 0.8 * wall
 
 
-def test_units_are_reported_with_counts_elapsed_time_and_what_is_left(reference_run):
-    stderr = reference_run.result("pstudio").stderr
-    lines = [line for line in stderr.splitlines() if line.startswith("[")]
+def test_units_are_reported_on_stdout_with_counts_elapsed_time_and_what_is_left(reference_run):
+    result = reference_run.result("pstudio")
+    assert result.stderr == ""
+    lines = [line for line in result.stdout.splitlines() if line.startswith("[")]
     assert len(lines) == 4
     pattern = (
         r"\[(\d)/4\] unit dome/camera_\d+: 1 of 1 clip\(s\) written, 50 tracks \([\d.]+ s\); elapsed \d+:\d\d"
@@ -222,12 +261,13 @@ def test_units_are_reported_with_counts_elapsed_time_and_what_is_left(reference_
 
 
 def test_a_terminal_gets_a_live_progress_bar(pstudio_sample, tmp_path):
+    """stdout and stderr on one terminal: the bar redrawn in place, the unit lines above it."""
     leader, follower = pty.openpty()
     fcntl.ioctl(follower, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 100, 0, 0))  # a 100-column terminal
     result = subprocess.run(
         run_command("pstudio", pstudio_sample[0], tmp_path / "o"),
         cwd=REPO,
-        stdout=subprocess.DEVNULL,
+        stdout=follower,
         stderr=follower,
         timeout=300,
     )
@@ -247,7 +287,7 @@ def test_a_terminal_gets_a_live_progress_bar(pstudio_sample, tmp_path):
     assert "\r" in text
     assert "4/4" in text
     assert "unit/s" in text  # tqdm's bar, redrawn in place
-    assert "unit dome/camera_3: 1 of 1 clip(s) written" in text
+    assert "\nunit dome/camera_3: 1 of 1 clip(s) written" in text.replace("\r", "\n")  # the bar counts
 
 
 def test_workers_are_as_quiet_as_the_main_process(pstudio_sample, tmp_path):
@@ -263,24 +303,33 @@ def test_workers_are_as_quiet_as_the_main_process(pstudio_sample, tmp_path):
         "--direct_num_workers=2",
     )
     assert result.returncode == 0, result.stderr[-3000:]
-    lines = result.stderr.splitlines()
-    assert len(lines) == 4, result.stderr[-3000:]
-    assert all(line.startswith("[") for line in lines), result.stderr[-3000:]
-    assert "apitools" not in result.stderr
-    assert "INFO" not in result.stderr
+    assert result.stderr == ""
+    lines = [line for line in result.stdout.splitlines() if line.startswith("[")]
+    assert len(lines) == 4, result.stdout[-3000:]
+    assert "apitools" not in result.stdout
+    assert "INFO" not in result.stdout
 
 
-@pytest.mark.parametrize("mode", [[], ["--direct_running_mode=multi_processing", "--direct_num_workers=2"]])
-def test_a_closed_output_pipe_stops_the_run_within_five_seconds(sample_split, tmp_path, mode):
-    """| head: the reader goes away after the first line; the run stops (exit 141), no traceback, no
-    worker process left behind."""
+@pytest.mark.parametrize(
+    "mode, same_pipe",
+    [
+        ([], False),
+        ([], True),
+        (["--direct_running_mode=multi_processing", "--direct_num_workers=2"], False),
+    ],
+    ids=["stdout", "stdout and stderr", "multi_processing"],
+)
+def test_a_closed_output_pipe_stops_the_run_within_five_seconds(sample_split, tmp_path, mode, same_pipe):
+    """| head: the reader goes away after the first line (of stdout alone, or of stdout and stderr in
+    one pipe: 2>&1 | head); the run stops (exit 141) before its end, no traceback, no worker process
+    left behind."""
     env = dict(os.environ, PYTHONPATH=REPO)
     errors = open(tmp_path / "stderr", "w")
     process = subprocess.Popen(
         run_command("drivetrack", sample_split[0], tmp_path / "o", *mode),
         cwd=REPO,
         stdout=subprocess.PIPE,
-        stderr=errors,
+        stderr=subprocess.STDOUT if same_pipe else errors,
         env=env,
     )
     process.stdout.readline()
@@ -291,7 +340,8 @@ def test_a_closed_output_pipe_stops_the_run_within_five_seconds(sample_split, tm
     assert time.monotonic() - started < 5
     errors.close()
     assert code == 141
-    assert "Traceback" not in (tmp_path / "stderr").read_text()
+    assert (tmp_path / "stderr").read_text() == ""
+    assert not (tmp_path / "o" / "run_drivetrack.json").exists()  # stopped before the end
     time.sleep(0.2)
     assert not [child for child in children if child.is_running() and child.status() != psutil.STATUS_ZOMBIE]
 
@@ -338,7 +388,7 @@ def test_manifest_settings_resume_every_unit_and_rewrite_the_manifests(finished,
         "drivetrack", "--input", source_input, "--output", out, "--set", "minival_per_source=2"
     )
     assert result.returncode == 0
-    assert result.stderr.count(RESUMED) == 3
+    assert result.stdout.count(RESUMED) == 3
     assert len(open(os.path.join(out, "manifests", "minival.txt")).read().splitlines()) == 2
     names = sorted(before)
     splits = tmp_path / "splits.json"
@@ -349,7 +399,7 @@ def test_manifest_settings_resume_every_unit_and_rewrite_the_manifests(finished,
         "drivetrack", "--input", source_input, "--output", out, "--set", f"splits_file={splits}"
     )
     assert result.returncode == 0
-    assert result.stderr.count(RESUMED) == 3
+    assert result.stdout.count(RESUMED) == 3
     assert open(os.path.join(out, "manifests", "minival.txt")).read() == f"drivetrack/{names[0]}\n"
     assert clip_bytes(out, "drivetrack") == before
 
@@ -379,7 +429,7 @@ def test_a_release_run_resumes_a_plain_runs_units(finished, tmp_path):
         "rules=refined",
     )
     assert result.returncode == 0, result.stderr[-3000:]
-    assert result.stderr.count(RESUMED) == 2  # the units of cameras 1 and 3, each named
+    assert result.stdout.count(RESUMED) == 2  # the units of cameras 1 and 3, each named
     with open(os.path.join(out, "release_drivetrack.jsonl")) as handle:
         rows = {row["clip"]: row for row in map(json.loads, handle)}
     assert rows[other_camera[:-4]]["reason"] == (
@@ -395,5 +445,5 @@ def test_an_annotation_setting_redoes_every_unit(finished):
     source_input, out = finished
     result = run_in_process("drivetrack", "--input", source_input, "--output", out, "--set", "seed=7")
     assert result.returncode == 0
-    assert result.stderr.count(RESUMED) == 0
-    assert result.stderr.count(" clip(s) written") == 3
+    assert result.stdout.count(RESUMED) == 0
+    assert len(re.findall(r"^\[\d/3\] unit .* clip\(s\) written", result.stdout, re.M)) == 3

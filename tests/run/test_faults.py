@@ -91,7 +91,7 @@ def test_a_bad_splits_file_or_input_stops_the_run_before_any_work(pstudio_sample
     )
     assert result.returncode == 2
     assert not out.exists()
-    assert f"cannot start: splits_file {splits}: not the release's splits JSON" in result.stderr
+    assert f"cannot start: --set splits_file={splits}: not the release's splits JSON" in result.stderr
     assert "must map each source to a list of clip file names" in result.stderr
     result = run_pipeline("pstudio", "--input", str(tmp_path / "absent"), "--output", str(out))
     assert result.returncode == 2
@@ -158,7 +158,7 @@ def test_commands_print_one_line_errors_and_no_beam_import_noise(tmp_path):
     audit.mkdir(parents=True)
     (audit / "dome_3.parquet").write_bytes(b"not parquet")
     runs = {
-        "sweep": ["pipeline.audit", "sweep", "--source", "pstudio", "--output", str(tmp_path / "out")],
+        "sweep": ["pipeline.audit", "sweep", str(tmp_path / "out"), "--source", "pstudio"],
         "viz": ["pipeline.viz", str(tmp_path / "absent.npz"), "--out", str(tmp_path / "v.png")],
         "stats": ["pipeline.viz", "stats", str(tmp_path / "absent")],
         "compare": ["pipeline.audit", "compare", str(tmp_path / "absent"), str(tmp_path)],

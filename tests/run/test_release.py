@@ -355,7 +355,7 @@ def test_the_sweep_counts_surviving_release_clips_as_a_rerun_does(
     report = tmp_path / "report"
     grid = ["--grid", "min_tracks=1,500"]
     assert (
-        audit_main(["sweep", "--source", "drivetrack", "--output", out, *grid, "--report", str(report)]) == 0
+        audit_main(["sweep", out, "--source", "drivetrack", *grid, "--out", str(report)]) == 0
     )
     markdown = (report / "report.md").read_text()
     assert "| 500 |" in markdown

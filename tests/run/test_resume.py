@@ -19,8 +19,8 @@ from tests.support.bad_input import partial_files
 from tests.support.cli import REPO, clip_bytes, run_in_process
 
 
-def skipped_units(stderr: str) -> int:
-    return stderr.count("finished by an earlier run with these settings; skipped")
+def skipped_units(stdout: str) -> int:
+    return stdout.count("finished by an earlier run with these settings; skipped")
 
 
 def sample_input(reference: str, source: str) -> str:
@@ -46,9 +46,9 @@ def test_rerun_skips_finished_units_and_redoes_a_damaged_clip(finished_copy, ref
 
     result = run_in_process("pstudio", "--input", source_input, "--output", out)
     assert result.returncode == 0, result.stderr[-3000:]
-    assert skipped_units(result.stderr) == 3
+    assert skipped_units(result.stdout) == 3
     unit = damaged[: -len(".npz")].replace("_", "/camera_")  # dome_21 -> dome/camera_21
-    assert f"unit {unit}: 1 of 1 clip(s) written" in result.stderr  # rewritten
+    assert f"unit {unit}: 1 of 1 clip(s) written" in result.stdout  # rewritten
     assert clip_bytes(out, "pstudio") == expected
     summary = json.load(open(os.path.join(out, "run_pstudio.json")))["summary"]
     reference_summary = json.load(open(os.path.join(reference_run("pstudio"), "run_pstudio.json")))["summary"]
@@ -64,17 +64,17 @@ def test_changed_settings_or_overwrite_redo_every_unit(finished_copy):
     redone = {"dome_3.npz", "dome_8.npz"}
     changed = run_in_process("pstudio", "--input", source_input, "--output", out, *settings)
     assert changed.returncode == 0, changed.stderr[-3000:]
-    assert skipped_units(changed.stderr) == 0
+    assert skipped_units(changed.stdout) == 0
     after = clip_bytes(out, "pstudio")
     assert set(after) == set(before)
     assert redone < set(before)
     assert all((after[name] != before[name]) == (name in redone) for name in before)
 
     again = run_in_process("pstudio", "--input", source_input, "--output", out, *settings)
-    assert skipped_units(again.stderr) == 2
+    assert skipped_units(again.stdout) == 2
     forced = run_in_process("pstudio", "--input", source_input, "--output", out, *settings, "--overwrite")
     assert forced.returncode == 0
-    assert skipped_units(forced.stderr) == 0
+    assert skipped_units(forced.stdout) == 0
     assert clip_bytes(out, "pstudio") == after
 
 
@@ -120,7 +120,7 @@ def test_sigkill_mid_run_then_rerun_completes_with_identical_bytes(reference_run
     result = run_in_process("pstudio", "--input", source_input, "--output", out)
     assert result.returncode == 0, result.stderr[-3000:]
     assert "partial file(s) an interrupted run left" in result.stdout
-    assert skipped_units(result.stderr) >= 1
+    assert skipped_units(result.stdout) >= 1
     assert clip_bytes(out, "pstudio") == expected
     assert partial_files(out) == []
     assert validate_main([out]) == 0

@@ -39,10 +39,10 @@ def test_a_toy_source_runs_validates_sweeps_and_compares(toy, tmp_path, capsys):
 
     assert validate_main([str(out)]) == 0
     grid = ["--grid", "flicker.max_fraction=0,0.5"]
-    assert sweep_main(["--source", "toy", "--output", str(out), *grid]) == 0
+    assert sweep_main([str(out), "--source", "toy", *grid]) == 0
     assert "| 0.5 |" in (out / "sweep_toy" / "report.md").read_text()
     assert (
-        sweep_main(["--source", "toy", "--output", str(out), "--grid", "pstudio.mask_min_agreement=1"]) == 2
+        sweep_main([str(out), "--source", "toy", "--grid", "pstudio.mask_min_agreement=1"]) == 2
     )
     assert compare_main([str(out), str(out), "--out", str(tmp_path / "self")]) == 0
     (row,) = json.loads((tmp_path / "self.json").read_text())["clips"]

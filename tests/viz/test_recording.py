@@ -1,11 +1,18 @@
 """pipeline.viz's Rerun recordings, read back with Rerun's own dataframe API and compared with
-positions, pixels and poses computed here from the clip's arrays."""
+positions, pixels and poses computed here from the clip's arrays; their blueprint read back with
+Rerun's own ``rerun rrd print``."""
 
 from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
 
 import cv2
 import numpy as np
 import pytest
+import rerun.blueprint as rrb
 import rerun.dataframe as rd
 
 from pipeline.viz.__main__ import main
@@ -205,3 +212,60 @@ def test_folder_of_clips_gives_one_recording_each(tmp_path):
     with pytest.raises(SystemExit):
         main([str(folder), "--out", str(tmp_path / "recordings.rrd")])
     assert main([str(tmp_path / "recordings"), "--out", str(tmp_path / "none")]) == 2  # no clips in it
+
+
+def test_projected_points_are_drawn_only_inside_the_image(tmp_path):
+    """Camera-frame tracks: one in the image, one right of it, one above it, one behind the camera."""
+    fx, fy, cx, cy = INTRINSICS
+    inside, right, above = (
+        [0.1, 0.1, 3.0],
+        [(WIDTH + 5 - cx) * 3.0 / fx, 0.0, 3.0],
+        [0.0, -(cy + 5) * 3.0 / fy, 3.0],
+    )
+    tracks = np.tile(np.array([inside, right, above, [0.0, 0.0, -2.0]]), (FRAMES, 1, 1))
+    write_clip(tmp_path / "edges.npz", tracks, None)
+    out = str(tmp_path / "edges.rrd")
+    assert main([str(tmp_path / "edges.npz"), "--out", out]) == 0
+    _, table = read_back(out)
+    expected = [fx * inside[0] / inside[2] + cx, fy * inside[1] / inside[2] + cy]
+    for t in range(FRAMES):
+        assert np.allclose(column(table, "/world/camera/image/tracks:Position2D")[t], [expected], atol=1e-4)
+    assert len(column(table, "/world/tracks:Position3D")[0]) == 4  # all four stay in 3D
+
+
+def blueprint_rows(path: str) -> dict[str, dict[str, str]]:
+    """Entity path -> {column: value} of each one-row chunk of the recording's blueprint store, as
+    ``rerun rrd print -vvv`` prints it (the SDK's own reader; values as printed, e.g. ``[3D]``)."""
+    rerun = os.path.join(os.path.dirname(sys.executable), "rerun")
+    printed = subprocess.run(
+        [rerun, "rrd", "print", "-vvv", path], capture_output=True, text=True, timeout=60
+    )
+    assert printed.returncode == 0, printed.stderr
+    rows: dict[str, dict[str, str]] = {}
+    for chunk in re.split(r"^Chunk\(", printed.stdout, flags=re.M)[1:]:
+        entity = re.match(r"[0-9A-F]+\) with 1 rows .*? - (\S+) - ", chunk)
+        lines = [line.strip("│ ").split("┆") for line in chunk.splitlines() if "┆" in line]
+        if entity is None or not lines:
+            continue
+        header, data = lines[0], lines[-1]
+        cells = {name.strip(): value.strip() for name, value in zip(header, data, strict=True)}
+        rows.setdefault(entity[1], {}).update(cells)
+    return rows
+
+
+def test_the_recording_opens_on_its_own_views(world_clip, tmp_path):
+    """A 3D view of the world and a 2D view of the frame with its tracks, side by side; the time
+    panel open; the viewer adds no view of its own (no extra panel of dots on black)."""
+    out = str(tmp_path / "clip.rrd")
+    assert main([world_clip[0], "--out", out]) == 0
+    rows = blueprint_rows(out)
+    views = {
+        (row["ViewClass"], row["ViewOrigin"])
+        for path, row in rows.items()
+        if re.fullmatch(r"/view/[^/]+", path)
+    }
+    assert views == {("[3D]", "[world]"), ("[2D]", "[world/camera/image]")}
+    assert (rows["/viewport"]["AutoViews"], rows["/viewport"]["AutoLayout"]) == ("[false]", "[false]")
+    (container,) = [row for path, row in rows.items() if path.startswith("/container/")]
+    assert container["ContainerKind"] == f"[{rrb.components.ContainerKind.Horizontal.value}]"
+    assert rows["/time_panel"]["PanelState"] == f"[{rrb.components.PanelState.Expanded.value}]"

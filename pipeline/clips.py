@@ -1,0 +1,123 @@
+"""A run's clips in a researcher's hands: ``open`` reads one clip file as a typed, frozen ``Clip``, and
+``split`` yields the clips of a run's split (``minival``, ``full_test``) in its manifest's order::
+
+    import pipeline.clips
+
+    for clip in pipeline.clips.split("out/demo", "minival"):
+        print(clip.source, clip.name, clip.tracks.shape)
+
+Every file is read through the bounded reader (``pipeline/io/clip_reader.py``: nothing is unpickled,
+sizes are capped from the headers) and checked to be a clip (keys, dtypes, shapes) before it is
+handed over; the release's own files open the same way.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterator
+
+import cv2
+import numpy as np
+
+from pipeline import sources
+from pipeline.export.layout import clip_path, manifest_path
+from pipeline.export.validator import structure_problems
+from pipeline.io.clip_reader import DEFAULT_LIMITS, FRAMES, ReadLimits, read_clip_file
+from pipeline.io.files import read_bytes
+
+# The splits a run's manifests hold; ``full_eval`` (the release's name) reads ``full_test``.
+SPLITS = ("minival", "full_test")
+MAX_MANIFEST_BYTES = 64 << 20
+
+
+@dataclasses.dataclass(frozen=True)
+class Clip:
+    """One clip in the TAPVid-3D schema, its arrays read-only.
+
+    name: the file's name without ``.npz``.
+    source: the source whose folder holds it (``<out>/<source>/<clip>.npz``), else None.
+    frames: the T frames, each as JPEG bytes.
+    queries: [N, 3] float, (x, y, t): where track i is queried, in pixels of frame t.
+    tracks: [T, N, 3] float, metres, in each frame's camera frame (x right, y down, z forward).
+    visibility: [T, N] bool.
+    intrinsics: [4] float64, fx, fy, cx, cy of the stored frames (pixel centres at +0.5).
+    extrinsics: [T, 4, 4] float, world-to-camera per frame; None where the file has none (Panoptic
+      Studio, the release's ADT files).
+    """
+
+    name: str
+    source: str | None
+    frames: tuple[bytes, ...]
+    queries: np.ndarray
+    tracks: np.ndarray
+    visibility: np.ndarray
+    intrinsics: np.ndarray
+    extrinsics: np.ndarray | None
+
+    @property
+    def num_frames(self) -> int:
+        return len(self.frames)
+
+    @property
+    def num_tracks(self) -> int:
+        return len(self.queries)
+
+    def image(self, t: int) -> np.ndarray:
+        """Frame ``t`` decoded: [H, W, 3] uint8, RGB."""
+        bgr = cv2.imdecode(np.frombuffer(self.frames[t], np.uint8), cv2.IMREAD_COLOR)
+        if bgr is None:
+            raise ValueError(f"{self.name}: frame {t} is not a decodable JPEG")
+        return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    array.flags.writeable = False
+    return array
+
+
+def open(path: str, limits: ReadLimits = DEFAULT_LIMITS) -> Clip:
+    """The clip in the file at ``path`` (any Beam filesystem); ValueError naming the file when it is
+    refused by the reader's caps, would need pickle, or is not shaped like a clip."""
+    arrays = read_clip_file(path, limits)
+    problems = structure_problems(arrays)
+    if problems:
+        raise ValueError(f"{path}: not a TAPVid-3D clip: {problems[0]}")
+    folder, _, file_name = path.rstrip("/").rpartition("/")
+    source = folder.rpartition("/")[2]
+    extrinsics = arrays.get("extrinsics_w2c")
+    return Clip(
+        name=file_name[: -len(".npz")] if file_name.endswith(".npz") else file_name,
+        source=source if source in sources.names() else None,
+        frames=tuple(bytes(frame) for frame in arrays[FRAMES]),
+        queries=_read_only(arrays["queries_xyt"]),
+        tracks=_read_only(arrays["tracks_XYZ"]),
+        visibility=_read_only(arrays["visibility"]),
+        intrinsics=_read_only(arrays["fx_fy_cx_cy"].astype(np.float64)),
+        extrinsics=None if extrinsics is None else _read_only(extrinsics),
+    )
+
+
+def split_paths(output: str, split: str) -> list[str]:
+    """The clip files ``<output>/manifests/<split>.txt`` lists, in its order; ValueError naming an
+    unknown split or a manifest that is missing or lists something other than ``<source>/<clip>.npz``."""
+    name = "full_test" if split == "full_eval" else split
+    if name not in SPLITS:
+        raise ValueError(f"split {split!r}: a run's splits are {', '.join(SPLITS)} (or full_eval)")
+    manifest = manifest_path(output.rstrip("/"), name)
+    try:
+        entries = read_bytes(manifest, MAX_MANIFEST_BYTES).decode().splitlines()
+    except (OSError, UnicodeDecodeError) as error:
+        raise ValueError(f"{manifest}: no manifest of a run ({error})") from error
+    paths = []
+    for number, entry in enumerate(entries, 1):
+        source, _, file_name = entry.partition("/")
+        if source not in sources.names() or not file_name.endswith(".npz") or "/" in file_name:
+            raise ValueError(f"{manifest} line {number}: {entry!r} is not <source>/<clip>.npz")
+        paths.append(clip_path(output.rstrip("/"), source, file_name[: -len(".npz")]))
+    return paths
+
+
+def split(output: str, name: str, limits: ReadLimits = DEFAULT_LIMITS) -> Iterator[Clip]:
+    """The clips of the run in ``output`` that its manifest of split ``name`` lists, one at a time."""
+    for path in split_paths(output, name):
+        yield open(path, limits)

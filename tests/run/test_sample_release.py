@@ -1,0 +1,147 @@
+"""The samples' splits file (``pipeline/samples/sample_splits.json``, what ``make demo`` runs): a release run
+on the sample worlds, given no ``--input``, writes every clip the samples make and says why each
+other clip is not there, in words that name no option the user did not give; ``audit release`` shows
+each clip's drops per filter; ``audit report`` shows the verdicts of a release run that annotated
+nothing. The DriveTrack sample world is linked into the run's folder as a run without ``--input``
+leaves it (a plain run writes it there once)."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+
+import pytest
+
+from pipeline.audit.__main__ import main as audit_main
+from pipeline.release import SAMPLE_RELEASE, read_release
+from pipeline.samples.waymo_world import SAMPLE_VERSION
+from tests.conftest import link_tree
+from tests.support.adt_excerpt import SAMPLE, needs_excerpt
+from tests.support.cli import REPO, clip_bytes, run_in_process
+
+SEGMENT = "sample0000000000000001_0_000_4_000"
+DEMO_ADT = ("--set", "adt.chunk_frames=2", "--set", "adt.min_frames=2", "--set", "adt.max_gt_offset_ms=40")
+# clip -> (status, reason) of every sample release clip a run on the samples cannot make.
+NOT_WRITTEN = {
+    f"tapvid3d_{SEGMENT}_1_parked_right_DDDDDDDDDDDDDDDDDD": (
+        "not_produced",
+        "object parked_right_DDDDDDDDDDDDDDDDDD belongs to camera 3 (the one that sees it most), not 1",
+    ),
+    f"tapvid3d_{SEGMENT}_2_no_such_object": (
+        "not_produced",
+        "object id no_such_object is not among the segment's boxes",
+    ),
+    "tapvid3d_1234567890_0_000_20_000_1_someone": (
+        "input_absent",
+        "segment 1234567890_0_000_20_000 is not in the sample world",
+    ),
+    f"{SAMPLE.name}_1": ("not_produced", "chunk 1 starts past the sequence's 2 annotated frames"),
+    "Apartment_release_absent_seq001_0": (
+        "input_absent",
+        "sequence Apartment_release_absent_seq001 is not in --input",  # ADT's --input was given
+    ),
+}
+
+
+@pytest.fixture(scope="module")
+def sample_release(sample_split, tmp_path_factory):
+    """One folder: the DriveTrack sample release run without --input, and ADT's on the excerpt."""
+    out = tmp_path_factory.mktemp("sample_release")
+    link_tree(sample_split[0], str(out / "sample_input" / "drivetrack"))
+    (out / "sample_input" / "drivetrack" / f".complete-v{SAMPLE_VERSION}").touch()
+    runs = {"drivetrack": run_in_process("drivetrack", "--output", str(out), "--release", SAMPLE_RELEASE)}
+    if SAMPLE.is_dir():
+        given = ("--input", str(SAMPLE), *DEMO_ADT)
+        runs["adt"] = run_in_process("adt", "--output", str(out), "--release", SAMPLE_RELEASE, *given)
+    return out, runs
+
+
+def verdicts(out, source: str) -> dict[str, dict]:
+    return {row["clip"]: row for row in map(json.loads, (out / f"release_{source}.jsonl").open())}
+
+
+def test_the_sample_release_names_every_clip_the_samples_make(sample_release, reference_run):
+    out, runs = sample_release
+    assert runs["drivetrack"].returncode == 0, runs["drivetrack"].stderr[-3000:]
+    assert "no --input given: using the embedded sample world" in runs["drivetrack"].stdout
+    named = read_release(SAMPLE_RELEASE).clips
+    for source in ("drivetrack", "pstudio"):
+        made = {name[: -len(".npz")] for name in clip_bytes(reference_run(source), source)}
+        assert made <= set(named[source]), source
+        assert set(named[source]) - made, f"{source}: the file names no clip the sample cannot make"
+    written = {clip for clip, row in verdicts(out, "drivetrack").items() if row["status"] == "written"}
+    assert written == {name[: -len(".npz")] for name in clip_bytes(reference_run("drivetrack"), "drivetrack")}
+
+
+def test_each_clip_not_written_says_why_naming_only_what_was_given(sample_release):
+    out, _ = sample_release
+    rows = verdicts(out, "drivetrack")
+    assert {row["status"] for row in rows.values()} == {"written", "not_produced", "input_absent"}
+    for clip, row in rows.items():
+        if row["status"] != "written":
+            assert (row["status"], row["reason"]) == NOT_WRITTEN[clip]
+        assert "--input" not in row["reason"]
+
+
+@needs_excerpt
+def test_the_adt_excerpt_verdicts(sample_release):
+    out, runs = sample_release
+    assert runs["adt"].returncode == 0, runs["adt"].stderr[-3000:]
+    rows = verdicts(out, "adt")
+    assert rows[f"{SAMPLE.name}_0"]["status"] == "written"
+    for clip in (f"{SAMPLE.name}_1", "Apartment_release_absent_seq001_0"):
+        assert (rows[clip]["status"], rows[clip]["reason"]) == NOT_WRITTEN[clip]
+
+
+def test_audit_release_shows_each_clips_drops_per_filter(sample_release, capsys):
+    out, _ = sample_release
+    assert audit_main(["release", str(out), "--source", "drivetrack"]) == 0
+    printed = capsys.readouterr().out
+    header = r"^clip +split +status +tracks +candidates +never_visible +flicker +mask +passed +reason$"
+    assert re.search(header, printed, re.M), printed
+    rows = verdicts(out, "drivetrack")
+    assert sum(row["dropped"]["flicker"] for row in rows.values()) > 0
+    for clip, row in rows.items():
+        dropped = row["dropped"]
+        cells = [row["split"], row["status"], row["tracks"], row["candidates"], dropped["never_visible"]]
+        cells += [dropped["flicker"], dropped["mask"], row["passed"]]
+        line = re.escape(clip) + "".join(rf" +{re.escape(str(cell))}" for cell in cells)
+        assert re.search(rf"^{line} +{re.escape(row['reason'])}$", printed, re.M), clip
+
+
+def test_audit_report_shows_the_verdicts_of_a_release_run_that_annotated_nothing(
+    sample_split, tmp_path, capsys
+):
+    """A release naming only clips the sample cannot make: the run annotates nothing (exit 3); the
+    page shows its verdicts instead of refusing for want of audit tables."""
+    splits = tmp_path / "splits.json"
+    absent = ["tapvid3d_1234567890_0_000_20_000_1_someone.npz", "tapvid3d_9_0_000_20_000_2_other.npz"]
+    splits.write_text(
+        json.dumps({"minival": {"drivetrack": absent[:1]}, "full_eval": {"drivetrack": absent[1:]}})
+    )
+    out = tmp_path / "out"
+    given = ("--input", sample_split[0], "--output", str(out), "--release", str(splits))
+    assert run_in_process("drivetrack", *given).returncode == 3
+    assert not (out / "audit").exists()
+    page = tmp_path / "page.html"
+    assert audit_main(["report", str(out), "--out", str(page)]) == 0
+    assert capsys.readouterr().out.startswith(
+        "drivetrack: no audit tables; the page shows its 2 release verdicts"
+    )
+    data = json.loads(re.search(r'id="audit-data">(.*?)</script>', page.read_text(), re.S)[1])
+    (source,) = data["sources"]
+    assert source["verdicts_only"] is True
+    assert [(row["clip"], row["status"]) for row in source["missing"]] == [
+        (name[: -len(".npz")], "input_absent") for name in absent
+    ]
+
+
+def test_the_demo_is_a_release_run_of_the_packaged_sample_splits():
+    makefile = open(os.path.join(REPO, "Makefile")).read()
+    assert f"SAMPLE_RELEASE := {os.path.relpath(SAMPLE_RELEASE, REPO)}" in makefile
+    demo = re.search(r"^demo:.*?(?=^\S)", makefile, re.M | re.S)[0]
+    assert demo.count("$(PY) -m pipeline.run ") == demo.count("--release $(SAMPLE_RELEASE)") == 3
+    assert "-m pipeline.audit release $(OUT)" in demo
+    pyproject = open(os.path.join(REPO, "pyproject.toml")).read()
+    assert '"pipeline.samples" = ["sample_splits.json"]' in pyproject  # in a wheel too
