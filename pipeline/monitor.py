@@ -6,7 +6,8 @@ number of worker processes. The unit lines are the run's account and go to stdou
 count done, the elapsed time and an estimate of what is left; when stderr is a terminal a live tqdm
 bar is drawn there too (then a unit line shown on the same terminal leaves the counting to the bar).
 A closed output (``| head``) sets ``pipes.READER_GONE`` and stops the main thread with
-KeyboardInterrupt (``_thread.interrupt_main``) so the run ends promptly instead of running on.
+KeyboardInterrupt (``_thread.interrupt_main``) so the run ends promptly instead of running on; so
+do ``max_failures_in_a_row`` units in a row failing with one cause (``gave_up`` then says why).
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import time
 from apache_beam.io.filesystems import FileSystems
 from tqdm import tqdm
 
-from pipeline.core.outcomes import UnitOutcome
+from pipeline.core.outcomes import UnitOutcome, failure_cause
 from pipeline.export.layout import unit_record_path
 from pipeline.pipes import READER_GONE
 from pipeline.resume import outcome_of, read_unit_record
@@ -48,7 +49,9 @@ def describe(outcome: UnitOutcome) -> str:
 
 class RunMonitor:
     """Reports the units of a run (``names``) as their records, stamped with ``run_id``, appear: a
-    line each on ``lines`` (default stdout), a live bar on ``bar_stream`` when it is a terminal."""
+    line each on ``lines`` (default stdout), a live bar on ``bar_stream`` when it is a terminal.
+    Once ``max_failures_in_a_row`` units in a row (0: no limit) failed with one cause
+    (``failure_cause``), ``gave_up`` says so and the main thread is stopped."""
 
     def __init__(
         self,
@@ -59,6 +62,7 @@ class RunMonitor:
         started: float,
         bar_stream=None,
         lines=None,
+        max_failures_in_a_row: int = 0,
     ):
         self.output, self.source, self.run_id, self.started = output, source, run_id, started
         self.lines = lines if lines is not None else sys.stdout
@@ -68,6 +72,9 @@ class RunMonitor:
         self.seen: dict[str, float] = {}
         self.done: dict[str, UnitOutcome] = {}
         self.closed = False
+        self.limit = max_failures_in_a_row
+        self.streak: tuple[str, int] = ("", 0)  # the cause of the last failures in a row, how many
+        self.gave_up = ""
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.bar = (
@@ -96,7 +103,7 @@ class RunMonitor:
         interval = 0.5 if "://" not in self.output else 5.0  # an object store is listed less often
         while not self._stop.wait(interval):
             self.poll()
-            if self.closed:
+            if self.closed or self.gave_up:
                 _thread.interrupt_main()
                 return
 
@@ -115,6 +122,21 @@ class RunMonitor:
             if record is not None and record["run"] == self.run_id:
                 self.done[name] = outcome_of(record)
                 self._say(self.done[name])
+                self._count(self.done[name])
+
+    def _count(self, outcome: UnitOutcome) -> None:
+        """Follow the units failing alike in a row; give up at the limit."""
+        if not outcome.failed:
+            self.streak = ("", 0) if not outcome.resumed else self.streak
+            return
+        cause = failure_cause(outcome.failures[0].error)
+        count = self.streak[1] + 1 if self.streak[0] == cause else 1
+        self.streak = (cause, count)
+        if self.limit and count >= self.limit and not self.gave_up:
+            self.gave_up = (
+                f"the last {count} units failed alike ({outcome.failures[0].error}; "
+                f"max_failures_in_a_row={self.limit})"
+            )
 
     def _say(self, outcome: UnitOutcome) -> None:
         if self.closed:

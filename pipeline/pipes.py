@@ -20,7 +20,9 @@ import threading
 from collections.abc import Callable
 from typing import NoReturn
 
-INTERRUPTED, OUTPUT_CLOSED = 130, 141
+# Statuses a command ends with at once (its other threads left as they are): Ctrl-C, a closed
+# output, and a run that stopped itself (``pipeline.run``: units failing alike).
+STOPPED, INTERRUPTED, OUTPUT_CLOSED = 4, 130, 141
 # Set once the reader of the command's stdout or stderr is gone (a closed pipe).
 READER_GONE = threading.Event()
 # Set (under the lock) once the command has ended: the watcher then leaves the main thread alone.
@@ -101,7 +103,7 @@ def run_command(main: Callable[[], int], stop: Callable[[], None] | None = None)
     except KeyboardInterrupt:  # the watcher's, sent while the command was ending
         status = OUTPUT_CLOSED
         _FINISHED.set()
-    if status not in (INTERRUPTED, OUTPUT_CLOSED):
+    if status not in (STOPPED, INTERRUPTED, OUTPUT_CLOSED):
         sys.exit(status)
     if status == OUTPUT_CLOSED or READER_GONE.is_set():
         silence_output()

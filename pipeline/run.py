@@ -8,8 +8,9 @@ writes a verdict for each (``<out>/release_<source>.jsonl``).
 
 Exit status: 0 done (clips written, or every unit finished by an earlier run); 1 some unit failed;
 2 the run could not start (a bad option or setting, a missing input, an output that cannot be
-written) or finish; 3 nothing was produced and nothing resumed (the last line says why); 130
-interrupted by Ctrl-C; 141 the output was closed (``| head``): the run stopped.
+written) or finish; 3 nothing was produced and nothing resumed (the last line says why); 4 the
+run stopped itself: ``max_failures_in_a_row`` units in a row failed alike (the last line says
+why); 130 interrupted by Ctrl-C; 141 the output was closed (``| head``): the run stopped.
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ from pipeline.export.layout import failures_path, release_verdicts_path, run_rec
 from pipeline.finish import RunSummary, finish_run
 from pipeline.io.http import shown
 from pipeline.monitor import RunMonitor
-from pipeline.pipes import INTERRUPTED, OUTPUT_CLOSED, READER_GONE, run_command, silence_output
+from pipeline.pipes import INTERRUPTED, OUTPUT_CLOSED, READER_GONE, STOPPED, run_command, silence_output
 from pipeline.prepare import (
     CannotStart,
     PreparedRun,
@@ -133,26 +134,45 @@ def beam_counters(result) -> dict[str, int] | str:
     return totals
 
 
+class GaveUp(Exception):
+    """The run stopped itself: units failed alike, ``max_failures_in_a_row`` in a row (the message
+    says which cause)."""
+
+
 def run_pipeline(prepared: PreparedRun, job: UnitJob, plan: UnitPlan):
     """Run the Beam graph over the plan's units, reporting each unit as it finishes (worker processes
-    silent unless ``--verbose``); the result."""
+    silent unless ``--verbose``); the result. GaveUp when the monitor gave up on the run."""
     names = [prepared.source.unit_name(unit) for unit in plan.units]
-    with (
-        workers_silenced() as report,
-        RunMonitor(job.output, job.source.name, names, job.run_id, time.monotonic(), bar_stream=report),
-    ):
-        p = beam.Pipeline(options=prepared.options)
-        _ = p | "RegenerateClips" >> graph.RegenerateClips(job, plan.units, prepared.options)
-        result = p.run()
-        try:
-            result.wait_until_finish()
-        finally:
-            # Beam's Dask runner opens a distributed.Client for the run and never closes it: a
-            # caller that goes on (a notebook, the tests) would keep a client that tries to
-            # reconnect once the cluster is gone.
-            client = getattr(result, "client", None)
-            if client is not None:
-                client.close()
+    limit, started = prepared.config.max_failures_in_a_row, time.monotonic()
+    monitor = None
+    try:
+        with workers_silenced() as report:
+            monitor = RunMonitor(
+                job.output, job.source.name, names, job.run_id, started, report, max_failures_in_a_row=limit
+            )
+            with monitor:
+                result = _run_graph(prepared, job, plan)
+    except BaseException:  # the monitor stopped the main thread: Beam may wrap it in another error
+        if monitor is not None and monitor.gave_up:
+            raise GaveUp(monitor.gave_up) from None
+        raise
+    return result
+
+
+def _run_graph(prepared: PreparedRun, job: UnitJob, plan: UnitPlan):
+    """The Beam pipeline over the plan's units, run to its end; its result."""
+    p = beam.Pipeline(options=prepared.options)
+    _ = p | "RegenerateClips" >> graph.RegenerateClips(job, plan.units, prepared.options)
+    result = p.run()
+    try:
+        result.wait_until_finish()
+    finally:
+        # Beam's Dask runner opens a distributed.Client for the run and never closes it: a caller
+        # that goes on (a notebook, the tests) would keep a client that tries to reconnect once the
+        # cluster is gone.
+        client = getattr(result, "client", None)
+        if client is not None:
+            client.close()
     return result
 
 
@@ -263,6 +283,14 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         return run(prepared, started)
+    except GaveUp as reason:
+        remove_partial_files(prepared.output, prepared.source.name, include_own=True)
+        print(
+            f"stopped: {reason}; finished units are kept: mend the cause and rerun the same command "
+            "to resume",
+            file=sys.stderr,
+        )
+        return STOPPED
     except KeyboardInterrupt:
         return stopped(prepared)
     except BrokenPipeError:
@@ -310,6 +338,8 @@ def run(prepared: PreparedRun, started: float) -> int:
         summary = finish_run(
             job, plan, provenance(prepared, input_root, plan), prepared.release, prepared.restricted, metrics
         )
+    except GaveUp:
+        raise
     except Exception as error:  # noqa: BLE001 - Beam wraps a step's error; say the cause in one line
         interrupted = interruption(error)
         if interrupted is not None:

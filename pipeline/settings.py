@@ -48,6 +48,10 @@ class RunConfig:
     minival_per_source: without a splits file, minival is a seeded draw of this many clips per
       source; full_test holds every other clip.
     min_tracks: a clip is written only when at least this many tracks pass the filters.
+    max_failures_in_a_row: the run stops (exit status 4) once this many units in a row failed with
+      the same cause (the error's last part, names and numbers aside), so that a dead server or a
+      fault every unit meets is reported in minutes, not after hours of units failing alike; 0:
+      never. Finished units are kept; a rerun resumes.
     flicker: the flicker filter's threshold.
     http: how every HTTP transfer behaves (the release's files, ADT's downloads).
     source_sections: each source's section, by name (``config.adt`` reads the ``adt`` one).
@@ -60,6 +64,7 @@ class RunConfig:
     export_depth: bool = not_in_clips(False)
     minival_per_source: int = not_in_clips(50, "[0, 1000000]")
     min_tracks: int = ranged(1, "[1, 100000]", release=NOT_KNOWN)
+    max_failures_in_a_row: int = not_in_clips(20, "[0, 1000000]")
     flicker: FlickerConfig = dataclasses.field(default_factory=FlickerConfig)
     http: HttpConfig = dataclasses.field(default_factory=HttpConfig, metadata={"clip_bytes": False})
     source_sections: Mapping[str, Any] = sections(default_sections)

@@ -8,26 +8,16 @@ per clip: its verdict, the tracks each filter dropped (never_visible, flicker, m
 
 from __future__ import annotations
 
-import re
 import sys
 from collections import Counter
 
 from pipeline import sources
 from pipeline.audit.verdicts import agreement_lines, agreement_summary, read_verdicts
 from pipeline.commandline import StrictParser
-from pipeline.core.outcomes import FILTER_ORDER
+from pipeline.core.outcomes import FILTER_ORDER, reason_kind
 from pipeline.release import SPLITS, STATUSES
 
 SHOWN_REASONS = 3
-_NAMED = re.compile(r"\b(object id|object|sequence|segment|camera|unit) \S+?('s)?(?=[\s,;:)]|$)")
-_NUMBER = re.compile(r"\d[\d,.]*\d|\d")
-
-
-def reason_kind(reason: str) -> str:
-    """A reason with its names and numbers folded (``object X``, ``N``), so alike reasons match."""
-    return _NUMBER.sub("N", _NAMED.sub(lambda m: f"{m[1]} X{m[2] or ''}", reason))
-
-
 # The per-clip table's columns: header, and the cell of a verdict row. The reason comes last.
 CLIP_COLUMNS = (
     ("clip", lambda row: row["clip"]),

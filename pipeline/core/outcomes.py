@@ -9,11 +9,26 @@ error. The unit's record on disk (``pipeline/resume.py``) is its outcome as JSON
 from __future__ import annotations
 
 import dataclasses
+import re
 from collections.abc import Mapping
 
 from pipeline.core.clip import ClipRecord
 
 FILTER_ORDER = ("never_visible", "flicker", "mask")
+_NAMED = re.compile(r"\b(object id|object|sequence|segment|camera|unit) \S+?('s)?(?=[\s,;:)]|$)")
+_NUMBER = re.compile(r"\d[\d,.]*\d|\d")
+
+
+def reason_kind(reason: str) -> str:
+    """A reason with its names and numbers folded (``object X``, ``N``), so alike reasons match."""
+    return _NUMBER.sub("N", _NAMED.sub(lambda m: f"{m[1]} X{m[2] or ''}", reason))
+
+
+def failure_cause(error: str) -> str:
+    """The cause of a failure's error line, for telling alike failures: its last part (after the
+    last ``": "``, past the exception's name and the unit, file and group it names), names and
+    numbers folded (``reason_kind``)."""
+    return reason_kind(error.rsplit(": ", 1)[-1])
 
 
 @dataclasses.dataclass(frozen=True)

@@ -224,3 +224,30 @@ def test_a_ground_truth_csv_that_no_reader_can_read_is_one_line(tmp_path):
     assert str(caught.value).startswith(
         "scene_objects.csv is not a readable CSV (field larger than field limit"
     )
+
+
+@needs_excerpt
+def test_units_failing_alike_stop_the_run(served, tmp_path):
+    """Eight sequences on a server that trickles: each fails on the stall rule; after three in a row
+    (``max_failures_in_a_row=3``) the run stops itself, exit 4, with one line naming the cause,
+    instead of going through every sequence."""
+    server, layout = served
+    server.fail(layout.filename("depth"), *["trickle"] * 40)
+    data = json.loads(layout.url_file.read_text())
+    entry = data["sequences"].pop(SEQUENCE)
+    data["sequences"] = {f"{SEQUENCE}_copy{i}": entry for i in range(8)}
+    urls = tmp_path / "urls.json"
+    urls.write_text(json.dumps(data))
+    command = [
+        sys.executable,
+        *("-m", "pipeline.run", "--source", "adt", "--input", str(urls), "--output", str(tmp_path / "out")),
+        *("--set", f"adt.scratch_dir={tmp_path / 'scratch'}", "--set", "max_failures_in_a_row=3"),
+        *("--set", "http.stall_s=0.5", "--set", "http.stall_bytes_per_s=1000000", "--set", "http.retries=0"),
+    ]
+    result = subprocess.run(command, cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 4, result.stderr[-2000:]
+    last = result.stderr.strip().splitlines()[-1]
+    assert last.startswith("stopped: the last 3 units failed alike (InputError: ")
+    assert "data group depth: stalled: " in last
+    assert last.endswith("rerun the same command to resume")
+    assert result.stdout.count(" FAILED: ") < 8
