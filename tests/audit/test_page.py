@@ -65,7 +65,8 @@ GRIDS = {
 
 @pytest.fixture(scope="module")
 def out(pstudio_sample, sample_split, tmp_path_factory):
-    """A Panoptic Studio run and a DriveTrack --release run, in one output folder."""
+    """A Panoptic Studio run and a DriveTrack --release run, in one output folder; the release run
+    compared with itself (``audit compare``: every clip it wrote agrees fully)."""
     splits = tmp_path_factory.mktemp("splits") / "splits.json"
     splits.write_text(json.dumps(RELEASE))
     folder = tmp_path_factory.mktemp("page_run")
@@ -75,6 +76,8 @@ def out(pstudio_sample, sample_split, tmp_path_factory):
         run_main(["--source", "drivetrack", "--input", sample_split[0], "--output", str(folder), *release])
         == 0
     )
+    compare = tmp_path_factory.mktemp("compare") / "compare"
+    assert audit_main(["compare", str(folder), str(folder), "--out", str(compare)]) == 0
     return folder
 
 
@@ -372,3 +375,20 @@ def test_the_clip_table_shows_each_filters_drops_and_marks_clips_too_short(loade
     assert int(note.get_attribute("data-value")) == short
     assert note.text.startswith(f"* {short} clip(s) shorter than 1 / 0.02 = 50 frames")
     assert len(table.find_elements(By.CSS_SELECTOR, "td.short")) == short
+
+
+def test_the_agreement_table_shows_each_splits_clips_agreeing_fully(loaded, out):
+    """The page's agreement table (``audit compare`` of the run with itself) counts, per split, the
+    release clips and those that agree fully: the written ones."""
+    rows = [json.loads(line) for line in (out / "release_drivetrack.jsonl").read_text().splitlines()]
+    table = loaded.find_element(By.ID, "drivetrack-agreement").find_element(By.TAG_NAME, "table")
+    shown_rows = [
+        [cell.text for cell in row.find_elements(By.TAG_NAME, "td")]
+        for row in table.find_elements(By.TAG_NAME, "tr")
+    ][1:]
+    expected = []
+    for split in ("minival", "full_eval", "all"):
+        chosen = [row for row in rows if split in ("all", row["split"])]
+        written = sum(row["status"] == "written" for row in chosen)
+        expected.append([split, str(len(chosen)), str(written), str(written), "0"])
+    assert shown_rows == expected
