@@ -392,3 +392,24 @@ def test_the_agreement_table_shows_each_splits_clips_agreeing_fully(loaded, out)
         written = sum(row["status"] == "written" for row in chosen)
         expected.append([split, str(len(chosen)), str(written), str(written), "0"])
     assert shown_rows == expected
+
+
+@pytest.mark.parametrize("source", ["pstudio", "drivetrack"])
+def test_the_pages_recount_is_the_pythons_at_every_slider_position(loaded, out, source):
+    """The page's recount (JavaScript's ``recount``) against the Python one the page's data is made
+    for (``report_data.counts_at``), over every flicker and mask slider position (a seventh of
+    them, each once) and several min_tracks."""
+    data = source_data(str(out), sources.get(source))
+    index = [src["name"] for src in loaded.execute_script("return DATA.sources")].index(source)
+    steps = len(data["grids"]["flicker.max_fraction"])
+    positions = [
+        (kf, km, mt) for kf in range(0, steps, 7) for km in range(0, steps, 7) for mt in (1, 50, 200)
+    ]
+    script = (
+        "const src = DATA.sources[arguments[0]];"
+        "return arguments[1].map(([kf, km, mt]) => recount(src, kf, km, mt));"
+    )
+    shown = loaded.execute_script(script, index, positions)
+    for position, page in zip(positions, shown, strict=True):
+        python = counts_at(data, *position)
+        assert {key: page[key] for key in python} == python, position
