@@ -24,9 +24,10 @@ import time
 
 import numpy as np
 
+from benchmarks.hostile_inputs import bomb_clip, savez_bytes, shape_bomb_clip, with_payload
 from pipeline.samples.dynamic3dgs_files import write_sequence
-from tests.support.cli import REPO
-from tests.support.hostile import bomb_clip, savez_bytes, shape_bomb_clip, with_payload
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 PYTHON = [sys.executable, "-m"]
 

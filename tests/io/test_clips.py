@@ -15,8 +15,8 @@ import pytest
 from PIL import Image
 
 import pipeline.clips
+from benchmarks.hostile_inputs import savez_bytes, with_payload
 from tests.support.cli import REPO
-from tests.support.hostile import savez_bytes, with_payload
 
 KEYS = ("images_jpeg_bytes", "queries_xyt", "tracks_XYZ", "visibility", "fx_fy_cx_cy")
 

@@ -1,5 +1,5 @@
 """Files from strangers: the release's byte format both ways, no reader ever unpickles, and bombs
-are refused before anything is allocated (tests/support/hostile.py makes the files).
+are refused before anything is allocated (benchmarks/hostile_inputs.py makes the files).
 
 A payload member creates a marker file when unpickled; every test here asserts no marker exists.
 """
@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from benchmarks.hostile_inputs import bomb_clip, savez_bytes, shape_bomb_clip, with_payload
 from pipeline.audit.compare import main as compare_main
 from pipeline.core.errors import InputError
 from pipeline.io.clip_reader import read_clip_bytes
@@ -27,7 +28,6 @@ from pipeline.run import main as run_main
 from pipeline.validate import main as validate_main
 from pipeline.viz.__main__ import main as viz_main
 from tests.support.cli import REPO
-from tests.support.hostile import bomb_clip, savez_bytes, shape_bomb_clip, with_payload
 
 
 def clip_files(out: str, source: str) -> list[str]:
