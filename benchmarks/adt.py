@@ -4,7 +4,7 @@ the 300-frame unit is extrapolated (the opening of the sequence, measured apart,
 cost), at every size. Micro: per-frame cost of reading and re-rendering RGB, depth and ids.
 
 Inputs (``prepare``): the excerpt's ground-truth window holds 2 frames, so its unit is that 2-frame
-chunk, run ``REPEAT`` times through ``pipeline.unit.run_group`` (each run opens and closes the
+chunk, run ``REPEAT`` times through ``pipeline.runner.stages.run_group`` (each run opens and closes the
 sequence, as a group does); a release unit (300 frames) is extrapolated: its share of its group's
 opening and closing (the sequence opened, its re-rendering tables built and the sequence closed once
 for ``CHUNKS_PER_GROUP`` chunks, measured apart by ``measure_fixed_cost`` with the source's own
@@ -39,7 +39,7 @@ import numpy as np
 from benchmarks.entry import UnitSetup, wall_and_cpu
 
 if TYPE_CHECKING:
-    from pipeline.settings import RunConfig
+    from pipeline.settings.run_config import RunConfig
 
 # Per input frame on one core.
 TARGETS = {"ms_per_frame": 60.0}
@@ -72,7 +72,8 @@ def prepare(workdir: str, size: str) -> UnitSetup | None:
         description=[
             f"the real ADT excerpt: its one chunk of {chunk} frames ({', '.join(EXCERPT_SETTINGS)}), "
             "1408x1408 fisheye RGB, depth and ids re-rendered to 512x512",
-            f"unit = that chunk through pipeline.unit.run_group {repeat} times ({chunk * repeat} frames), "
+            f"unit = that chunk through pipeline.runner.stages.run_group {repeat} times "
+            f"({chunk * repeat} frames), "
             "so that process start does not dominate; the opening of the sequence is measured apart "
             "(cold, a third of it per unit) and the runs' own openings are timed and taken out of the "
             "per-frame cost; the scaling set repeats the unit (same input, separate outputs)",
@@ -120,7 +121,7 @@ def _first_calls(sequence: str, config: RunConfig) -> tuple[float, float]:
 def _release_size_write(spec: dict, config: RunConfig, runs: int = 3) -> tuple[float, float]:
     """Wall and CPU seconds (mean of ``runs``) of the filter, encode and write stage of a release
     unit: the unit's own clip with its frames repeated to 300 (JPEGs, tracks, visibility,
-    extrinsics), through ``pipeline.unit.filter_unit`` and ``write_unit`` into a scratch folder."""
+    extrinsics), through ``pipeline.runner.stages.filter_unit`` and ``write_unit`` into a scratch folder."""
     import dataclasses
     import shutil
     import tempfile
@@ -128,7 +129,7 @@ def _release_size_write(spec: dict, config: RunConfig, runs: int = 3) -> tuple[f
 
     from pipeline import sources
     from pipeline.core.outcomes import UnitClips
-    from pipeline.unit import Annotated, UnitJob, filter_unit, write_unit
+    from pipeline.runner.stages import Annotated, UnitJob, filter_unit, write_unit
 
     source = sources.get("adt")
     ((sequence, chunk),) = spec["unit"]
@@ -194,8 +195,8 @@ def floor(spec: dict) -> dict:
     sequence once)."""
     from pipeline.adt.frames import open_reader
     from pipeline.adt.units import CHUNKS_PER_GROUP
-    from pipeline.core.config import with_overrides
-    from pipeline.settings import RunConfig
+    from pipeline.settings.fields import with_overrides
+    from pipeline.settings.run_config import RunConfig
 
     config = with_overrides(RunConfig(), spec["overrides"])
     ((sequence, chunk),) = spec["unit"]
@@ -235,8 +236,8 @@ def micro(frames: int) -> None:
     from pipeline.adt.frames import SequenceFrames, open_reader
     from pipeline.adt.rectify import _stored_remap
     from pipeline.adt.source import EXCERPT_SETTINGS, SHARED_EXCERPT, excerpt_path
-    from pipeline.core.config import with_overrides
-    from pipeline.settings import RunConfig
+    from pipeline.settings.fields import with_overrides
+    from pipeline.settings.run_config import RunConfig
 
     path = excerpt_path()
     if path is None:

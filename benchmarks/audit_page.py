@@ -33,9 +33,9 @@ import pyarrow.parquet as pq
 from pipeline import sources
 from pipeline.audit.sweep import evaluate, load_statistics
 from pipeline.commandline import StrictParser
-from pipeline.export.layout import audit_path, clip_path, release_verdicts_path, run_record_path
-from pipeline.release import read_release
-from pipeline.settings import RunConfig
+from pipeline.export.layout import audit_path, clip_path, provenance_path, release_verdicts_path
+from pipeline.runner.splits import read_release
+from pipeline.settings.run_config import RunConfig
 
 CHROMIUM, CHROMEDRIVER = "/usr/bin/chromium", "/usr/bin/chromedriver"
 FLAGS = (
@@ -93,7 +93,7 @@ def synthetic_table(template: pa.Table, source: str, clip: str, rng: np.random.G
 
 
 def synthetic_release(runs: list[str], splits_json: str, folder: str, seed: int = 0) -> None:
-    """Writes the release-size --release run (audit tables, clip links, run records, verdicts)."""
+    """Writes the release-size --release run (audit tables, clip links, runs' provenance, verdicts)."""
     release = read_release(splits_json)
     found = templates(runs)
     rng = np.random.default_rng(seed)
@@ -114,7 +114,7 @@ def synthetic_release(runs: list[str], splits_json: str, folder: str, seed: int 
             "clips_written": result["clips_written"],
         }
         record = {"config": RunConfig().to_dict(), "release": splits_json, "summary": summary}
-        with open(run_record_path(folder, source), "w") as handle:
+        with open(provenance_path(folder, source), "w") as handle:
             json.dump(record, handle)
         with open(release_verdicts_path(folder, source), "w") as handle:
             for clip, split in sorted(named.items()):

@@ -4,7 +4,7 @@ Per-unit benchmark (default; ``benchmarks/units.py``), for each source (``all``:
 source, in the registry's order):
 
 1. one unit's real work on one worker (read inputs + annotate + filter + encode and write the
-   clips: ``pipeline.unit.run_group``, the Beam graph's own stages), per unit and per input frame;
+   clips: ``pipeline.runner.stages.run_group``, the Beam graph's own stages), per unit and per input frame;
 2. the peak memory (max RSS) of the process that ran it;
 3. the speed-up of the same set of units (``--units``) from 1 to ``--workers`` (default 2)
    worker processes, each single-threaded and bound to a CPU of its own;

@@ -151,7 +151,7 @@ def hostile_folders(inputs: Inputs) -> dict[str, str]:
 
 
 def forge_output(inputs: Inputs) -> None:
-    """A finished run's output whose clip is a pickle payload its record vouches for, and whose record
+    """A finished run's output whose clip is a pickle payload its checkpoint vouches for, and whose record
     lists a clip named ``../`` outside the folder; and an output whose manifests folder is a file."""
     forged = inputs.out("forged")
     subprocess.run([*inputs.run, "--output", forged, "--set", "pstudio.cameras=3"], cwd=REPO, check=True)

@@ -340,7 +340,7 @@ def _renders(unit: UnitInput, frames: int) -> float:
 def _annotation(unit: UnitInput, full_frame_s: float) -> None:
     """Print the time to annotate the unit's clip, and what full-frame renders would have cost."""
     from pipeline.pstudio.tracks import annotate_unit
-    from pipeline.settings import RunConfig
+    from pipeline.settings.run_config import RunConfig
 
     config = RunConfig()
     start = time.perf_counter()

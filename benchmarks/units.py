@@ -4,7 +4,7 @@
 
 A unit is a group of the source's units, as the Beam graph hands them to one worker (each entry's
 ``prepare`` says which: DriveTrack a segment's three cameras, which share one read of the lidar).
-Its work is the graph's own, ``pipeline.unit.run_group`` (``benchmarks.worker``), in a fresh
+Its work is the graph's own, ``pipeline.runner.stages.run_group`` (``benchmarks.worker``), in a fresh
 single-threaded pinned process (``benchmarks.processes``); its floor (the entry's ``floor``) is
 measured in one more such process right after each 1-worker run; the figures are printed by
 ``benchmarks.report``.

@@ -2,7 +2,7 @@
 started by ``benchmarks.processes``.
 
 The work is the Beam graph's, through the same function its stages call:
-``pipeline.unit.run_group(UnitJob(source, input_root, config, output, resume=False), units)`` (read
+``pipeline.runner.stages.run_group(UnitJob(source, input_root, config, output, resume=False), units)`` (read
 the inputs and annotate, filter, encode and write the clips, record each unit), ``spec["repeat"]``
 times (default 1); ``spec["unit"]`` is a group of the source's units (``unit_group``). The source's
 ``annotate`` and ``annotate_group`` are wrapped only to time them (a generator group: the
@@ -108,9 +108,9 @@ def unit_work(spec: dict, entry) -> dict:
     source's annotate), the output counts of the last run, the fixed costs measured apart (the
     entry's ``measure_fixed_cost``) and those paid inside the runs (``FIXED_IN_WORK``)."""
     from pipeline import sources
-    from pipeline.core.config import with_overrides
-    from pipeline.settings import RunConfig
-    from pipeline.unit import UnitJob, run_group
+    from pipeline.runner.stages import UnitJob, run_group
+    from pipeline.settings.fields import with_overrides
+    from pipeline.settings.run_config import RunConfig
 
     config = with_overrides(RunConfig(), spec["overrides"])
     source = sources.get(spec["source"])

@@ -20,8 +20,8 @@ import cv2
 import numpy as np
 
 from pipeline import sources
+from pipeline.export.invariants import structure_problems
 from pipeline.export.layout import clip_path, manifest_path
-from pipeline.export.validator import structure_problems
 from pipeline.io.clip_reader import DEFAULT_LIMITS, FRAMES, ReadLimits, read_clip_file
 from pipeline.io.files import read_bytes
 

@@ -1,31 +1,32 @@
 """The registry of sources: each dataset the pipeline regenerates clips from is one ``Source``.
 
-Everything that needs the list of sources (the command line, the settings' sections, manifests,
-validate, sweep, compare, the benchmarks) reads it here. A built-in source is one package and one
-line of ``BUILT_IN``: ``<package>/source.py`` defines ``SOURCE``, ``<package>/settings.py`` its
-settings section ``SETTINGS``. A plug-in is registered at run time (``register``), or named in the
-environment (``PLUGINS_ENV``: modules defining ``SOURCE``), which worker processes inherit.
-A source is plain Python on arrays and files: it never imports the Beam shell (``pipeline.graph``)
-nor the per-unit driver (``pipeline.unit``), which sit above it. Built-in sources are imported on
-first use, so listing names and settings costs no heavy import.
+Everything that needs the list of sources (the command line, manifests, validate, sweep, compare,
+the benchmarks) reads it here. A built-in source is one package and one line of ``BUILT_IN``
+(``pipeline/settings/sections.py``, which the run's settings read too): ``<package>/source.py``
+defines ``SOURCE``, ``<package>/settings.py`` its settings section ``SETTINGS``. A plug-in is
+registered at run time (``register``), or named in the environment (``PLUGINS_ENV``: modules
+defining ``SOURCE``), which worker processes inherit. A source is plain Python on arrays and files:
+it never imports the run's orchestration (``pipeline/runner/``), which sits above it. Built-in
+sources are imported on first use, so listing names and settings costs no heavy import.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import importlib
-import os
 from collections.abc import Callable, Iterable, Iterator, Mapping
-from typing import TYPE_CHECKING
 
 from pipeline.core.clip import ClipRecord
 from pipeline.core.outcomes import UnitClips
+from pipeline.settings import sections
+from pipeline.settings.run_config import RunConfig
 
-if TYPE_CHECKING:
-    from pipeline.settings import RunConfig
-
-# Modules defining a plug-in's ``SOURCE``, comma-separated, registered on the registry's first use.
-PLUGINS_ENV = "TAPVID3D_SOURCES"
+# The registry's lists, kept where the settings read them too (re-exported as the registry's own).
+from pipeline.settings.sections import BUILT_IN as BUILT_IN
+from pipeline.settings.sections import PLUGINS_ENV as PLUGINS_ENV
+from pipeline.settings.sections import names as names
+from pipeline.settings.sections import settings_of as settings_of
+from pipeline.settings.sections import unregister as unregister
 
 
 class NoSample(Exception):
@@ -101,7 +102,7 @@ class Source:
         return self.bench or f"benchmarks.{self.name}"
 
     def group_key(self, unit) -> str:
-        """The key ``pipeline.graph`` groups ``unit`` under: its group's, else its own name."""
+        """The key ``pipeline.runner.graph`` groups ``unit`` under: its group's, else its own name."""
         return str(self.group_of(unit)) if self.group_of else self.unit_name(unit)
 
 
@@ -122,58 +123,17 @@ def one_by_one(
     return annotate_each
 
 
-# name -> the package of a built-in source. Sources are listed in this order (tapnet's evaluation
-# order, in which its overall score sums the sources' means), then plug-ins.
-BUILT_IN = {
-    "drivetrack": "pipeline.drivetrack",
-    "adt": "pipeline.adt",
-    "pstudio": "pipeline.pstudio",
-}
-_registered: dict[str, Source] = {}
-_plugins_loaded = False
-
-
 def register(source: Source) -> Source:
     """Add (or replace) a source at run time, e.g. a plug-in or a test's toy source."""
-    _registered[source.name] = source
+    sections.register(source)
     return source
-
-
-def unregister(name: str) -> None:
-    _registered.pop(name, None)
-
-
-def _load_plugins() -> None:
-    """Register the sources of the modules ``PLUGINS_ENV`` names (once per process)."""
-    global _plugins_loaded
-    if _plugins_loaded:
-        return
-    _plugins_loaded = True
-    for module in filter(None, (part.strip() for part in os.environ.get(PLUGINS_ENV, "").split(","))):
-        register(importlib.import_module(module).SOURCE)
-
-
-def names() -> tuple[str, ...]:
-    """Every source's name: the built-in ones in ``BUILT_IN``'s order, then plug-ins in the order
-    they were registered."""
-    _load_plugins()
-    return (*BUILT_IN, *(name for name in _registered if name not in BUILT_IN))
 
 
 def get(name: str) -> Source:
     """The source called ``name``; KeyError listing the known names otherwise."""
-    _load_plugins()
-    if name in _registered:
-        return _registered[name]
+    source = sections.registered(name)
+    if source is not None:
+        return source
     if name not in BUILT_IN:
         raise KeyError(f"unknown source {name!r}; known: {', '.join(names())}")
     return importlib.import_module(f"{BUILT_IN[name]}.source").SOURCE
-
-
-def settings_of(name: str) -> type | None:
-    """The settings section class of source ``name`` (None for a source without settings), read for
-    a built-in source from its light ``settings`` module."""
-    _load_plugins()
-    if name in _registered:
-        return _registered[name].settings
-    return importlib.import_module(f"{BUILT_IN[name]}.settings").SETTINGS

@@ -13,7 +13,7 @@ import os
 import sys
 
 from pipeline.commandline import StrictParser
-from pipeline.export.validator import FINDINGS, FLICKER_MAX_FRACTION, NO_FINDINGS, inspect_clip_bytes
+from pipeline.export.invariants import FINDINGS, FLICKER_MAX_FRACTION, NO_FINDINGS, inspect_clip_bytes
 from pipeline.io.clip_reader import add_limit_argument, limits_from
 from pipeline.io.files import file_size, is_local, list_files, read_bytes, write_atomic
 from pipeline.pipes import run_command

@@ -33,7 +33,7 @@ from pipeline.io.given_queries import given_queries
 from pipeline.sources import Wanted
 
 if TYPE_CHECKING:
-    from pipeline.settings import RunConfig
+    from pipeline.settings.run_config import RunConfig
 
 
 def _named(error: InputError, sequence: str, name: str) -> InputError:

@@ -14,7 +14,7 @@ from pipeline.adt.records import Frame, Instances
 from pipeline.adt.rectify import Rectifier, stored_cam_from_world
 
 if TYPE_CHECKING:
-    from pipeline.settings import RunConfig
+    from pipeline.settings.run_config import RunConfig
 
 JPEG_QUALITY = 95
 

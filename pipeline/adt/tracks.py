@@ -35,7 +35,7 @@ from pipeline.export.depth_export import dense_depth_mm, dense_record
 from pipeline.io.given_queries import given_queries, given_query_frames
 
 if TYPE_CHECKING:
-    from pipeline.settings import RunConfig
+    from pipeline.settings.run_config import RunConfig
 
 # ------------------------------------------------------------------------------------ pixels
 

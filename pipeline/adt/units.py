@@ -23,7 +23,7 @@ from pipeline.core.sizes import format_bytes
 from pipeline.sources import UnitPlan
 
 if TYPE_CHECKING:
-    from pipeline.settings import RunConfig
+    from pipeline.settings.run_config import RunConfig
 
 FETCHED = "url:"
 ALL_CHUNKS = -1

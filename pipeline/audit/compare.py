@@ -60,7 +60,7 @@ from pipeline.audit.metrics import (
     query_frame_indices,
     tapvid3d_metrics,
 )
-from pipeline.audit.verdicts import add_agreement, release_clip_keys
+from pipeline.audit.verdict_rows import add_agreement, release_clip_keys
 from pipeline.commandline import StrictParser
 from pipeline.io.clip_reader import (
     DEFAULT_LIMITS,

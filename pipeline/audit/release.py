@@ -12,10 +12,11 @@ import sys
 from collections import Counter
 
 from pipeline import sources
-from pipeline.audit.verdicts import agreement_lines, agreement_summary, read_verdicts
+from pipeline.audit.verdict_rows import agreement_lines, agreement_summary, read_verdicts
 from pipeline.commandline import StrictParser
 from pipeline.core.outcomes import FILTER_ORDER, reason_kind
-from pipeline.release import SPLITS, STATUSES
+from pipeline.runner.splits import SPLITS
+from pipeline.runner.verdicts import STATUSES
 
 SHOWN_REASONS = 3
 # The per-clip table's columns: header, and the cell of a verdict row. The reason comes last.

@@ -20,14 +20,14 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline import sources
-from pipeline.audit.sweep import ClipCount, read_audit_table, run_record, totals
-from pipeline.audit.verdicts import read_verdicts
-from pipeline.core.config import config_from_dict
+from pipeline.audit.sweep import ClipCount, read_audit_table, run_provenance, totals
+from pipeline.audit.verdict_rows import read_verdicts
 from pipeline.export.layout import audit_path
 from pipeline.filters.flicker import passes_flicker
 from pipeline.io.files import list_files
-from pipeline.release import SPLITS
-from pipeline.settings import RunConfig
+from pipeline.runner.splits import SPLITS
+from pipeline.settings.fields import config_from_dict
+from pipeline.settings.run_config import RunConfig
 from pipeline.sources import Source
 
 GRID_STEPS = 100  # fractions: 0, 0.01, ..., 1
@@ -115,7 +115,7 @@ def add_histograms(total: dict, part: dict) -> dict:
 
 
 def run_config(record: dict | None) -> RunConfig:
-    """The run's own config (the defaults when it left no record)."""
+    """The run's own config (the defaults when it left no provenance file)."""
     return RunConfig() if record is None else config_from_dict(RunConfig, record["config"])
 
 
@@ -130,7 +130,7 @@ def source_data(output: str, source: Source) -> dict | None:
     verdicts = read_verdicts(output, source.name)
     if not paths and verdicts is None:
         return None
-    record = run_record(output, source.name)
+    record = run_provenance(output, source.name)
     config = run_config(record)
     splits = None if verdicts is None else {row["clip"]: row["split"] for row in verdicts}
     flicker_grid = fraction_grid(config.flicker.max_fraction)

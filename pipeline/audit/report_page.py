@@ -26,7 +26,7 @@ from pipeline.audit.report_data import counts_at, page_data
 from pipeline.audit.report_script import SCRIPT, STYLE
 from pipeline.audit.report_thumbs import MAX_TRACKS, thumbnails
 from pipeline.audit.sweep import matches_run
-from pipeline.audit.verdicts import agreement_summary
+from pipeline.audit.verdict_rows import agreement_summary
 from pipeline.commandline import StrictParser
 from pipeline.core.errors import InputError
 from pipeline.io.files import write_atomic
@@ -77,7 +77,7 @@ def about(data: dict) -> str:
     """One paragraph on where the source's numbers come from."""
     run = ", ".join(f"{key}={value}" for key, value in data["thresholds"].items())
     if data["summary"] is None:
-        return f"No run record (run_{data['name']}.json): the sliders start at the defaults ({run})."
+        return f"No run's provenance (run_{data['name']}.json): the sliders start at the defaults ({run})."
     text = f"The run's thresholds: {run}."
     if data["named"] is not None:
         named = ", ".join(f"{split} {count}" for split, count in data["named"].items())
@@ -170,12 +170,14 @@ def page_html(output: str, sources_json: list[dict]) -> str:
 
 
 def run_check(data: dict) -> str:
-    """Whether the folded counts at the run's thresholds reproduce its record, in words."""
+    """Whether the folded counts at the run's thresholds reproduce its provenance file, in words."""
     if data["summary"] is None:
-        return "no run record"
+        return "no run's provenance"
     indices = [grid.index(data["thresholds"][key]) for key, grid in list(data["grids"].items())[:2]]
     result = counts_at(data, *indices, data["thresholds"]["min_tracks"])
-    return "reproduces the run record" if matches_run(result, data["summary"]) else "DOES NOT reproduce it"
+    if matches_run(result, data["summary"]):
+        return "reproduces the run's provenance"
+    return "DOES NOT reproduce it"
 
 
 def main(argv: list[str]) -> int:

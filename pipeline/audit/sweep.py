@@ -32,14 +32,14 @@ import pyarrow.parquet as pq
 
 from pipeline import sources
 from pipeline.commandline import StrictParser, closest
-from pipeline.core.config import SettingsError, config_from_dict, setting_keys, with_overrides
 from pipeline.core.errors import InputError
 from pipeline.core.outcomes import FILTER_ORDER
-from pipeline.export.layout import audit_path, run_record_path, sweep_folder
+from pipeline.export.layout import audit_path, provenance_path, sweep_folder
 from pipeline.filters.select import count_dropped, verdicts_from_stats
 from pipeline.io.files import list_files, read_bytes, write_atomic
-from pipeline.release import SPLITS, Release, read_release
-from pipeline.settings import RunConfig
+from pipeline.runner.splits import SPLITS, Release, read_release
+from pipeline.settings.fields import SettingsError, config_from_dict, setting_keys, with_overrides
+from pipeline.settings.run_config import RunConfig
 from pipeline.sources import Source
 
 
@@ -287,9 +287,9 @@ def report_markdown(
     return "\n".join(lines)
 
 
-def run_record(output: str, source: str) -> dict | None:
+def run_provenance(output: str, source: str) -> dict | None:
     """The run's record (``run_<source>.json``), None when there is none."""
-    path = run_record_path(output, source)
+    path = provenance_path(output, source)
     if not os.path.exists(path) and "://" not in output:
         return None
     return json.loads(read_bytes(path))
@@ -370,13 +370,13 @@ def main(argv: list[str]) -> int:
 
 
 def holds_run(output: str, source: str) -> bool:
-    """Whether ``output`` holds a run of ``source``: its run record or its audit tables."""
-    return run_record(output, source) is not None or bool(list_files(audit_path(output, source, "*")))
+    """Whether ``output`` holds a run of ``source``: its run's provenance or its audit tables."""
+    return run_provenance(output, source) is not None or bool(list_files(audit_path(output, source, "*")))
 
 
 def run_sample(output: str, source: str, release: str | None, overrides: list[str]) -> int:
     """``python -m pipeline.run`` on the source's sample world into ``output``; its exit status."""
-    from pipeline import run
+    from pipeline.runner import command as run
 
     print(f"--run-sample: running the pipeline on the {source} sample world into {output} first")
     command = ["--source", source, "--output", output] + (["--release", release] if release else [])
@@ -401,7 +401,7 @@ def sweep(args: argparse.Namespace) -> int:
             return 2
         if run_sample(output, args.source, args.release, args.overrides) == 2:
             return 2
-    record = run_record(output, args.source)
+    record = run_provenance(output, args.source)
     run_summary, base = run_summary_and_config(record, args.overrides)
     release = release_of(args.release, record)
     splits = dict(release.clips.get(args.source, {})) if release is not None else None

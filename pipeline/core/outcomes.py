@@ -2,8 +2,8 @@
 
 A unit's annotation is ``UnitClips`` (its candidate clips and, for clips it was asked for but did not
 make, why); once written, a unit's ``UnitOutcome`` holds a ``ClipReport`` per clip and a ``Failure`` per
-error. The unit's record on disk (``pipeline/resume.py``) is its outcome as JSON (``to_json`` /
-``from_json``), so the main process finishes a run from the records alone, on any runner.
+error. The unit's checkpoint on disk (``pipeline/runner/resume.py``) is its outcome as JSON (``to_json`` /
+``from_json``), so the main process finishes a run from the checkpoints alone, on any runner.
 """
 
 from __future__ import annotations
@@ -80,7 +80,7 @@ class ClipReport:
 @dataclasses.dataclass(frozen=True)
 class Failure:
     """One error of a unit (``stage`` annotate: the whole unit; clip: one clip, named in ``clip``;
-    record: its record could not be written). ``where`` is the innermost frame of an unexpected
+    checkpoint: its checkpoint could not be written). ``where`` is the innermost frame of an unexpected
     error (not an InputError or OutputError), for debugging."""
 
     unit: str

@@ -1,7 +1,7 @@
 """What a worker says while it runs: nothing, unless the run asked for ``--verbose``.
 
-The main process reports every unit as its record appears (``pipeline/monitor.py``), on every runner;
-a worker's own lines (``progress``) and Beam's log records are for ``--verbose`` runs only. The
+The main process reports every unit as its checkpoint appears (``pipeline/runner/monitor.py``), on
+every runner; a worker's own lines (``progress``) and Beam's log records are for ``--verbose`` runs only. The
 setting travels to worker processes in the environment (``VERBOSE_ENV``); the worker processes the
 DirectRunner starts inherit a silenced stderr (``workers_silenced``).
 """

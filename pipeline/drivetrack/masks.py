@@ -20,7 +20,7 @@ from pipeline.drivetrack.records import UnitInput
 from pipeline.io.files import read_input
 
 if TYPE_CHECKING:
-    from pipeline.settings import RunConfig
+    from pipeline.settings.run_config import RunConfig
 
 MAX_CLOSING_PX = 63
 

@@ -16,7 +16,7 @@ from pipeline.drivetrack.camera_model import Projection, UnitCamera
 from pipeline.drivetrack.records import UnitInput
 
 if TYPE_CHECKING:
-    from pipeline.settings import RunConfig
+    from pipeline.settings.run_config import RunConfig
 
 
 @dataclasses.dataclass(frozen=True)

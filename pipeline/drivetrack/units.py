@@ -11,7 +11,7 @@ from pipeline.drivetrack.records import clip_name
 from pipeline.sources import UnitPlan
 
 if TYPE_CHECKING:
-    from pipeline.settings import RunConfig
+    from pipeline.settings.run_config import RunConfig
 
 # A release clip name: tapvid3d_<segment>_<camera>_<object id>, the segment named as Waymo names
 # them (<context>_<start>_<ms>_<end>_<ms>); the object id may itself hold '_'.

@@ -1,1 +1,1 @@
-"""Writing clips, audit tables, manifests and run records; validating clips."""
+"""Writing clips, audit tables, manifests and runs' provenance; validating clips."""

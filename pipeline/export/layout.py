@@ -57,7 +57,7 @@ def depth_path(output: str, source: str, clip: str) -> str:
     return f"{output}/depth/{source}/{clip}.npz"
 
 
-def unit_record_path(output: str, source: str, unit: str) -> str:
+def checkpoint_path(output: str, source: str, unit: str) -> str:
     """A unit name may hold '/' (``segment/camera_1``): the file name is a readable slug of it plus a
     short hash of the whole name, so two units never share a record."""
     slug = re.sub(r"[^A-Za-z0-9_.+-]+", "_", unit).strip("._")[:80]
@@ -73,7 +73,7 @@ def manifest_path(output: str, split: str) -> str:
     return f"{output}/manifests/{split}.txt"
 
 
-def run_record_path(output: str, source: str) -> str:
+def provenance_path(output: str, source: str) -> str:
     return f"{output}/run_{source}.json"
 
 
@@ -101,7 +101,7 @@ def temporary_patterns(output: str, source: str, partial: str) -> list[str]:
     ]
     patterns = [f"{folder}/.*{partial}*" for folder in [*folders, f"{output}/manifests"]]
     for path in (
-        run_record_path(output, source),
+        provenance_path(output, source),
         failures_path(output, source),
         release_verdicts_path(output, source),
     ):

@@ -17,7 +17,7 @@ from pipeline.core.sampling import choose_subset, rng_for
 from pipeline.filters.flicker import passes_flicker, visibility_flips
 
 if TYPE_CHECKING:
-    from pipeline.settings import RunConfig
+    from pipeline.settings.run_config import RunConfig
 
 
 @dataclasses.dataclass

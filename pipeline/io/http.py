@@ -37,7 +37,7 @@ from typing import BinaryIO
 import requests
 import urllib3
 
-from pipeline.core.config import not_in_clips
+from pipeline.settings.fields import not_in_clips
 
 RETRY_STATUSES = frozenset({429, 500, 502, 503, 504})
 NOT_FOUND = frozenset({404, 410})

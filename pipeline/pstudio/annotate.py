@@ -17,7 +17,7 @@ from pipeline.pstudio.tracks import annotate_unit
 from pipeline.sources import Wanted
 
 if TYPE_CHECKING:
-    from pipeline.settings import RunConfig
+    from pipeline.settings.run_config import RunConfig
 
 
 @dataclasses.dataclass(frozen=True)

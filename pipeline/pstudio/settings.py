@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from pipeline.core.config import NOT_KNOWN, path_setting, ranged
+from pipeline.settings.fields import NOT_KNOWN, path_setting, ranged
 
 
 @dataclasses.dataclass(frozen=True)

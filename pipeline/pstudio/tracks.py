@@ -34,7 +34,7 @@ from pipeline.pstudio.render import render_depth_at, render_depth_image
 from pipeline.pstudio.splats import Splats2D, project_splats
 
 if TYPE_CHECKING:
-    from pipeline.settings import RunConfig
+    from pipeline.settings.run_config import RunConfig
 
 
 def splats_in_view(

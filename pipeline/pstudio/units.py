@@ -11,7 +11,7 @@ from pipeline.pstudio.records import clip_name
 from pipeline.sources import UnitPlan
 
 if TYPE_CHECKING:
-    from pipeline.settings import RunConfig
+    from pipeline.settings.run_config import RunConfig
 
 # The camera of the one unit listed for a sequence whose train_meta.json cannot be read: that
 # unit fails with the reason, and the other sequences still run.

@@ -19,7 +19,7 @@ from PIL import Image
 
 from pipeline.core.geometry import invert_se3, project
 from pipeline.core.images import jpeg_size
-from pipeline.export.validator import structure_problems
+from pipeline.export.invariants import structure_problems
 from pipeline.io.clip_reader import CLIP_KEYS, DEFAULT_LIMITS, ReadLimits, read_clip_file
 
 IMAGES_KEY = "images_jpeg_bytes"

@@ -151,7 +151,7 @@ def test_the_default_stall_rule_fails_a_trickling_file_within_two_minutes():
 def test_no_output_holds_a_download_urls_token(served, tmp_path):
     """A URL with a port out of range, and one the server redirects to ftp://, both with a token:
     their sequences fail, and the token is in no output: stdout, stderr, the failures, the unit
-    records, the verdicts, the run record."""
+    records, the verdicts, the run's provenance."""
     server, layout = served
     server.fail(layout.filename("segmentation"), "redirect:ftp://files.example.org/seg.zip?token=" + TOKEN)
     data = json.loads(layout.url_file.read_text())

@@ -14,9 +14,9 @@ from PIL import Image
 from pipeline.adt.reader import SequenceReader
 from pipeline.adt.rectify import Rectifier
 from pipeline.adt.source import EXCERPT_SETTINGS
-from pipeline.core.config import with_overrides, with_rules
 from pipeline.core.errors import InputError
-from pipeline.settings import RunConfig
+from pipeline.settings.fields import with_overrides, with_rules
+from pipeline.settings.run_config import RunConfig
 from tests.support.adt_excerpt import SAMPLE, needs_excerpt
 from tests.support.units import adt_clips
 

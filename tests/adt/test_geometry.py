@@ -22,8 +22,8 @@ from pipeline.adt.tracks import (
     interior,
     sample_depth,
 )
-from pipeline.core.config import with_overrides
-from pipeline.settings import RunConfig
+from pipeline.settings.fields import with_overrides
+from pipeline.settings.run_config import RunConfig
 
 S, F = 512, 280.0
 # The generator's camera has its principal point at projectaria-tools' (256, 256), pixel centres at

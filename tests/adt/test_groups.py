@@ -8,9 +8,9 @@ import numpy as np
 from pipeline import sources
 from pipeline.adt import annotate
 from pipeline.adt import units as adt_units
-from pipeline.core.config import with_overrides
 from pipeline.core.errors import InputError
-from pipeline.settings import RunConfig
+from pipeline.settings.fields import with_overrides
+from pipeline.settings.run_config import RunConfig
 from tests.support.adt_excerpt import SAMPLE, needs_excerpt
 
 # The excerpt's ground-truth window holds two frames: one chunk each.

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from pipeline.io.clip_reader import read_clip_bytes
-from pipeline.run import main as run_main
+from pipeline.runner.command import main as run_main
 from pipeline.validate import main as validate_main
 from tests.support.adt_excerpt import SAMPLE, SETTINGS, needs_excerpt
 

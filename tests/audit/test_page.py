@@ -27,10 +27,10 @@ from selenium.webdriver.support.ui import Select, WebDriverWait
 from pipeline import sources
 from pipeline.audit.__main__ import main as audit_main
 from pipeline.audit.report_data import counts_at, run_config, source_data
-from pipeline.audit.sweep import evaluate, load_statistics, release_of, run_record
-from pipeline.core.config import with_overrides
-from pipeline.run import main as run_main
+from pipeline.audit.sweep import evaluate, load_statistics, release_of, run_provenance
+from pipeline.runner.command import main as run_main
 from pipeline.samples.waymo_world import SEGMENT
+from pipeline.settings.fields import with_overrides
 from pipeline.viz.__main__ import main as viz_main
 from pipeline.viz.clip_figure import IMAGES_KEY, decode_frame, load_clip
 
@@ -97,7 +97,7 @@ def embedded(path) -> dict:
 
 def sweep_clips(out, source: str):
     """The sweep's inputs: its clips (the release's only, on a release run), its splits, the run's config."""
-    record = run_record(str(out), source)
+    record = run_provenance(str(out), source)
     release = release_of(None, record)
     splits = dict(release.clips[source]) if release is not None else None
     clips = [c for c in load_statistics(str(out), source) if splits is None or c["clip"] in splits]

@@ -6,8 +6,8 @@ import dataclasses
 
 import pytest
 
-from pipeline.core.config import check_ranges, config_from_dict, settings_items, with_overrides
-from pipeline.settings import RunConfig
+from pipeline.settings.fields import check_ranges, config_from_dict, settings_items, with_overrides
+from pipeline.settings.run_config import RunConfig
 from tests.support.cli import run_pipeline
 
 REFUSED = [

@@ -3,12 +3,12 @@
 import numpy as np
 
 from pipeline.core.clip import ClipRecord
-from pipeline.core.config import with_overrides
 from pipeline.drivetrack.masks import adaptive_closing_px, silhouette_mask
 from pipeline.filters.flicker import passes_flicker, visibility_flips
 from pipeline.filters.mask import agreement, on_mask
 from pipeline.filters.select import apply_filters
-from pipeline.settings import RunConfig
+from pipeline.settings.fields import with_overrides
+from pipeline.settings.run_config import RunConfig
 
 
 def test_flips_hand_counted():

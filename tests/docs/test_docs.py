@@ -14,10 +14,11 @@ from unittest import mock
 
 import pytest
 
-from pipeline import settings_doc, sources
+from pipeline import sources
 from pipeline.commandline import StrictParser, UsageError, beam_parser
-from pipeline.core.config import setting_keys, with_overrides
-from pipeline.settings import RunConfig
+from pipeline.settings import doc as settings_doc
+from pipeline.settings.fields import setting_keys, with_overrides
+from pipeline.settings.run_config import RunConfig
 from tests.support.cli import REPO
 
 DOCS = os.path.join(REPO, "docs")
@@ -150,7 +151,7 @@ def check_settings(argv: list[str]) -> None:
 def check_command(module: str, argv: list[str]) -> None:
     """``python -m <module> <argv>`` parses as the command parses it, before any work."""
     if module == "pipeline.run":
-        from pipeline import run
+        from pipeline.runner import command as run
 
         try:
             run.parse_args(argv)
@@ -169,7 +170,7 @@ def run_options() -> set[str]:
     """Every option ``python -m pipeline.run`` accepts: its own and Beam's (the Dask runner's too)."""
     from apache_beam.runners.dask import dask_runner  # noqa: F401 - defines the Dask options
 
-    from pipeline.run import command_parser as run_parser
+    from pipeline.runner.command import command_parser as run_parser
 
     beam = {name for action in beam_parser()._actions for name in action.option_strings}  # noqa: SLF001
     return set(run_parser().option_names()) | beam

@@ -10,15 +10,15 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from pipeline.core.config import with_overrides
 from pipeline.drivetrack import columns as C
 from pipeline.drivetrack.annotate import unit_camera
 from pipeline.drivetrack.camera_model import JPEG_QUALITY, UnitCamera, undistort_image, undistortion_maps
 from pipeline.drivetrack.reader import CameraCalibration, CameraFrames
+from pipeline.export.invariants import check_arrays, quality_findings
 from pipeline.export.npz_writer import clip_arrays
-from pipeline.export.validator import check_arrays, quality_findings
 from pipeline.samples.waymo_world import POSE_DELAY_S, SEGMENT, frame_time
-from pipeline.settings import RunConfig
+from pipeline.settings.fields import with_overrides
+from pipeline.settings.run_config import RunConfig
 from tests.support.units import drivetrack_clips, drivetrack_input
 from tests.support.waymo_truth import inside, pinhole_pixels, seen, sensor_pixels, true_tracks, world_from_cv
 

@@ -3,7 +3,6 @@
 import numpy as np
 import pytest
 
-from pipeline.core.config import with_overrides
 from pipeline.core.errors import InputError
 from pipeline.drivetrack import annotate as A
 from pipeline.drivetrack.camera_model import frame_poses
@@ -12,7 +11,8 @@ from pipeline.drivetrack.objects import select_objects
 from pipeline.drivetrack.tracks import match_given_queries, point_pool
 from pipeline.filters.select import apply_filters, decide
 from pipeline.samples.waymo_world import SEGMENT
-from pipeline.settings import RunConfig
+from pipeline.settings.fields import with_overrides
+from pipeline.settings.run_config import RunConfig
 from tests.support.units import drivetrack_clips, drivetrack_input
 from tests.support.waymo_truth import true_tracks, world_points
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import open3d as o3d
 
-from pipeline.run import main as run_main
+from pipeline.runner.command import main as run_main
 from pipeline.samples.studio_world import WIDTH as STUDIO_WIDTH
 from pipeline.samples.waymo_world import FIRST_TIMESTAMP_MICROS, frame_time, world_from_camera
 from tests.support.adt_excerpt import SAMPLE as ADT_EXCERPT

@@ -8,14 +8,14 @@ import cv2
 import numpy as np
 import pytest
 
-from pipeline.core.config import with_overrides
+from pipeline.export.invariants import check_arrays, check_clip_bytes
 from pipeline.export.manifests import split_clips
 from pipeline.export.npz_writer import FixedWidthBytes, encode_npz
-from pipeline.export.validator import check_arrays, check_clip_bytes
 from pipeline.io.clip_reader import read_clip_bytes
 from pipeline.io.files import write_atomic
-from pipeline.release import parse_release
-from pipeline.settings import RunConfig
+from pipeline.runner.splits import parse_release
+from pipeline.settings.fields import with_overrides
+from pipeline.settings.run_config import RunConfig
 
 INTRINSICS = np.array([100.0, 100.0, 50.0, 50.0])
 

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from pipeline.core.images import jpeg_size
+from pipeline.export.invariants import quality_findings
 from pipeline.export.npz_writer import encode_npz
-from pipeline.export.validator import quality_findings
 from pipeline.validate import main
 
 HEIGHT, WIDTH, FRAMES, TRACKS = 48, 64, 30, 6

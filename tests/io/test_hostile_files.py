@@ -24,7 +24,7 @@ from pipeline.core.errors import InputError
 from pipeline.io.clip_reader import read_clip_bytes
 from pipeline.io.given_queries import given_queries
 from pipeline.io.npz_reader import NpzError
-from pipeline.run import main as run_main
+from pipeline.runner.command import main as run_main
 from pipeline.validate import main as validate_main
 from pipeline.viz.__main__ import main as viz_main
 from tests.support.cli import REPO

@@ -12,7 +12,7 @@ import pytest
 from pipeline.pstudio import tracks as annotate
 from pipeline.pstudio.records import Gaussians, UnitInput, Views
 from pipeline.pstudio.tracks import track_first_visible, track_visibility
-from pipeline.settings import RunConfig
+from pipeline.settings.run_config import RunConfig
 from tests.pstudio.test_culling import HEIGHT, INTRINSICS, WIDTH, crowded_scene
 
 FRAMES = 4

@@ -14,7 +14,7 @@ from pipeline.core.errors import InputError
 from pipeline.pstudio import masks, reader
 from pipeline.pstudio.tracks import annotate_unit
 from pipeline.pstudio.units import list_units
-from pipeline.settings import RunConfig
+from pipeline.settings.run_config import RunConfig
 from tests.support.units import pstudio_input
 
 

@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.core.config import with_rules
 from pipeline.core.geometry import project, rotation_from_roll_pitch_yaw, transform_points
 from pipeline.core.visibility import in_view
 from pipeline.pstudio.records import Gaussians, UnitInput, Views
 from pipeline.pstudio.tracks import attach_queries, camera_pixel, multiview_mask_fraction, track_visibility
-from pipeline.settings import RunConfig
+from pipeline.settings.fields import with_rules
+from pipeline.settings.run_config import RunConfig
 
 SIZE = 32
 FOCAL = 500.0

@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 
 from pipeline.core.geometry import invert_se3, project, transform_points
+from pipeline.export.invariants import check_arrays
 from pipeline.export.npz_writer import clip_arrays
-from pipeline.export.validator import check_arrays
 from pipeline.filters.select import apply_filters
 from pipeline.pstudio.tracks import annotate_unit, multiview_mask_fraction
 from pipeline.pstudio.units import list_units
 from pipeline.samples.studio_world import FRAMES
-from pipeline.settings import RunConfig
+from pipeline.settings.run_config import RunConfig
 from tests.support.units import pstudio_input
 
 

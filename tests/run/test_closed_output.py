@@ -30,7 +30,7 @@ def command(name: str, run: str, given: str, tmp: str) -> list[str]:
         "validate": ["pipeline.validate", run],
         "viz": ["pipeline.viz", f"{run}/pstudio/dome_3.npz", "--out", f"{tmp}/c.png"],
         "viz stats": ["pipeline.viz", "stats", run, "--out", f"{tmp}/s.png"],
-        "settings_doc": ["pipeline.settings_doc"],
+        "settings_doc": ["pipeline.settings.doc"],
     }[name]
 
 

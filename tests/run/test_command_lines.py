@@ -19,7 +19,7 @@ import time
 import psutil
 import pytest
 
-from pipeline.release import parse_release
+from pipeline.runner.splits import parse_release
 from tests.support.cli import REPO, clip_bytes, run_in_process
 
 PYTHON = [sys.executable, "-m"]
@@ -148,7 +148,7 @@ COMMANDS = [
     ("pipeline.audit", "report"),
     ("pipeline.viz",),
     ("pipeline.viz", "stats"),
-    ("pipeline.settings_doc",),
+    ("pipeline.settings.doc",),
     ("benchmarks",),
 ]
 

@@ -17,7 +17,7 @@ from pipeline.core.errors import InputError
 from pipeline.export.layout import check_clip_name
 from pipeline.io import files
 from pipeline.io.files import remove_quietly, temporary_path, write_atomic
-from pipeline.resume import remove_partial_files
+from pipeline.runner.resume import remove_partial_files
 from tests.support.cli import REPO, run_pipeline
 
 

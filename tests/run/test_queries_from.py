@@ -7,7 +7,7 @@ import pathlib
 import numpy as np
 import pyarrow.parquet as pq
 
-from pipeline.run import main as run_main
+from pipeline.runner.command import main as run_main
 from tests.support.adt_excerpt import SAMPLE as ADT_EXCERPT
 from tests.support.adt_excerpt import SETTINGS as ADT_SETTINGS
 from tests.support.adt_excerpt import needs_excerpt

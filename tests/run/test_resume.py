@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from pipeline.export.validator import check_clip_bytes
+from pipeline.export.invariants import check_clip_bytes
 from pipeline.io import files
 from pipeline.validate import main as validate_main
 from tests.support.bad_input import partial_files

@@ -14,7 +14,7 @@ import re
 import pytest
 
 from pipeline.audit.__main__ import main as audit_main
-from pipeline.release import SAMPLE_RELEASE, read_release
+from pipeline.runner.splits import SAMPLE_RELEASE, read_release
 from pipeline.samples.waymo_world import SAMPLE_VERSION
 from tests.conftest import link_tree
 from tests.support.adt_excerpt import SAMPLE, needs_excerpt

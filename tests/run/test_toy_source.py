@@ -12,7 +12,7 @@ import pytest
 from pipeline import sources
 from pipeline.audit.compare import main as compare_main
 from pipeline.audit.sweep import main as sweep_main
-from pipeline.run import main as run_main
+from pipeline.runner.command import main as run_main
 from pipeline.validate import main as validate_main
 from tests.support.cli import run_in_process
 from tests.support.toy_source import TOY, truth, write_sample

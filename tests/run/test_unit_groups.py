@@ -15,9 +15,9 @@ from pipeline import sources
 from pipeline.core.errors import InputError
 from pipeline.core.outcomes import Failure, UnitClips
 from pipeline.export.layout import clip_path, failures_path
-from pipeline.run import main as run_main
-from pipeline.settings import RunConfig
-from pipeline.unit import UnitJob, run_group
+from pipeline.runner.command import main as run_main
+from pipeline.runner.stages import UnitJob, run_group
+from pipeline.settings.run_config import RunConfig
 from tests.support.toy_source import TOY, annotate, write_sample
 
 CALLS: list[list[str]] = []

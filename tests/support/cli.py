@@ -14,7 +14,7 @@ import os
 import subprocess
 import sys
 
-from pipeline.run import main as run_main
+from pipeline.runner.command import main as run_main
 
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 

@@ -61,7 +61,7 @@ def floor(spec: dict) -> dict:
 
 def micro(frames: int) -> None:
     """Print the time to annotate the sample unit, the mean of ``frames`` calls."""
-    from pipeline.settings import RunConfig
+    from pipeline.settings.run_config import RunConfig
     from tests.support.toy_source import annotate, write_sample
 
     with tempfile.TemporaryDirectory() as folder:

@@ -22,9 +22,9 @@ import cv2
 import numpy as np
 
 from pipeline.core.clip import ClipRecord
-from pipeline.core.config import ranged
 from pipeline.core.errors import InputError
-from pipeline.settings import RunConfig
+from pipeline.settings.fields import ranged
+from pipeline.settings.run_config import RunConfig
 from pipeline.sources import Source, UnitPlan, one_by_one
 
 WIDTH, HEIGHT = 64, 48

@@ -9,7 +9,7 @@ from pipeline.drivetrack.annotate import annotate_cameras, load_units
 from pipeline.drivetrack.records import UnitInput as DriveTrackInput
 from pipeline.pstudio.annotate import camera_input, load_sequence
 from pipeline.pstudio.tracks import UnitInput as StudioInput
-from pipeline.settings import RunConfig
+from pipeline.settings.run_config import RunConfig
 
 
 def _ok(result):

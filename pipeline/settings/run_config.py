@@ -11,11 +11,12 @@ import dataclasses
 from collections.abc import Mapping
 from typing import Any
 
-from pipeline import sources
-from pipeline.core.config import (
+from pipeline.filters.flicker import FlickerConfig
+from pipeline.io.http import HttpConfig
+from pipeline.settings import sections as registry
+from pipeline.settings.fields import (
     NOT_KNOWN,
     RULE_SETS,
-    FlickerConfig,
     not_in_clips,
     one_of,
     path_setting,
@@ -23,12 +24,11 @@ from pipeline.core.config import (
     sections,
     settings_dict,
 )
-from pipeline.io.http import HttpConfig
 
 
 def default_sections() -> dict[str, Any]:
     """Each registered source's section at its defaults, by source name."""
-    return {name: kind() for name in sources.names() if (kind := sources.settings_of(name)) is not None}
+    return {name: kind() for name in registry.names() if (kind := registry.settings_of(name)) is not None}
 
 
 @dataclasses.dataclass(frozen=True)

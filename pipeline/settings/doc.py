@@ -1,14 +1,14 @@
-"""``python -m pipeline.settings_doc``: print docs/configuration.md, the table of every setting.
+"""``python -m pipeline.settings.doc``: print docs/configuration.md, the table of every setting.
 
 Everything in the page comes from the settings' dataclasses, so it cannot drift from them: each key
-of ``RunConfig`` (``pipeline/settings.py``) and of the built-in sources' sections
+of ``RunConfig`` (``pipeline/settings/run_config.py``) and of the built-in sources' sections
 (``pipeline/<source>/settings.py``), its default, its allowed range (``ranged(...)``, described as
 ``--set`` describes a value outside it) and its meaning (the ``field: ...`` lines of the dataclass's
 docstring), marked when it names a path the run reads (``path_setting``) and when it never changes a
 clip's bytes (``clip_bytes`` False: the resume fingerprint leaves it out). tests/docs/test_docs.py checks
 that docs/configuration.md is this command's output::
 
-    python -m pipeline.settings_doc > docs/configuration.md
+    python -m pipeline.settings.doc > docs/configuration.md
 """
 
 from __future__ import annotations
@@ -20,11 +20,11 @@ import sys
 
 from pipeline import sources
 from pipeline.commandline import StrictParser
-from pipeline.core.config import NOT_KNOWN, settings_items
 from pipeline.pipes import run_command
-from pipeline.settings import RunConfig
+from pipeline.settings.fields import NOT_KNOWN, settings_items
+from pipeline.settings.run_config import RunConfig
 
-COMMAND = "python -m pipeline.settings_doc > docs/configuration.md"
+COMMAND = "python -m pipeline.settings.doc > docs/configuration.md"
 _ENTRY = re.compile(r"([a-z_][a-z0-9_]*(?:, [a-z_][a-z0-9_]*)*): (.*)")
 
 HEADER = f"""# Configuration
@@ -36,7 +36,7 @@ as comma-separated integers, a boolean as `true` or `false`). Before any work, e
 checked against its allowed range, and every problem is reported, one line each, under `cannot
 start: N problem(s) with the settings:` with exit status 2 (e.g. `--set adt.image_size=0: must be an
 integer in [2, 8192] and even`); an unknown key is refused with the nearest keys, when close, and a
-pointer to this page. The run record (`<out>/run_<source>.json`) holds every value a run used.
+pointer to this page. The run's provenance (`<out>/run_<source>.json`) holds every value a run used.
 
 Rule sets: `rules=refined` (the default of every run but a `--release` one) takes the **default**
 column; `rules=release` (the default of a `--release` run) takes the **release** column, the
@@ -48,7 +48,7 @@ Marks: **path**, a file or folder the run reads, checked to exist before any wor
 clips**, a setting that never changes a clip's bytes, so changing it re-annotates no unit (resume
 leaves it out of its fingerprint; see [robustness.md](robustness.md)).
 
-Generated from `pipeline/settings.py` (the run-wide settings) and `pipeline/<source>/settings.py`
+Generated from `pipeline/settings/run_config.py` (the run-wide settings) and `pipeline/<source>/settings.py`
 (one section per source, `--set <source>.<field>=...`; a plug-in source brings its own section,
 see [adding-a-source.md](adding-a-source.md)).
 """
@@ -171,7 +171,7 @@ SOURCE_TITLES = {
 
 def main(argv: list[str] | None = None) -> int:
     parser = StrictParser(
-        prog="python -m pipeline.settings_doc",
+        prog="python -m pipeline.settings.doc",
         description=f"Print the Markdown table of every setting (docs/configuration.md): {COMMAND}",
     )
     parser.parse_args(sys.argv[1:] if argv is None else argv)

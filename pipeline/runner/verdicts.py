@@ -1,8 +1,6 @@
-"""The release's own clips: its splits JSON, and a verdict for every clip it names.
+"""A verdict for every clip the release names, after a ``--release`` run.
 
-The TAPVid-3D release lists its clips in a splits JSON (``{"minival": {source: [file, ...]},
-"full_eval": {...}}``; ``full_test`` is accepted for ``full_eval``). ``--release FILE`` restricts a
-run to those clips; after it, each clip the file names gets one ``Verdict``: ``written``,
+Each clip the splits file names (``runner/splits.py``) gets one ``Verdict``: ``written``,
 ``not_produced`` (the run made no clip of that name, or the filters left too few tracks: the reason
 says which), ``input_absent`` (``--input`` holds nothing this clip is made from) or ``failed`` (its
 unit or the clip itself failed: the error's line), with its track counts.
@@ -11,89 +9,13 @@ unit or the clip itself failed: the error's line), with its track counts.
 from __future__ import annotations
 
 import dataclasses
-import importlib.resources
 import json
 from collections import Counter
 from collections.abc import Iterable, Mapping
 
-from pipeline import sources
-from pipeline.commandline import closest
-from pipeline.core.errors import InputError
 from pipeline.core.outcomes import FILTER_ORDER, ClipReport, UnitOutcome
-from pipeline.io.files import read_bytes
 
-# The release's split names, in its file; ``full_test`` is what our manifests call ``full_eval``.
-SPLITS = ("minival", "full_eval")
-SPLIT_ALIASES = {"full_test": "full_eval"}
 STATUSES = ("written", "not_produced", "input_absent", "failed")
-MAX_RELEASE_BYTES = 64 << 20
-# A splits file of the sample worlds' clips, shipped with the package: every clip the samples make,
-# and a few they cannot (an object of another camera, absent segments and sequences, a camera the
-# sequence lacks, a chunk past the ADT excerpt's end), so that a release run on the samples shows
-# every status with its reason (``make demo`` runs it).
-SAMPLE_RELEASE = str(importlib.resources.files("pipeline.samples") / "sample_splits.json")
-
-
-@dataclasses.dataclass(frozen=True)
-class Release:
-    """The clips a splits JSON names: source -> clip name (without ``.npz``) -> split."""
-
-    path: str
-    clips: Mapping[str, Mapping[str, str]]
-
-    def names(self, source: str) -> frozenset[str]:
-        return frozenset(self.clips.get(source, {}))
-
-
-class UnknownSource(ValueError):
-    """A splits JSON naming a source that is not registered (a typo: ``drivetrak``)."""
-
-
-def parse_release(text: str, path: str = "") -> Release:
-    """The Release of a splits JSON's text; ValueError saying what is wrong with it (UnknownSource
-    for a source that is not registered)."""
-    try:
-        data = json.loads(text)
-    except ValueError as error:
-        raise ValueError(f"not JSON ({error})") from None
-    if not isinstance(data, dict):
-        raise ValueError("expected a JSON object")
-    keys = {SPLIT_ALIASES.get(key, key): key for key in data}
-    if set(keys) - set(SPLITS) or "minival" not in keys:
-        raise ValueError(f"expected the keys minival and full_eval (or full_test), found {sorted(data)}")
-    clips: dict[str, dict[str, str]] = {}
-    for split in SPLITS:
-        entry = data.get(keys.get(split, split), {})
-        if not isinstance(entry, dict) or not all(
-            isinstance(names, list) and all(isinstance(name, str) for name in names)
-            for names in entry.values()
-        ):
-            raise ValueError(f"'{keys.get(split, split)}' must map each source to a list of clip file names")
-        for source in entry:
-            if source not in sources.names():
-                near = closest(source, sources.names())
-                hint = f"did you mean {near}?" if near else f"the sources are {', '.join(sources.names())}"
-                where = keys.get(split, split)
-                raise UnknownSource(f"'{where}' names source {source!r}, not a source; {hint}")
-        for source, names in entry.items():
-            for name in names:
-                clip = name[: -len(".npz")] if name.endswith(".npz") else name
-                other = clips.setdefault(source, {}).setdefault(clip, split)
-                if other != split:
-                    raise ValueError(f"{source} clip {name} is in both minival and full_eval")
-    return Release(path, clips)
-
-
-def read_release(path: str, given: str = "") -> Release:
-    """``parse_release`` of the file at ``path``; InputError naming it as the user gave it (``given``,
-    e.g. ``--set splits_file=FILE``; default ``--release PATH``) and the problem."""
-    given = given or f"--release {path}"
-    try:
-        return parse_release(read_bytes(path, MAX_RELEASE_BYTES).decode(), path)
-    except UnknownSource as error:
-        raise InputError(f"{given}: {error}") from error
-    except (OSError, UnicodeDecodeError, ValueError) as error:
-        raise InputError(f"{given}: not the release's splits JSON ({error})") from error
 
 
 @dataclasses.dataclass(frozen=True)
@@ -159,7 +81,7 @@ def verdicts(
     absent: clip -> why ``--input`` holds nothing it is made from (the source's listing).
     not_made: clip -> why the input makes no clip of that name (the source's listing).
     expected: unit name -> the clips it is to make.
-    outcomes: unit name -> its outcome, None when the run left no record of it.
+    outcomes: unit name -> its outcome, None when the run left no checkpoint of it.
     """
     unit_of = {clip: unit for unit, clips in expected.items() for clip in clips}
     rows = []
@@ -180,9 +102,11 @@ def _from_outcome(clip: str, split: str, unit: str | None, outcome: UnitOutcome 
     if unit is None:
         return Verdict(clip, split, "input_absent", 0, "no unit of the input makes this clip")
     if outcome is None:
-        return Verdict(clip, split, "failed", 0, f"unit {unit} left no record (the run stopped before it)")
+        return Verdict(
+            clip, split, "failed", 0, f"unit {unit} left no checkpoint (the run stopped before it)"
+        )
     report = next((r for r in outcome.reports if r.clip == clip), None)
-    failure = next((f for f in outcome.failures if f.clip in ("", clip) and f.stage != "record"), None)
+    failure = next((f for f in outcome.failures if f.clip in ("", clip) and f.stage != "checkpoint"), None)
     if report is not None and failure is None:
         return _from_report(clip, split, report, min_tracks)
     if failure is not None:

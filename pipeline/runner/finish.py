@@ -1,11 +1,11 @@
-"""Finishing a run, in the main process, once: from the records its units left (``pipeline/resume.py``),
-the failures file, the release verdicts, the manifests and the run record.
+"""Finishing a run, in the main process, once: from the checkpoints its units left
+(``pipeline/runner/resume.py``), the failures file, the release verdicts, the manifests and the run's
+provenance file.
 
-Every unit of a run ends with its record, written or stamped by this run (a resumed unit's record
-is stamped with the run's id), on whatever runner and workers did the work; ``finish_run`` reads the
-records of the run's planned units, so it works alike on the DirectRunner, a Dask cluster or
-Dataflow. A planned unit without a record of this run (the record could not be written) counts as
-failed.
+Every unit of a run ends with its checkpoint, written or stamped by this run (a resumed unit's is
+stamped with the run's id), on whatever runner and workers did the work; ``finish_run`` reads the
+checkpoints of the run's planned units, so it works alike on the DirectRunner, a Dask cluster or
+Dataflow. A planned unit without a checkpoint of this run (it could not be written) counts as failed.
 """
 
 from __future__ import annotations
@@ -21,18 +21,19 @@ from pipeline.export.layout import (
     clip_folder,
     failures_path,
     manifest_path,
+    provenance_path,
     release_verdicts_path,
-    run_record_path,
 )
 from pipeline.export.manifests import split_clips
 from pipeline.io.files import list_files, write_atomic
-from pipeline.release import Release, summary_line, tally, verdict_lines, verdicts
-from pipeline.resume import outcome_of, read_unit_record
+from pipeline.runner.resume import read_checkpoint
+from pipeline.runner.splits import Release
+from pipeline.runner.stages import UnitJob
+from pipeline.runner.verdicts import summary_line, tally, verdict_lines, verdicts
 from pipeline.sources import UnitPlan
-from pipeline.unit import UnitJob
 
 if TYPE_CHECKING:
-    from pipeline.prepare import Provenance
+    from pipeline.runner.prepare import Provenance
 
 
 @dataclasses.dataclass(frozen=True)
@@ -57,30 +58,30 @@ class RunSummary:
     release: Mapping[str, int] | None = None
 
     def to_json(self) -> dict:
-        record = dataclasses.asdict(self) | {"dropped_by_filter": dict(self.dropped_by_filter)}
+        summary = dataclasses.asdict(self) | {"dropped_by_filter": dict(self.dropped_by_filter)}
         if self.release is None:
-            del record["release"]
+            del summary["release"]
         else:
-            record["release"] = {**self.release, "line": summary_line(self.release)}
-        return record
+            summary["release"] = {**self.release, "line": summary_line(self.release)}
+        return summary
 
 
 def unit_outcomes(job: UnitJob, names: list[str]) -> dict[str, UnitOutcome | None]:
-    """Each planned unit's outcome in this run (from its record), None when it left none."""
+    """Each planned unit's outcome in this run (from its checkpoint), None when it left none."""
     outcomes = {}
     for name in names:
-        record = read_unit_record(job.output, job.source.name, name)
-        outcomes[name] = outcome_of(record) if record and record["run"] == job.run_id else None
+        found = read_checkpoint(job.output, job.source.name, name)
+        outcomes[name] = found.outcome if found is not None and found.run == job.run_id else None
     return outcomes
 
 
 def all_failures(outcomes: dict[str, UnitOutcome | None]) -> list[Failure]:
-    """Every failure of the run, sorted; a unit without a record of this run is one."""
+    """Every failure of the run, sorted; a unit without a checkpoint of this run is one."""
     found = []
     for name, outcome in outcomes.items():
         if outcome is None:
             found.append(
-                Failure(name, "record", "OutputError: the unit's record was not written by this run")
+                Failure(name, "checkpoint", "OutputError: the unit's checkpoint was not written by this run")
             )
         else:
             found += outcome.failures
@@ -129,7 +130,7 @@ def finish_run(
     restricted: bool,
     metrics: dict[str, int] | str,
 ) -> RunSummary:
-    """Write the failures, the release verdicts (a release run), the manifests and the run record.
+    """Write the failures, the release verdicts (a release run), the manifests and the run's provenance.
 
     release: the release's clips (``--release``, or ``splits_file`` for the manifests alone).
     restricted: the run was restricted to the release's clips (``--release``).
@@ -156,6 +157,6 @@ def finish_run(
         counts = tally(rows)
     manifests = write_manifests(output, job.config, release, restricted)
     summary = dataclasses.replace(summarize(outcomes, failures), manifests=manifests, release=counts)
-    record = dict(provenance.to_json(), summary=summary.to_json(), metrics=metrics)
-    write_atomic(run_record_path(output, source), json.dumps(record, indent=2, sort_keys=True).encode())
+    written = dict(provenance.to_json(), summary=summary.to_json(), metrics=metrics)
+    write_atomic(provenance_path(output, source), json.dumps(written, indent=2, sort_keys=True).encode())
     return summary

@@ -1,6 +1,6 @@
-"""The main process's view of a running pipeline: one line per unit as its record appears.
+"""The main process's view of a running pipeline: one line per unit as its checkpoint appears.
 
-Workers write each unit's record when it is done (``pipeline/unit.py``); the monitor polls the
+Workers write each unit's record when it is done (``pipeline/runner/stages.py``); the monitor polls the
 records folder from a thread of the main process, so it reports the same on every runner and any
 number of worker processes. The unit lines are the run's account and go to stdout, each with the
 count done, the elapsed time and an estimate of what is left; when stderr is a terminal a live tqdm
@@ -21,9 +21,9 @@ from apache_beam.io.filesystems import FileSystems
 from tqdm import tqdm
 
 from pipeline.core.outcomes import UnitOutcome, failure_cause
-from pipeline.export.layout import unit_record_path
+from pipeline.export.layout import checkpoint_path
 from pipeline.pipes import READER_GONE
-from pipeline.resume import outcome_of, read_unit_record
+from pipeline.runner.resume import read_checkpoint
 
 
 def clock(seconds: float) -> str:
@@ -48,7 +48,7 @@ def describe(outcome: UnitOutcome) -> str:
 
 
 class RunMonitor:
-    """Reports the units of a run (``names``) as their records, stamped with ``run_id``, appear: a
+    """Reports the units of a run (``names``) as their checkpoints, stamped with ``run_id``, appear: a
     line each on ``lines`` (default stdout), a live bar on ``bar_stream`` when it is a terminal.
     Once ``max_failures_in_a_row`` units in a row (0: no limit) failed with one cause
     (``failure_cause``), ``gave_up`` says so and the main thread is stopped."""
@@ -67,7 +67,7 @@ class RunMonitor:
         self.output, self.source, self.run_id, self.started = output, source, run_id, started
         self.lines = lines if lines is not None else sys.stdout
         bar_stream = bar_stream if bar_stream is not None else sys.stderr
-        self.paths = {unit_record_path(output, source, name): name for name in names}
+        self.paths = {checkpoint_path(output, source, name): name for name in names}
         self.pattern = f"{output}/units/{source}/*.json"
         self.seen: dict[str, float] = {}
         self.done: dict[str, UnitOutcome] = {}
@@ -108,7 +108,7 @@ class RunMonitor:
                 return
 
     def poll(self) -> None:
-        """Report each unit whose record of this run appeared or changed since the last look."""
+        """Report each unit whose checkpoint of this run appeared or changed since the last look."""
         for match in FileSystems.match([self.pattern])[0].metadata_list:
             name = self.paths.get(match.path)
             if (
@@ -118,9 +118,9 @@ class RunMonitor:
             ):
                 continue
             self.seen[match.path] = match.last_updated_in_seconds
-            record = read_unit_record(self.output, self.source, name)
-            if record is not None and record["run"] == self.run_id:
-                self.done[name] = outcome_of(record)
+            found = read_checkpoint(self.output, self.source, name)
+            if found is not None and found.run == self.run_id:
+                self.done[name] = found.outcome
                 self._say(self.done[name])
                 self._count(self.done[name])
 

@@ -11,10 +11,11 @@ from pipeline import sources
 from pipeline.core.outcomes import FILTER_ORDER
 from pipeline.export.layout import release_verdicts_path
 from pipeline.io.files import read_bytes, write_atomic
-from pipeline.release import SPLITS, STATUSES
+from pipeline.runner.splits import SPLITS
+from pipeline.runner.verdicts import STATUSES
 
 MAX_VERDICT_BYTES = 256 << 20
-# The fields of a verdict row (``pipeline.release.Verdict``) the audit commands read.
+# The fields of a verdict row (``pipeline.runner.verdicts.Verdict``) the audit commands read.
 ROW_FIELDS = ("clip", "split", "status", "tracks", "reason", "candidates", "dropped", "passed")
 
 

@@ -159,17 +159,6 @@ def not_in_clips(default, interval: str | None = None):
     return dataclasses.field(default=default, metadata={**field.metadata, "clip_bytes": False})
 
 
-@dataclasses.dataclass(frozen=True)
-class FlickerConfig:
-    """Drop a track whose visibility changes state more than ``max_fraction`` x T times.
-
-    max_fraction: a track is dropped when its visibility flips (visible to occluded or back) more
-      than this fraction of its T frames (the paper's 10%).
-    """
-
-    max_fraction: float = ranged(0.10, "[0, 1]")
-
-
 def path_setting(default: str = "", label: str = "", clip_bytes: bool = True):
     """A string field naming a file or folder the run reads, checked to exist before any work
     (``path_settings``); ``label`` names it in messages (default: its key)."""
@@ -369,7 +358,7 @@ def _replace_path(node, path: list[str], text: str, key: str, root, option: str,
 
 
 def config_from_dict(kind, values: dict):
-    """Rebuild a config dataclass of type ``kind`` from ``settings_dict`` output (e.g. a run record's);
+    """Rebuild a config dataclass of type ``kind`` from ``settings_dict`` output (e.g. a run's provenance's);
     a section is rebuilt when the defaults hold one of its name (an unknown one is dropped);
     ``check_ranges`` tells whether its values are allowed."""
     config = kind()

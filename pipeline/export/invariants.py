@@ -10,10 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.core.config import FlickerConfig
 from pipeline.core.geometry import in_image, project
 from pipeline.core.images import jpeg_size
-from pipeline.filters.flicker import passes_flicker, visibility_flips
+from pipeline.filters.flicker import FlickerConfig, passes_flicker, visibility_flips
 from pipeline.io.clip_reader import DEFAULT_LIMITS, ReadLimits, read_clip_bytes
 from pipeline.io.npz_reader import NpzError
 

@@ -2,7 +2,7 @@
 
     Units -> ByGroup -> Group -> Annotate -> Filter -> Write
 
-Each step calls the plain stage of ``pipeline.unit`` (the benchmarks call the same stages through
+Each step calls the plain stage of ``pipeline.runner.stages`` (the benchmarks call the same stages through
 ``unit.run_group``). Group hands each worker the units of one group (``Source.group_of``: a
 DriveTrack segment's cameras, which share one read of its lidar; else each unit alone), and
 spreads the groups over the workers. After Annotate an element is one unit's typed record in one
@@ -11,7 +11,7 @@ ParDo): a ``UnitOutcome`` for a unit an earlier run finished or one that failed 
 else its ``Annotated`` clips, which Filter turns into ``Filtered`` ones and Write writes, then the
 unit's record (its commit point: a unit is never split across workers, and a killed run loses only
 the units in flight). The run is finished from those records by the main process
-(``pipeline.finish``), whatever the runner.
+(``pipeline.runner.finish``), whatever the runner.
 
 Counters (``apache_beam.metrics``, namespace ``tapvid3d``): units_read, units_resumed,
 units_failed, clips_annotated, clips_written, tracks_written, tracks_dropped_<filter>.
@@ -23,10 +23,11 @@ import apache_beam as beam
 from apache_beam.metrics import Metrics
 from apache_beam.options.pipeline_options import PipelineOptions
 
-from pipeline import sources, unit
+from pipeline import sources
 from pipeline.core.outcomes import FILTER_ORDER, UnitOutcome
 from pipeline.core.progress import quiet_worker_logs
 from pipeline.io import storage
+from pipeline.runner import stages as unit
 
 METRICS_NAMESPACE = "tapvid3d"
 COUNTERS = (
@@ -80,7 +81,7 @@ class Filter(_JobStep):
 
 
 class Write(_JobStep):
-    """``Filtered`` -> each clip written, then the unit's record: its UnitOutcome; a UnitOutcome
+    """``Filtered`` -> each clip written, then the unit's checkpoint: its UnitOutcome; a UnitOutcome
     passes."""
 
     def process(self, item):

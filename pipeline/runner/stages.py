@@ -1,11 +1,12 @@
-"""One unit of work, in plain Python: resume check -> annotate -> filter -> write -> record.
+"""One unit of work, in plain Python: resume check -> annotate -> filter -> write -> checkpoint.
 
-The Beam graph (``pipeline.graph``) runs these stages as its named steps, the benchmarks call
+The Beam graph (``pipeline.runner.graph``) runs these stages as its named steps, the benchmarks call
 ``run_group`` for the same work without Beam, and resume is the first stage. Units of one group
 (``Source.group_of``) are annotated together, each keeping its own outcome. Every unit ends with its
-record (``pipeline/resume.py``): written after all its clips, also when it failed, so the main process
-finishes the run (``pipeline.finish``) from the records alone. A unit with a failure is redone by the
-next run. Failures never escape a stage: they become ``Failure`` records (the run goes on).
+checkpoint (``pipeline/runner/resume.py``): written after all its clips, also when it failed, so the
+main process finishes the run (``pipeline.runner.finish``) from the checkpoints alone. A unit with a
+failure is redone by the next run. Failures never escape a stage: they become ``Failure`` records
+(the run goes on).
 """
 
 from __future__ import annotations
@@ -26,24 +27,25 @@ from pipeline.export.layout import audit_path, check_clip_name, clip_path, depth
 from pipeline.export.npz_writer import clip_members, encode_npz
 from pipeline.filters.select import FilterOutcome, apply_filters
 from pipeline.io.files import remove_quietly, write_atomic
-from pipeline.resume import (
+from pipeline.runner.resume import (
+    UnitCheckpoint,
     finished_outcome,
-    read_unit_record,
+    read_checkpoint,
     remove_stale_clips,
     run_fingerprint,
     sha256,
-    write_unit_record,
+    write_checkpoint,
 )
 from pipeline.sources import Source, Wanted
 
 if TYPE_CHECKING:
-    from pipeline.settings import RunConfig
+    from pipeline.settings.run_config import RunConfig
 
 
 @dataclasses.dataclass(frozen=True)
 class UnitJob:
     """What every stage of one run needs besides the unit: the source, where its input and output
-    are, the settings, whether finished units are skipped, the run's id (in each record it writes)
+    are, the settings, whether finished units are skipped, the run's id (in each checkpoint it writes)
     and, on a release run, the clips each unit is to make (unit name -> clip names)."""
 
     source: Source
@@ -99,15 +101,16 @@ def failure(unit: str, stage: str, error: BaseException, clip: str = "") -> Fail
 
 def finished_earlier(job: UnitJob, name: str) -> UnitOutcome | None:
     """The outcome of the unit when an earlier run with these settings finished it (its clips intact
-    on disk, every wanted clip accounted for), else None. Its record is stamped with this run."""
+    on disk, every wanted clip accounted for), else None. Its checkpoint is stamped with this run."""
     if not job.resume:
         return None
-    record = read_unit_record(job.output, job.source.name, name)
+    previous = read_checkpoint(job.output, job.source.name, name)
     outcome = finished_outcome(
-        record, job.output, job.source.name, job.fingerprint, job.config.export_depth, job.wanted(name)
+        previous, job.output, job.source.name, job.fingerprint, job.config.export_depth, job.wanted(name)
     )
-    if outcome is not None:
-        write_unit_record(job.output, job.source.name, dict(record, run=job.run_id, resumed=True))
+    if outcome is not None and previous is not None:
+        stamped = dataclasses.replace(previous, run=job.run_id, resumed=True)
+        write_checkpoint(job.output, job.source.name, stamped)
         progress(f"unit {name}: finished by an earlier run with these settings; skipped")
     return outcome
 
@@ -172,34 +175,33 @@ def write_clip(output: str, kept: ClipRecord, outcome: FilterOutcome) -> tuple[C
     return report, digest
 
 
-def record(job: UnitJob, outcome: UnitOutcome, digests: Mapping[str, str]) -> UnitOutcome:
-    """Write the unit's record (after all its clips; a finished unit first removes the files of
-    clips an earlier record listed that this run no longer makes). Returns the outcome, with a
-    ``record`` Failure when the record cannot be written."""
+def checkpoint(job: UnitJob, outcome: UnitOutcome, digests: Mapping[str, str]) -> UnitOutcome:
+    """Write the unit's checkpoint (after all its clips; a finished unit first removes the files of
+    clips an earlier checkpoint listed that this run no longer makes). Returns the outcome, with a
+    ``checkpoint`` Failure when the checkpoint cannot be written."""
     source = job.source.name
+    wanted = job.wanted(outcome.name)
     try:
         if not outcome.failed:
-            previous = read_unit_record(job.output, source, outcome.name)
+            previous = read_checkpoint(job.output, source, outcome.name)
             made = {report.clip for report in outcome.reports}
-            remove_stale_clips(previous, job.output, source, made, job.wanted(outcome.name))
-        write_unit_record(
-            job.output,
-            source,
-            {
-                "unit": outcome.name,
-                "fingerprint": job.fingerprint,
-                "run": job.run_id,
-                "resumed": False,
-                "seconds": round(outcome.seconds, 3),
-                "wanted": None if job.expected is None else sorted(job.wanted(outcome.name)),
-                "reports": [report.to_json() for report in outcome.reports],
-                "clips": dict(digests),
-                "failures": [item.to_json() for item in outcome.failures],
-                "not_made": dict(outcome.not_made),
-            },
+            remove_stale_clips(previous, job.output, source, made, wanted)
+        written = UnitCheckpoint(
+            unit=outcome.name,
+            fingerprint=job.fingerprint,
+            run=job.run_id,
+            seconds=outcome.seconds,
+            wanted=None if wanted is None else tuple(sorted(wanted)),
+            reports=outcome.reports,
+            clips=dict(digests),
+            failures=outcome.failures,
+            not_made=dict(outcome.not_made),
         )
+        write_checkpoint(job.output, source, written)
     except OSError as error:
-        problem = failure(outcome.name, "record", OutputError(f"cannot record the unit: {error}"))
+        problem = failure(
+            outcome.name, "checkpoint", OutputError(f"cannot write the unit's checkpoint: {error}")
+        )
         progress(f"unit {outcome.name} FAILED: {problem.error}")
         return dataclasses.replace(outcome, failures=(*outcome.failures, problem))
     return outcome
@@ -218,7 +220,7 @@ def filter_unit(job: UnitJob, annotated: Annotated) -> Filtered:
 
 
 def write_unit(job: UnitJob, filtered: Filtered, on_written=None) -> UnitOutcome:
-    """Write a unit's filtered clips, then its record (the unit's commit point). ``on_written(kept,
+    """Write a unit's filtered clips, then its checkpoint (the unit's commit point). ``on_written(kept,
     outcome, digest)`` is called per clip written."""
     failures = [item for item in filtered.items if isinstance(item, Failure)]
     reports, digests = [], {}
@@ -244,13 +246,13 @@ def write_unit(job: UnitJob, filtered: Filtered, on_written=None) -> UnitOutcome
         dict(filtered.not_made),
         seconds=time.time() - filtered.started,
     )
-    return record(job, outcome, digests)
+    return checkpoint(job, outcome, digests)
 
 
 def annotate_units(job: UnitJob, units: list) -> Iterator[UnitOutcome | Annotated]:
     """The resume check and the annotate stage of units of one group: per unit, its UnitOutcome
     when an earlier run finished it, then, as the others are annotated together, their candidate
-    clips (``Annotated``) or, for a unit that failed, its recorded UnitOutcome."""
+    clips (``Annotated``) or, for a unit that failed, its checkpointed UnitOutcome."""
     todo = []
     for item in units:
         name = job.source.unit_name(item)
@@ -265,7 +267,7 @@ def annotate_units(job: UnitJob, units: list) -> Iterator[UnitOutcome | Annotate
         if isinstance(result, Exception):
             problem = failure(name, "annotate", result)
             progress(f"unit {name} FAILED: {result}")
-            yield record(job, UnitOutcome(name, failures=(problem,), seconds=time.time() - started), {})
+            yield checkpoint(job, UnitOutcome(name, failures=(problem,), seconds=time.time() - started), {})
         else:
             yield Annotated(name, result, started)
         started = time.time()

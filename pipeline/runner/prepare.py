@@ -16,7 +16,14 @@ from apache_beam.options.pipeline_options import DirectOptions, PipelineOptions,
 
 import pipeline
 from pipeline import sources
-from pipeline.core.config import (
+from pipeline.core.errors import InputError
+from pipeline.core.sizes import format_bytes
+from pipeline.export.layout import sample_folder
+from pipeline.io import storage
+from pipeline.io.files import is_local, remove_quietly, write_atomic
+from pipeline.io.http import is_http, scrub
+from pipeline.runner.splits import Release, read_release
+from pipeline.settings.fields import (
     NOT_KNOWN,
     path_settings,
     release_values,
@@ -24,14 +31,7 @@ from pipeline.core.config import (
     with_overrides,
     with_rules,
 )
-from pipeline.core.errors import InputError
-from pipeline.core.sizes import format_bytes
-from pipeline.export.layout import sample_folder
-from pipeline.io import storage
-from pipeline.io.files import is_local, remove_quietly, write_atomic
-from pipeline.io.http import is_http, scrub
-from pipeline.release import Release, read_release
-from pipeline.settings import RunConfig
+from pipeline.settings.run_config import RunConfig
 from pipeline.sources import Source, UnitPlan
 
 DASK_RUNNER = "apache_beam.runners.dask.dask_runner.DaskRunner"
@@ -286,7 +286,7 @@ def scratch_line(per_worker: int, options: PipelineOptions) -> str:
 
 @dataclasses.dataclass(frozen=True)
 class Provenance:
-    """Where a run came from, as its record keeps it: the package and version, the source, input and
+    """Where a run came from, as its provenance file keeps it: the package and version, the source, input and
     output, every setting and the rule set's account of them, the release it was restricted to, its
     units, the Beam options, the libraries' versions and when it started."""
 
@@ -312,7 +312,7 @@ class Provenance:
 
 
 def scrubbed(values: dict) -> dict:
-    """Settings as a run record keeps them: every URL without its query string (a token)."""
+    """Settings as a run's provenance keeps them: every URL without its query string (a token)."""
     return {
         key: scrubbed(value) if isinstance(value, dict) else scrub(value) if isinstance(value, str) else value
         for key, value in values.items()
@@ -320,7 +320,7 @@ def scrubbed(values: dict) -> dict:
 
 
 def provenance(prepared: PreparedRun, input_root: str, plan: UnitPlan) -> Provenance:
-    """The run record's account of where the run came from."""
+    """The run's provenance's account of where the run came from."""
     return Provenance(
         source=prepared.source.name,
         input=input_root,

@@ -1,0 +1,367 @@
+"""The ``python -m pipeline.run --source {adt,drivetrack,pstudio} --runner DirectRunner ...`` command.
+
+Regenerates TAPVid-3D clips from a source dataset. Any option not listed here is passed to
+Beam (``--runner``, ``--direct_num_workers``, ``--direct_running_mode``, Dataflow/Flink/Spark
+options, ...) and checked against the options Beam and the runner define. Without ``--input`` it
+runs on the embedded sample world. With ``--release`` it regenerates the release's own clips and
+writes a verdict for each (``<out>/release_<source>.jsonl``).
+
+Exit status: 0 done (clips written, or every unit finished by an earlier run); 1 some unit failed;
+2 the run could not start (a bad option or setting, a missing input, an output that cannot be
+written) or finish; 3 nothing was produced and nothing resumed (the last line says why); 4 the
+run stopped itself: ``max_failures_in_a_row`` units in a row failed alike (the last line says
+why); 130 interrupted by Ctrl-C; 141 the output was closed (``| head``): the run stopped.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import logging
+import sys
+import time
+import uuid
+
+import apache_beam as beam
+from apache_beam.metrics.metric import MetricsFilter
+
+from pipeline import sources
+from pipeline.commandline import StrictParser, UsageError, check_beam_args
+from pipeline.core.errors import InputError, OutputError, interruption, root_cause
+from pipeline.core.outcomes import FILTER_ORDER
+from pipeline.core.progress import quiet_worker_logs, set_verbose, workers_silenced
+from pipeline.export.layout import failures_path, provenance_path, release_verdicts_path
+from pipeline.io.http import shown
+from pipeline.pipes import INTERRUPTED, OUTPUT_CLOSED, READER_GONE, STOPPED, silence_output
+from pipeline.runner import graph
+from pipeline.runner.finish import RunSummary, finish_run
+from pipeline.runner.monitor import RunMonitor
+from pipeline.runner.prepare import (
+    CannotStart,
+    PreparedRun,
+    plan_units,
+    prepare_run,
+    provenance,
+    runner_args,
+    sample_input,
+    scratch_line,
+)
+from pipeline.runner.resume import remove_partial_files
+from pipeline.runner.stages import UnitJob
+from pipeline.runner.verdicts import summary_line
+from pipeline.settings.fields import SettingsError
+from pipeline.settings.run_config import RunConfig
+from pipeline.sources import NoSample, UnitPlan
+
+NOTHING_PRODUCED = 3
+
+
+def command_parser() -> StrictParser:
+    parser = StrictParser(
+        prog="python -m pipeline.run",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--source", choices=sources.names(), help="the dataset to regenerate (required)")
+    parser.add_argument("--input", help="source data (DriveTrack: a Waymo Open v2 split folder)")
+    parser.add_argument("--output", default="tapvid3d_out", help="output folder (default %(default)s)")
+    parser.add_argument(
+        "--release",
+        metavar="SPLITS_JSON",
+        help="the release's splits JSON: annotate only the units its clips need, write only its clips "
+        "(under their release names), manifests exactly its splits, and a verdict for every clip it "
+        "names in <out>/release_<source>.jsonl",
+    )
+    parser.add_argument(
+        "--queries-from",
+        metavar="DIR",
+        help="re-annotate exactly the queries of the clips in DIR (<DIR>/<source>/<clip>.npz, matched "
+        "by name, e.g. the released files): tracks correspond one to one, filters report but drop none",
+    )
+    parser.add_argument(
+        "--export-depth",
+        action="store_true",
+        help="also write the depth each visibility test read to <out>/depth/<source>/<clip>.npz "
+        "(dense uint16 mm for adt and pstudio, sparse lidar points for drivetrack)",
+    )
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="re-annotate every unit; by default a unit an earlier run finished with the same settings "
+        "(its clips on disk, intact and valid) is skipped",
+    )
+    parser.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a config field, e.g. flicker.max_fraction=0.2 (repeatable)",
+    )
+    parser.add_argument("--verbose", action="store_true", help="also print the workers' and Beam's log lines")
+    return parser
+
+
+def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
+    """The command's own options, and the Beam options (checked, with our defaults); UsageError
+    names an unknown option (with the nearest valid name) or a bad value."""
+    parser = command_parser()
+    args, rest = parser.parse_known_args(argv)
+    beam_args = runner_args(rest)
+    check_beam_args(beam_args, parser.option_names())
+    if args.source is None:
+        parser.error("the following arguments are required: --source")
+    return args, beam_args
+
+
+def configure_logging(verbose: bool) -> None:
+    logging.basicConfig(
+        level=logging.INFO, force=True, format="%(asctime)s %(levelname)s %(message)s", datefmt="%H:%M:%S"
+    )
+    set_verbose(verbose)
+    quiet_worker_logs()
+
+
+def beam_counters(result) -> dict[str, int] | str:
+    """The run's Beam counters (``graph.COUNTERS``), or why there are none."""
+    try:
+        found = result.metrics().query(MetricsFilter().with_namespace(graph.METRICS_NAMESPACE))["counters"]
+    except (NotImplementedError, AttributeError, KeyError):
+        return "not reported by this runner"
+    totals = {name: 0 for name in graph.COUNTERS}
+    for item in found:
+        value = item.committed if item.committed is not None else item.attempted
+        totals[item.key.metric.name] = totals.get(item.key.metric.name, 0) + int(value or 0)
+    return totals
+
+
+class GaveUp(Exception):
+    """The run stopped itself: units failed alike, ``max_failures_in_a_row`` in a row (the message
+    says which cause)."""
+
+
+def run_pipeline(prepared: PreparedRun, job: UnitJob, plan: UnitPlan):
+    """Run the Beam graph over the plan's units, reporting each unit as it finishes (worker processes
+    silent unless ``--verbose``); the result. GaveUp when the monitor gave up on the run."""
+    names = [prepared.source.unit_name(unit) for unit in plan.units]
+    limit, started = prepared.config.max_failures_in_a_row, time.monotonic()
+    monitor = None
+    try:
+        with workers_silenced() as report:
+            monitor = RunMonitor(
+                job.output, job.source.name, names, job.run_id, started, report, max_failures_in_a_row=limit
+            )
+            with monitor:
+                result = _run_graph(prepared, job, plan)
+    except BaseException:  # the monitor stopped the main thread: Beam may wrap it in another error
+        if monitor is not None and monitor.gave_up:
+            raise GaveUp(monitor.gave_up) from None
+        raise
+    return result
+
+
+def _run_graph(prepared: PreparedRun, job: UnitJob, plan: UnitPlan):
+    """The Beam pipeline over the plan's units, run to its end; its result."""
+    p = beam.Pipeline(options=prepared.options)
+    _ = p | "RegenerateClips" >> graph.RegenerateClips(job, plan.units, prepared.options)
+    result = p.run()
+    try:
+        result.wait_until_finish()
+    finally:
+        # Beam's Dask runner opens a distributed.Client for the run and never closes it: a caller
+        # that goes on (a notebook, the tests) would keep a client that tries to reconnect once the
+        # cluster is gone.
+        client = getattr(result, "client", None)
+        if client is not None:
+            client.close()
+    return result
+
+
+def print_summary(summary: RunSummary, metrics, output: str, source: str) -> None:
+    """The closing lines: what this run did (its Beam counters, when the runner reports them), then
+    the totals over every unit (finished-earlier ones included), the manifests, where things are."""
+    dropped = ", ".join(f"{name} {summary.dropped_by_filter[name]}" for name in FILTER_ORDER)
+    if isinstance(metrics, dict):
+        print(
+            f"\nthis run (Beam counters): {metrics['units_read']} unit(s) read, "
+            f"{metrics['units_resumed']} skipped as finished, {metrics['units_failed']} failed; "
+            f"{metrics['clips_written']} of {metrics['clips_annotated']} annotated clip(s) written, "
+            f"{metrics['tracks_written']} tracks; dropped by filter: "
+            + ", ".join(f"{name} {metrics[f'tracks_dropped_{name}']}" for name in FILTER_ORDER)
+        )
+    print(
+        f"\n{source}: {summary.units} unit(s), {summary.units_resumed} finished earlier, "
+        f"{summary.units_failed} failed; {summary.clips_written} clip(s) written "
+        f"({summary.clips_below_target} below their target track count)\n"
+        f"tracks: {summary.candidate_tracks} candidates, dropped by filter: {dropped}; "
+        f"{summary.tracks_passing_filters} passed, {summary.tracks_written} written\n"
+        f"manifests: minival {summary.manifests['minival']}, "
+        f"full_test {summary.manifests['full_test']} clip(s)\n"
+        f"clips in {output}/{source}/, manifests in {output}/manifests/, "
+        f"provenance in {provenance_path(output, source)}"
+    )
+    if summary.release is not None:
+        print(f"{summary_line(summary.release)} (one row each in {release_verdicts_path(output, source)})")
+    if summary.failures:
+        print(f"{summary.failures} failure(s): see {failures_path(output, source)}", file=sys.stderr)
+
+
+class _ReportedByUs(logging.Filter):
+    """Drops Beam's traceback of a step stopped by Ctrl-C or an output error: main says it in one line."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        kind = record.exc_info[0] if record.exc_info else None
+        return not (kind and issubclass(kind, (KeyboardInterrupt, OSError, OutputError)))
+
+
+def why_nothing(summary: RunSummary, config: RunConfig) -> str:
+    """Why a run wrote no clip, in one line."""
+    resumed = summary.units_resumed
+    earlier = f" ({resumed} of them finished by an earlier run with these settings)" if resumed else ""
+    return _why_nothing(summary, config) + earlier
+
+
+def _why_nothing(summary: RunSummary, config: RunConfig) -> str:
+    if not summary.units:
+        return "no clip written: no unit to annotate (nothing in --input for this run)"
+    if summary.units_failed == summary.units:
+        return f"no clip written: all {summary.units} unit(s) failed"
+    if not summary.clips_annotated:
+        given = ""
+        if config.queries_from:
+            given = f"; --queries-from {shown(config.queries_from)} holds none of their clips"
+        return f"no clip written: the {summary.units} unit(s) made no clip{given}"
+    if not summary.candidate_tracks:
+        return f"no clip written: the {summary.clips_annotated} clip(s) made had no candidate track"
+    if not summary.tracks_passing_filters:
+        dropped = ", ".join(f"{name} {count}" for name, count in summary.dropped_by_filter.items() if count)
+        candidates = summary.candidate_tracks
+        return f"no clip written: every one of the {candidates} candidate tracks was dropped ({dropped})"
+    return f"no clip written: no clip kept min_tracks={config.min_tracks} tracks"
+
+
+def exit_status(summary: RunSummary) -> int:
+    """0 done, 1 some unit failed, 3 nothing produced and nothing resumed."""
+    if summary.failures:
+        return 1
+    nothing = summary.clips_written == 0 and summary.units_resumed == 0
+    return NOTHING_PRODUCED if nothing else 0
+
+
+def stopped(prepared: PreparedRun) -> int:
+    """After a Ctrl-C or a closed output: this process's partial files removed, one line (when the
+    output is still open); 130, or 141 for a closed output."""
+    removed = remove_partial_files(prepared.output, prepared.source.name, include_own=True)
+    if READER_GONE.is_set():
+        silence_output()
+        return OUTPUT_CLOSED
+    note = f"; removed {removed} partial file(s)" if removed else ""
+    print(
+        f"interrupted: stopped{note}; finished units are kept, rerun the same command to resume",
+        file=sys.stderr,
+    )
+    return INTERRUPTED
+
+
+def main(argv: list[str] | None = None) -> int:
+    """The command; its exit status (the module's docstring lists them)."""
+    started = time.monotonic()
+    try:
+        args, beam_args = parse_args(sys.argv[1:] if argv is None else argv)
+    except UsageError as problem:
+        print(f"python -m pipeline.run: {problem}", file=sys.stderr)
+        return 2
+    configure_logging(args.verbose)
+    try:
+        prepared = prepare_run(args, beam_args)
+    except SettingsError as problem:
+        print(f"cannot start: {len(problem.problems)} problem(s) with the settings:", file=sys.stderr)
+        for line in problem.problems:
+            print(f"  {line}", file=sys.stderr)
+        return 2
+    except (CannotStart, ValueError, InputError) as problem:
+        print(f"cannot start: {problem}", file=sys.stderr)
+        return 2
+    try:
+        return run(prepared, started)
+    except GaveUp as reason:
+        remove_partial_files(prepared.output, prepared.source.name, include_own=True)
+        print(
+            f"stopped: {reason}; finished units are kept: mend the cause and rerun the same command "
+            "to resume",
+            file=sys.stderr,
+        )
+        return STOPPED
+    except KeyboardInterrupt:
+        return stopped(prepared)
+    except BrokenPipeError:
+        READER_GONE.set()
+        return stopped(prepared)
+
+
+def run(prepared: PreparedRun, started: float) -> int:
+    """``main`` after the checks, without the Ctrl-C handling."""
+    source, output = prepared.source, prepared.output
+    for line in prepared.rules.lines():
+        print(line, flush=True)
+    try:
+        input_root = sample_input(prepared)
+        plan = plan_units(prepared, input_root)
+    except NoSample as message:
+        print(message, file=sys.stderr)
+        return 2
+    except CannotStart as problem:
+        print(f"cannot start: {problem}", file=sys.stderr)
+        return 2
+    print(f"{source.name}: {len(plan.units)} unit(s) to annotate from {input_root}", flush=True)
+    for note in plan.notes:
+        print(note, flush=True)
+    if plan.scratch_per_worker:
+        print(scratch_line(plan.scratch_per_worker, prepared.options), flush=True)
+    removed = remove_partial_files(output, source.name)
+    if removed:
+        print(f"removed {removed} partial file(s) an interrupted run left in {output}")
+    job = UnitJob(
+        source,
+        input_root,
+        prepared.config,
+        output,
+        resume=not prepared.overwrite,
+        run_id=uuid.uuid4().hex,
+        expected=plan.expected if prepared.restricted else None,
+    )
+    quiet = _ReportedByUs()
+    logging.getLogger("apache_beam").addFilter(quiet)
+    logging.getLogger("apache_beam.runners.common").addFilter(quiet)
+    try:
+        result = run_pipeline(prepared, job, plan)
+        metrics = beam_counters(result)
+        summary = finish_run(
+            job, plan, provenance(prepared, input_root, plan), prepared.release, prepared.restricted, metrics
+        )
+    except GaveUp:
+        raise
+    except Exception as error:  # noqa: BLE001 - Beam wraps a step's error; say the cause in one line
+        interrupted = interruption(error)
+        if interrupted is not None:
+            raise interrupted from None
+        cause = root_cause(error)
+        if not isinstance(cause, (OSError, OutputError)):
+            raise
+        print(f"cannot finish: {cause}", file=sys.stderr)
+        return 2
+    print_summary(summary, metrics, output, source.name)
+    print(f"finished in {time.monotonic() - started:.1f} s")
+    if summary.clips_written == 0:
+        print(why_nothing(summary, prepared.config))
+    return exit_status(summary)
+
+
+def stop_workers() -> None:
+    """Kill this process's children (the DirectRunner's worker processes): their threads here
+    would otherwise keep the interpreter from exiting after a Ctrl-C or a closed output."""
+    import psutil
+
+    for child in psutil.Process().children(recursive=True):
+        with contextlib.suppress(psutil.Error):
+            child.kill()
