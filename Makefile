@@ -6,7 +6,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 OUT ?= out/demo
 # The real ADT excerpt shipped beside the project (read in place, never copied); exported, so the
-# tests and the benchmarks read the same one (pipeline.adt.source.excerpt_path reads $ADT_EXCERPT).
+# tests and the benchmarks read the same one (pipeline.samples.adt_excerpt.excerpt_path reads $ADT_EXCERPT).
 ADT_EXCERPT ?= ../shared/data/adt_sample/aria_digital_twin_test_data
 export ADT_EXCERPT
 # The samples' splits file (pipeline.release.SAMPLE_RELEASE): the demo is a release run of it, so

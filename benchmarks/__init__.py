@@ -26,6 +26,8 @@ bench runs the sources in ``sources.names()``'s order. An entry defines:
                                     the costs that do not scale with its frames
   floor(spec)                       -> floor_s, floor_cpu_s, floor_frames: in a process of its own,
                                     the bare reading and decoding of the unit's inputs
+  unit_of(fields)                   -> the source's unit from its fields as a spec holds them (a
+                                    JSON list: ``[segment, camera]``)
   micro(frames)                     prints its micro-benchmarks (``--micro``)
   beam_run_args(units)              -> the ``pipeline.run`` arguments that make these units, or
                                     None: not run through Beam (``--beam``)

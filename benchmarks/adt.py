@@ -1,4 +1,4 @@
-"""ADT's benchmark entry. Unit: the real excerpt (``pipeline.adt.source.excerpt_path()``: $ADT_EXCERPT,
+"""ADT's benchmark entry. Unit: the real excerpt (``pipeline.samples.adt_excerpt.excerpt_path()``: $ADT_EXCERPT,
 else ../shared/data/adt_sample), read through projectaria-tools: its one 2-frame chunk run 15 times;
 the 300-frame unit is extrapolated (the opening of the sequence, measured apart, + 300 x per-frame
 cost), at every size. Micro: per-frame cost of reading and re-rendering RGB, depth and ids.
@@ -54,7 +54,7 @@ REPEAT, QUICK_REPEAT = 15, 2
 def prepare(workdir: str, size: str) -> UnitSetup | None:
     """The excerpt's unit (read in place: nothing is written under ``workdir``), or None (skipped)
     without an excerpt."""
-    from pipeline.adt.source import EXCERPT_SETTINGS, SHARED_EXCERPT, excerpt_path
+    from pipeline.samples.adt_excerpt import EXCERPT_SETTINGS, SHARED_EXCERPT, excerpt_path
 
     path = excerpt_path()
     if path is None:
@@ -133,7 +133,7 @@ def _release_size_write(spec: dict, config: RunConfig, runs: int = 3) -> tuple[f
 
     source = sources.get("adt")
     ((sequence, chunk),) = spec["unit"]
-    (made,) = source.annotate_group(spec["input_root"], [(sequence, chunk)], config, [None])
+    (made,) = source.annotate_group(spec["input_root"], [unit_of([sequence, chunk])], config, [None])
     (clip,) = made.clips
     take = np.arange(CHUNK_FRAMES) % clip.num_frames
     release = dataclasses.replace(
@@ -231,11 +231,18 @@ def floor(spec: dict) -> dict:
     }
 
 
+def unit_of(fields: list):
+    """The SequenceChunk of a spec's JSON fields."""
+    from pipeline.adt.units import SequenceChunk
+
+    return SequenceChunk(*fields)
+
+
 def micro(frames: int) -> None:
     """Print per-frame reading/re-rendering costs over ``frames`` frame reads, then the clip cost."""
+    from pipeline.samples.adt_excerpt import EXCERPT_SETTINGS, SHARED_EXCERPT, excerpt_path
     from pipeline.adt.frames import SequenceFrames, open_reader
     from pipeline.adt.rectify import _stored_remap
-    from pipeline.adt.source import EXCERPT_SETTINGS, SHARED_EXCERPT, excerpt_path
     from pipeline.settings.fields import with_overrides
     from pipeline.settings.run_config import RunConfig
 
@@ -338,9 +345,9 @@ def _clip_cost(path: str, sequence, stamps, config) -> None:
     """Print the annotation cost of the excerpt's first chunk, per frame and for a 300-frame chunk."""
     from pipeline.adt.records import Chunk
     from pipeline.adt.tracks import annotate_chunk
-    from pipeline.adt.units import clip_name, unit_name
+    from pipeline.adt.units import SequenceChunk, clip_name
 
-    chunk = Chunk(clip_name(path, 0), unit_name((path, 0)), stamps[: config.adt.chunk_frames])
+    chunk = Chunk(clip_name(path, 0), SequenceChunk(path, 0).name, stamps[: config.adt.chunk_frames])
     seconds, clip = _timed(annotate_chunk, chunk, sequence.frame, sequence.jpeg, sequence.instances, config)
     per_frame = seconds / clip.num_frames
     print(

@@ -309,6 +309,13 @@ def best_of(repeats: int, function, *args):
     return min(times), result
 
 
+def unit_of(fields: list):
+    """The SegmentCamera of a spec's JSON fields."""
+    from pipeline.drivetrack.units import SegmentCamera
+
+    return SegmentCamera(*fields)
+
+
 def micro(frames: int) -> None:
     """Print the occlusion-decision timings, ours and the generator's, over ``frames`` frames."""
     from pipeline.core.visibility import passes_relative_depth_test

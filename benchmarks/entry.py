@@ -11,7 +11,16 @@ import importlib
 import time
 from types import ModuleType
 
-INTERFACE = ("TARGETS", "FIXED_IN_WORK", "prepare", "measure_fixed_cost", "floor", "micro", "beam_run_args")
+INTERFACE = (
+    "TARGETS",
+    "FIXED_IN_WORK",
+    "prepare",
+    "measure_fixed_cost",
+    "floor",
+    "unit_of",
+    "micro",
+    "beam_run_args",
+)
 SIZES = ("quick", "default", "full")
 
 
@@ -20,7 +29,7 @@ class UnitSetup:
     """One source's benchmark unit, as ``prepare`` builds it.
 
     units: the units of the scaling run (the first one is "the" unit); each is a group of the
-      source's units, a JSON list (one ADT chunk: a group of one).
+      source's units, each unit a JSON list of its fields (one ADT chunk: ``[[sequence, 0]]``).
     frames: frames of one unit's input as measured (for the per-frame figure).
     extrapolate_frames: when set, the release's unit of that many frames is extrapolated from the
       measured one: fixed cost (ADT: opening the sequence, measured apart; else 0) + per-frame

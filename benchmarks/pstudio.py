@@ -277,6 +277,13 @@ def _best(function, *args):
     return best, result
 
 
+def unit_of(fields: list):
+    """The SequenceCamera of a spec's JSON fields."""
+    from pipeline.pstudio.units import SequenceCamera
+
+    return SequenceCamera(*fields)
+
+
 def micro(frames: int) -> None:
     """Print render and annotation timings on the synthetic scene (``frames`` frames timed), on
     one numba thread."""

@@ -41,11 +41,11 @@ def unit_counts(reports: list) -> dict:
     }
 
 
-def unit_group(group: list) -> list:
+def unit_group(group: list, entry) -> list:
     """The spec's unit, a group of the source's units in JSON ([[segment, 1], [segment, 2], ...]:
     DriveTrack's cameras of one segment; [[sequence, chunk]]: one ADT chunk), as ``run_group`` runs
-    them: each unit a tuple again, or as it is when it was no list (a name)."""
-    return [tuple(unit) if isinstance(unit, list) else unit for unit in group]
+    them: each the source's unit again (the entry's ``unit_of``)."""
+    return [entry.unit_of(fields) for fields in group]
 
 
 def timed_into(totals: list[float], step):
@@ -114,7 +114,7 @@ def unit_work(spec: dict, entry) -> dict:
 
     config = with_overrides(RunConfig(), spec["overrides"])
     source = sources.get(spec["source"])
-    group = unit_group(spec["unit"])
+    group = unit_group(spec["unit"], entry)
     fixed = entry.measure_fixed_cost(spec, config)
     annotating = [0.0, 0.0]  # wall, CPU seconds of the source's annotate
     fixed_in_work = [0.0, 0.0]  # wall, CPU seconds of the FIXED_IN_WORK functions inside the runs

@@ -15,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 import importlib
 from collections.abc import Callable, Iterable, Iterator, Mapping
+from typing import Any, Generic, Protocol, TypeVar
 
 from pipeline.core.clip import ClipRecord
 from pipeline.core.outcomes import UnitClips
@@ -33,11 +34,25 @@ class NoSample(Exception):
     """A source without an embedded sample world; the message says how to get real input."""
 
 
+class Unit(Protocol):
+    """A unit of work: a small frozen record of the source's (``SegmentCamera``, ``SequenceChunk``,
+    ``SequenceCamera``), picklable for the workers, ordered (a plan's units are sorted), and named
+    uniquely and readably (``segment/camera_1``) for progress and checkpoints."""
+
+    @property
+    def name(self) -> str: ...
+
+    def __lt__(self, other: Any, /) -> bool: ...
+
+
+U = TypeVar("U", bound=Unit)
+
+
 @dataclasses.dataclass(frozen=True)
-class UnitPlan:
+class UnitPlan(Generic[U]):
     """The units of a run, listed from its input (on a release run, only those its clips need).
 
-    units: the units of work (small picklable values), sorted.
+    units: the units of work, sorted.
     expected: on a release run, unit name -> the release's clips that unit is to make.
     absent: on a release run, release clip -> why no unit of the input makes it (the segment,
       sequence or camera is not in ``--input``; a run on the sample world says ``the sample world``
@@ -49,7 +64,7 @@ class UnitPlan:
       with the number of workers at start.
     """
 
-    units: list
+    units: list[U]
     expected: Mapping[str, tuple[str, ...]] = dataclasses.field(default_factory=dict)
     absent: Mapping[str, str] = dataclasses.field(default_factory=dict)
     not_made: Mapping[str, str] = dataclasses.field(default_factory=dict)
@@ -62,13 +77,12 @@ Wanted = frozenset[str] | None
 
 
 @dataclasses.dataclass(frozen=True)
-class Source:
-    """One dataset, as the pipeline sees it.
+class Source(Generic[U]):
+    """One dataset, as the pipeline sees it, its units of type U.
 
     name: the ``--source`` value and the folder of its clips (``<out>/<name>/<clip>.npz``).
     list_units: (input root, config, release clip names or None) -> its UnitPlan; InputError when
       the input cannot be listed.
-    unit_name: unit -> a readable, unique name (``segment/camera_1``) for progress and records.
     annotate_group: (input root, units of one group, config, per unit its Wanted) -> per unit, in
       order, its ``UnitClips`` or the exception that failed it (one unit's bad input fails that unit
       only, unless the input is shared); a list, or a generator that hands each unit on as soon as
@@ -87,13 +101,12 @@ class Source:
     """
 
     name: str
-    list_units: Callable[[str, RunConfig, frozenset[str] | None], UnitPlan]
-    unit_name: Callable[[object], str]
-    annotate_group: Callable[[str, list, RunConfig, list[Wanted]], Iterable[UnitClips | Exception]]
+    list_units: Callable[[str, RunConfig, frozenset[str] | None], UnitPlan[U]]
+    annotate_group: Callable[[str, list[U], RunConfig, list[Wanted]], Iterable[UnitClips | Exception]]
     sample_input: Callable[[str], str]
     mask_min_agreement: Callable[[RunConfig], float]
     sweepable: tuple[str, ...] = ()
-    group_of: Callable[[object], object] | None = None
+    group_of: Callable[[U], str] | None = None
     settings: type | None = None
     bench: str = ""
 
@@ -101,35 +114,36 @@ class Source:
     def bench_module(self) -> str:
         return self.bench or f"benchmarks.{self.name}"
 
-    def group_key(self, unit) -> str:
+    def group_key(self, unit: U) -> str:
         """The key ``pipeline.runner.graph`` groups ``unit`` under: its group's, else its own name."""
-        return str(self.group_of(unit)) if self.group_of else self.unit_name(unit)
+        return self.group_of(unit) if self.group_of else unit.name
 
 
 def one_by_one(
-    annotate: Callable[[str, object, RunConfig], list[ClipRecord]],
-) -> Callable[[str, list, RunConfig, list[Wanted]], Iterator[UnitClips | Exception]]:
+    annotate: Callable[[str, U, RunConfig], list[ClipRecord]],
+) -> Callable[[str, list[U], RunConfig, list[Wanted]], Iterator[UnitClips | Exception]]:
     """The ``annotate_group`` of a source that annotates each unit alone with ``annotate(input root,
     unit, config) -> its candidate clips``: per unit its clips, or the exception that failed it."""
 
-    def annotate_each(input_root: str, units: list, config: RunConfig, wanted: list[Wanted]):
+    def annotate_each(
+        input_root: str, units: list[U], config: RunConfig, wanted: list[Wanted]
+    ) -> Iterator[UnitClips | Exception]:
         for unit in units:
             try:
-                result = UnitClips(tuple(annotate(input_root, unit, config)))
+                yield UnitClips(tuple(annotate(input_root, unit, config)))
             except Exception as error:  # noqa: BLE001 - every failure becomes data
-                result = error
-            yield result
+                yield error
 
     return annotate_each
 
 
-def register(source: Source) -> Source:
+def register(source: Source[Any]) -> Source[Any]:
     """Add (or replace) a source at run time, e.g. a plug-in or a test's toy source."""
     sections.register(source)
     return source
 
 
-def get(name: str) -> Source:
+def get(name: str) -> Source[Any]:
     """The source called ``name``; KeyError listing the known names otherwise."""
     source = sections.registered(name)
     if source is not None:

@@ -18,13 +18,13 @@ from pipeline.adt.records import Chunk
 from pipeline.adt.tracks import annotate_chunk
 from pipeline.adt.units import (
     ALL_CHUNKS,
+    SequenceChunk,
     chunk_beyond,
     chunk_count,
     clip_name,
     is_fetched,
     scratch_folder,
     sequence_name,
-    unit_name,
 )
 from pipeline.core.clip import ClipRecord
 from pipeline.core.errors import InputError
@@ -61,7 +61,7 @@ def in_queries_from(sequence: str, chunk: int, config: RunConfig) -> bool:
 def annotate_opened(opened: OpenedSequence, chunk: int, config: RunConfig) -> list[ClipRecord]:
     """One chunk of an opened sequence -> its clip; InputError messages start with the unit's name."""
     sequence = opened.path
-    name = unit_name((sequence, chunk))
+    name = SequenceChunk(sequence, chunk).name
     size = config.adt.chunk_frames
     stamps = opened.stamps[chunk * size : (chunk + 1) * size]
     if len(stamps) < config.adt.min_frames:
@@ -86,12 +86,13 @@ def chunk_clips(opened: OpenedSequence, chunk: int, config: RunConfig) -> UnitCl
     return UnitClips(tuple(annotate_opened(opened, chunk, config)))
 
 
-def annotate_local(units: list[tuple[str, int]], config: RunConfig) -> Iterator[UnitClips | Exception]:
+def annotate_local(units: list[SequenceChunk], config: RunConfig) -> Iterator[UnitClips | Exception]:
     """Chunks of one local sequence: the sequence opened once (on the first chunk that makes a
     clip) and closed after the last (or when the caller stops early)."""
     opened: OpenedSequence | Exception | None = None
     try:
-        for sequence, chunk in units:
+        for unit in units:
+            sequence, chunk = unit.sequence, unit.chunk
             if chunk != ALL_CHUNKS and not in_queries_from(sequence, chunk, config):
                 yield UnitClips(())
                 continue
@@ -101,12 +102,7 @@ def annotate_local(units: list[tuple[str, int]], config: RunConfig) -> Iterator[
                 except Exception as error:  # noqa: BLE001 - becomes each unit's failure
                     opened = error
             if isinstance(opened, Exception):
-                failed = opened
-                yield (
-                    _named(failed, sequence, unit_name((sequence, chunk)))
-                    if isinstance(failed, InputError)
-                    else failed
-                )
+                yield _unit_error(opened, sequence, unit.name)
                 continue
             try:
                 result = chunk_clips(opened, chunk, config)
@@ -119,12 +115,12 @@ def annotate_local(units: list[tuple[str, int]], config: RunConfig) -> Iterator[
 
 
 def annotate_fetched(
-    input_root: str, units: list[tuple[str, int]], config: RunConfig
+    input_root: str, units: list[SequenceChunk], config: RunConfig
 ) -> Iterator[UnitClips | Exception]:
     """Chunks of one sequence of the download-URLs JSON ``input_root``: the files the annotation
     reads fetched into the scratch folder, the chunks annotated, the folder deleted (also when the
     caller stops early or a download fails, which fails every unit of the sequence)."""
-    name = sequence_name(units[0][0])
+    name = sequence_name(units[0].sequence)
     with contextlib.ExitStack() as stack:
         try:
             download = plan_download(
@@ -133,20 +129,20 @@ def annotate_fetched(
             folder = stack.enter_context(fetch_sequence(download, scratch_folder(config), config.http))
         except Exception as error:  # noqa: BLE001 - the sequence's failure, each unit's
             for unit in units:
-                yield _unit_error(error, name, unit_name(unit))
+                yield _unit_error(error, name, unit.name)
             return
-        yield from annotate_local([(folder, chunk) for _, chunk in units], config)
+        yield from annotate_local([SequenceChunk(folder, unit.chunk) for unit in units], config)
 
 
-def annotate_chunks(
-    input_root: str, units: list[tuple[str, int]], config: RunConfig, wanted: list[Wanted] | None = None
+def annotate_group(
+    input_root: str, units: list[SequenceChunk], config: RunConfig, wanted: list[Wanted] | None = None
 ) -> Iterator[UnitClips | Exception]:
     """Chunks of one sequence annotated together (``Source.annotate_group``); per unit, as soon as
     it is made, its clip or the exception that failed it."""
-    sequences = {sequence for sequence, _ in units}
+    sequences = {unit.sequence for unit in units}
     if len(sequences) != 1:
-        raise ValueError(f"annotate_chunks takes the chunks of one sequence, got {sorted(sequences)}")
-    if is_fetched(units[0][0]):
+        raise ValueError(f"annotate_group takes the chunks of one sequence, got {sorted(sequences)}")
+    if is_fetched(units[0].sequence):
         yield from annotate_fetched(input_root, units, config)
     else:
         yield from annotate_local(units, config)

@@ -1,5 +1,5 @@
-"""ADT's units: (sequence, 300-frame chunk), their names, groups and clip names, listed from local
-sequence folders or from the download-URLs JSON (sequences fetched when their group runs).
+"""ADT's units: one 300-frame chunk of one sequence (``SequenceChunk``) and its clip name, listed
+from local sequence folders or from the download-URLs JSON (sequences fetched when their group runs).
 
 A local sequence is its folder's path; a sequence of the URLs JSON is written ``url:<name>`` in its
 units (``FETCHED``) and its group is the whole sequence, fetched once. Its frames are counted only
@@ -9,6 +9,7 @@ once it is fetched, so without ``--release`` it is one unit making every chunk's
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import re
 import tempfile
@@ -44,16 +45,25 @@ def sequence_name(sequence: str) -> str:
     return sequence[len(FETCHED) :] if is_fetched(sequence) else os.path.basename(os.path.normpath(sequence))
 
 
-def unit_name(unit: tuple[str, int]) -> str:
-    sequence, chunk = unit
-    return f"{sequence_name(sequence)}/" + ("all_chunks" if chunk == ALL_CHUNKS else f"chunk_{chunk}")
+@dataclasses.dataclass(frozen=True, order=True)
+class SequenceChunk:
+    """An ADT unit: chunk ``chunk`` of a sequence (a folder's path, or ``url:<name>`` for one of
+    the download-URLs JSON); ``ALL_CHUNKS``: every chunk of it. The chunks of a sequence are
+    annotated in groups of ``CHUNKS_PER_GROUP`` (``group``; a fetched sequence is one group)."""
 
+    sequence: str
+    chunk: int
 
-def group_of(unit: tuple[str, int]) -> str:
-    """The group of a (sequence, chunk) unit: a fetched sequence whole, else its sequence and
-    chunk // CHUNKS_PER_GROUP."""
-    sequence, chunk = unit
-    return sequence if is_fetched(sequence) else f"{sequence}/chunks_{chunk // CHUNKS_PER_GROUP}"
+    @property
+    def name(self) -> str:
+        part = "all_chunks" if self.chunk == ALL_CHUNKS else f"chunk_{self.chunk}"
+        return f"{sequence_name(self.sequence)}/{part}"
+
+    @property
+    def group(self) -> str:
+        if is_fetched(self.sequence):
+            return self.sequence
+        return f"{self.sequence}/chunks_{self.chunk // CHUNKS_PER_GROUP}"
 
 
 def clip_name(sequence: str, chunk: int) -> str:
@@ -98,7 +108,9 @@ def scratch_folder(config: RunConfig) -> str:
     return config.adt.scratch_dir or os.path.join(tempfile.gettempdir(), "tapvid3d-adt-scratch")
 
 
-def list_units(input_root: str, config: RunConfig, release: frozenset[str] | None = None) -> UnitPlan:
+def list_units(
+    input_root: str, config: RunConfig, release: frozenset[str] | None = None
+) -> UnitPlan[SequenceChunk]:
     """The chunks of every sequence of ``input_root`` (a sequence folder, a folder of them, or the
     download-URLs JSON); on a release run, only the chunks the release names."""
     if config.adt.chunk_frames < 1 or config.adt.min_frames < 1:
@@ -123,11 +135,15 @@ def list_units(input_root: str, config: RunConfig, release: frozenset[str] | Non
     )
 
 
-def list_local(input_root: str, config: RunConfig, named: dict[str, set[int]] | None) -> UnitPlan:
+def list_local(
+    input_root: str, config: RunConfig, named: dict[str, set[int]] | None
+) -> UnitPlan[SequenceChunk]:
     """The chunks of local sequence folders (each opened to count its frames). A sequence that
     cannot be read yields one unit (chunk 0; on a release run, each chunk named), which fails at
     annotate with the reason, so the other sequences still run and the failure is recorded."""
-    units, not_made, found = [], {}, set()
+    units: list[SequenceChunk] = []
+    not_made: dict[str, str] = {}
+    found: set[str] = set()
     for sequence in list_sequences(input_root):
         v1 = v1_name(sequence)
         found.add(v1)
@@ -136,7 +152,7 @@ def list_local(input_root: str, config: RunConfig, named: dict[str, set[int]] | 
         try:
             frames = len(open_reader(sequence, config).frame_timestamps())
         except InputError:
-            units += [(sequence, k) for k in sorted(named[v1] if named is not None else {0})]
+            units += [SequenceChunk(sequence, k) for k in sorted(named[v1] if named is not None else {0})]
             continue
         chunks = chunk_count(frames, config)
         if named is None:
@@ -145,11 +161,11 @@ def list_local(input_root: str, config: RunConfig, named: dict[str, set[int]] | 
                     f"{os.path.basename(sequence)}: {frames} frame(s) in the ground-truth window, fewer "
                     f"than adt.min_frames={config.adt.min_frames}; skipped"
                 )
-            units += [(sequence, k) for k in range(chunks)]
+            units += [SequenceChunk(sequence, k) for k in range(chunks)]
             continue
         for k in sorted(named[v1]):
             if k < chunks:
-                units.append((sequence, k))
+                units.append(SequenceChunk(sequence, k))
             else:
                 not_made[f"{v1}_{k}"] = chunk_beyond(k, frames, config)
     if named is None:
@@ -160,7 +176,7 @@ def list_local(input_root: str, config: RunConfig, named: dict[str, set[int]] | 
         if v1 not in found
         for k in chunks
     }
-    expected = {unit_name(unit): (clip_name(*unit),) for unit in units}
+    expected = {unit.name: (clip_name(unit.sequence, unit.chunk),) for unit in units}
     return UnitPlan(sorted(units), expected=expected, absent=absent, not_made=not_made)
 
 
@@ -172,12 +188,17 @@ def release_name_of(name: str, named: dict[str, set[int]]) -> str | None:
     return next((candidate for candidate in candidates if candidate in named), None)
 
 
-def list_fetched(url_path: str, config: RunConfig, named: dict[str, set[int]] | None) -> UnitPlan:
+def list_fetched(
+    url_path: str, config: RunConfig, named: dict[str, set[int]] | None
+) -> UnitPlan[SequenceChunk]:
     """The units of the sequences of a download-URLs JSON (on a release run, those it names),
     and what fetching them takes: their download size and a worker's peak scratch space."""
     url_file = read_url_file(url_path)
     needed = required_files(config.adt.with_skeleton)
-    units, expected, matched, downloads = [], {}, set(), []
+    units: list[SequenceChunk] = []
+    expected: dict[str, tuple[str, ...]] = {}
+    matched: set[str] = set()
+    downloads = []
     for name in url_file.sequences:
         v1 = release_name_of(name, named) if named is not None else name
         if v1 is None:
@@ -189,9 +210,9 @@ def list_fetched(url_path: str, config: RunConfig, named: dict[str, set[int]] | 
             pass  # its units fail at annotate, with the reason
         chunks = sorted(named[v1]) if named is not None else [ALL_CHUNKS]
         for k in chunks:
-            units.append((FETCHED + name, k))
+            units.append(SequenceChunk(FETCHED + name, k))
             if named is not None:
-                expected[unit_name(units[-1])] = (f"{v1}_{k}",)
+                expected[units[-1].name] = (f"{v1}_{k}",)
     absent = {}
     if named is not None:
         absent = {
@@ -204,7 +225,8 @@ def list_fetched(url_path: str, config: RunConfig, named: dict[str, set[int]] | 
     total = sum(d.download_bytes for d in downloads)
     scratch = scratch_folder(config)
     notes = [
-        f"adt: {len({u[0] for u in units})} sequence(s) to fetch from {url_path} ({format_bytes(total)}), "
+        f"adt: {len({u.sequence for u in units})} sequence(s) to fetch from {url_path} "
+        f"({format_bytes(total)}), "
         f"each into {scratch} and deleted after its chunks"
     ]
     reclaimed = reclaim_scratch(scratch) if os.path.isdir(scratch) else 0

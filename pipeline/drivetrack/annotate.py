@@ -34,6 +34,7 @@ from pipeline.drivetrack.objects import ObjectRun, select_objects
 from pipeline.drivetrack.reader import SegmentReader
 from pipeline.drivetrack.records import UnitInput, clip_name
 from pipeline.drivetrack.tracks import choose_points, clip_queries, point_keys, point_pool, query_draws
+from pipeline.drivetrack.units import SegmentCamera
 from pipeline.drivetrack.visibility import track_visibility
 from pipeline.export.depth_export import sparse_record
 from pipeline.filters.mask import agreement, on_mask
@@ -282,15 +283,15 @@ def load_units(input_root: str, segment: str, cameras: list[int]) -> list[UnitIn
     return loaded
 
 
-def annotate_segment(
-    input_root: str, units: list[tuple[str, int]], config: RunConfig, wanted: list[Wanted] | None = None
+def annotate_group(
+    input_root: str, units: list[SegmentCamera], config: RunConfig, wanted: list[Wanted] | None = None
 ) -> list[UnitClips | Exception]:
     """The units of one segment annotated together (its lidar decoded once): per unit, its clips
     or the exception that failed it; ``wanted``: per unit, the clips to make (None: every one)."""
-    segments = {segment for segment, _ in units}
+    segments = {unit.segment for unit in units}
     if len(segments) != 1:
-        raise ValueError(f"annotate_segment takes the units of one segment, got {sorted(segments)}")
-    loaded = load_units(input_root, units[0][0], [camera for _, camera in units])
+        raise ValueError(f"annotate_group takes the units of one segment, got {sorted(segments)}")
+    loaded = load_units(input_root, units[0].segment, [unit.camera for unit in units])
     wanted = wanted or [None] * len(units)
     readable = [item for item in loaded if not isinstance(item, Exception)]
     readable_wanted = [w for item, w in zip(loaded, wanted, strict=True) if not isinstance(item, Exception)]

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import operator
 
-from pipeline.drivetrack.annotate import annotate_segment
+from pipeline.drivetrack.annotate import annotate_group
 from pipeline.drivetrack.settings import DriveTrackConfig
-from pipeline.drivetrack.units import list_units, unit_name
+from pipeline.drivetrack.units import SegmentCamera, list_units
 from pipeline.sources import Source
 
 
@@ -18,14 +18,13 @@ def sample_input(folder: str) -> str:
     return write_sample_split(folder)
 
 
-SOURCE = Source(
+SOURCE: Source[SegmentCamera] = Source(
     name="drivetrack",
     list_units=list_units,
-    unit_name=unit_name,
-    annotate_group=annotate_segment,
+    annotate_group=annotate_group,
     sample_input=sample_input,
     mask_min_agreement=operator.attrgetter("drivetrack.mask_min_agreement"),
     sweepable=("drivetrack.mask_min_agreement",),
     settings=DriveTrackConfig,
-    group_of=operator.itemgetter(0),
+    group_of=operator.attrgetter("group"),
 )

@@ -1,8 +1,10 @@
-"""DriveTrack's units: (segment, camera), listed from a Waymo Open v2 split folder (on a release run,
-the pairs the release names a clip of, each to make only those clips), and their names."""
+"""DriveTrack's units: one camera of one segment (``SegmentCamera``), listed from a Waymo Open v2
+split folder (on a release run, the pairs the release names a clip of, each to make only those
+clips)."""
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from typing import TYPE_CHECKING
 
@@ -18,19 +20,42 @@ if TYPE_CHECKING:
 RELEASE_NAME = re.compile(r"tapvid3d_([^_]+_\d+_\d+_\d+_\d+)_(\d+)_(.+)")
 
 
-def list_units(input_root: str, config: RunConfig, release: frozenset[str] | None = None) -> UnitPlan:
+@dataclasses.dataclass(frozen=True, order=True)
+class SegmentCamera:
+    """A DriveTrack unit: the clips of one camera of one segment. The cameras of a segment share its
+    lidar, so they are annotated together (``group``)."""
+
+    segment: str
+    camera: int
+
+    @property
+    def name(self) -> str:
+        return f"{self.segment}/camera_{self.camera}"
+
+    @property
+    def group(self) -> str:
+        return self.segment
+
+
+def list_units(
+    input_root: str, config: RunConfig, release: frozenset[str] | None = None
+) -> UnitPlan[SegmentCamera]:
     """Every (segment, camera) pair of the split folder, sorted; on a release run, the pairs the
     release names a clip of, each to make only those clips."""
     segments = list_segments(input_root)
-    units = [(s, c) for s in segments for c in config.drivetrack.cameras]
+    units = [SegmentCamera(s, c) for s in segments for c in config.drivetrack.cameras]
     if release is None:
         return UnitPlan(units)
     expected = {
-        unit_name(unit): names
+        unit.name: names
         for unit in units
-        if (names := tuple(sorted(n for n in release if n.startswith(clip_name(*unit, "")))))
+        if (
+            names := tuple(
+                sorted(n for n in release if n.startswith(clip_name(unit.segment, unit.camera, "")))
+            )
+        )
     }
-    kept = [unit for unit in units if unit_name(unit) in expected]
+    kept = [unit for unit in units if unit.name in expected]
     made = {name for names in expected.values() for name in names}
     absent, not_made = {}, {}
     cameras = ",".join(str(c) for c in config.drivetrack.cameras)
@@ -43,7 +68,3 @@ def list_units(input_root: str, config: RunConfig, release: frozenset[str] | Non
         else:
             not_made[name] = f"camera {parsed[2]} is not in drivetrack.cameras={cameras}"
     return UnitPlan(kept, expected=expected, absent=absent, not_made=not_made)
-
-
-def unit_name(unit: tuple[str, int]) -> str:
-    return f"{unit[0]}/camera_{unit[1]}"

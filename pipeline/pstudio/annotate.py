@@ -14,6 +14,7 @@ from pipeline.core.outcomes import UnitClips
 from pipeline.pstudio.reader import SequenceFiles, params_path, read_gaussians, read_views
 from pipeline.pstudio.records import Gaussians, UnitInput, Views
 from pipeline.pstudio.tracks import annotate_unit
+from pipeline.pstudio.units import SequenceCamera
 from pipeline.sources import Wanted
 
 if TYPE_CHECKING:
@@ -53,21 +54,22 @@ def camera_input(opened: LoadedSequence, camera: int) -> UnitInput:
     return UnitInput(opened.name, camera, views, opened.gaussians, frames, opened.files.mask)
 
 
-def annotate_sequence(
-    input_root: str, units: list[tuple[str, int]], config: RunConfig, wanted: list[Wanted] | None = None
+def annotate_group(
+    input_root: str, units: list[SequenceCamera], config: RunConfig, wanted: list[Wanted] | None = None
 ) -> Iterator[UnitClips | Exception]:
-    """The cameras of one sequence annotated together: its Gaussians read once, each mask decoded
-    once (the multi-view mask statistic reads every camera's); per unit, as soon as it is made, its
-    clip or the exception that failed it (a bad train_meta.json or params.npz fails them all)."""
-    sequences = {sequence for sequence, _ in units}
+    """The cameras of one sequence annotated together (``Source.annotate_group``): its Gaussians
+    read once, each mask decoded once (the multi-view mask statistic reads every camera's); per
+    unit, as soon as it is made, its clip or the exception that failed it (a bad train_meta.json or
+    params.npz fails them all)."""
+    sequences = {unit.sequence for unit in units}
     if len(sequences) != 1:
-        raise ValueError(f"annotate_sequence takes the units of one sequence, got {sorted(sequences)}")
+        raise ValueError(f"annotate_group takes the units of one sequence, got {sorted(sequences)}")
     try:
-        opened = load_sequence(input_root, units[0][0], config)
+        opened = load_sequence(input_root, units[0].sequence, config)
     except Exception as error:  # noqa: BLE001 - becomes each unit's failure
         yield from [error] * len(units)
         return
-    for _, camera in units:
+    for camera in (unit.camera for unit in units):
         try:
             result = UnitClips(tuple(annotate_unit(camera_input(opened, camera), config)))
         except Exception as error:  # noqa: BLE001 - this camera's failure only

@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import operator
 
-from pipeline.pstudio.annotate import annotate_sequence
+from pipeline.pstudio.annotate import annotate_group
 from pipeline.pstudio.settings import PstudioConfig
-from pipeline.pstudio.units import group_of, list_units, unit_name
+from pipeline.pstudio.units import SequenceCamera, list_units
 from pipeline.sources import Source
 
 
@@ -19,14 +19,13 @@ def sample_input(folder: str) -> str:
     return write_sample(folder)
 
 
-SOURCE = Source(
+SOURCE: Source[SequenceCamera] = Source(
     name="pstudio",
     list_units=list_units,
-    unit_name=unit_name,
-    annotate_group=annotate_sequence,
+    annotate_group=annotate_group,
     sample_input=sample_input,
     mask_min_agreement=operator.attrgetter("pstudio.mask_min_agreement"),
     sweepable=("pstudio.mask_min_agreement",),
     settings=PstudioConfig,
-    group_of=group_of,
+    group_of=operator.attrgetter("group"),
 )

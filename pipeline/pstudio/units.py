@@ -1,8 +1,9 @@
-"""Panoptic Studio's units: (sequence, camera), their names and groups, listed from Dynamic 3D
+"""Panoptic Studio's units: one camera of one sequence (``SequenceCamera``), listed from Dynamic 3D
 Gaussians' ``train_meta.json`` files (on a release run, only the pairs the release names)."""
 
 from __future__ import annotations
 
+import dataclasses
 from typing import TYPE_CHECKING
 
 from pipeline.core.errors import InputError
@@ -26,17 +27,42 @@ CAMERAS_PER_GROUP = 3
 HELD_OUT_CAMERAS = (0, 10, 15, 30)
 
 
-def list_units(input_root: str, config: RunConfig, release: frozenset[str] | None = None) -> UnitPlan:
+@dataclasses.dataclass(frozen=True, order=True)
+class SequenceCamera:
+    """A Panoptic Studio unit: one camera of one sequence, one clip (``ALL_CAMERAS``: a sequence whose
+    train_meta.json cannot be read, a unit that fails with the reason). A sequence's cameras are
+    annotated in groups of ``CAMERAS_PER_GROUP`` (``group``)."""
+
+    sequence: str
+    camera: int
+
+    @property
+    def name(self) -> str:
+        return (
+            f"{self.sequence}/all_cameras"
+            if self.camera == ALL_CAMERAS
+            else f"{self.sequence}/camera_{self.camera}"
+        )
+
+    @property
+    def group(self) -> str:
+        return f"{self.sequence}/cameras_{self.camera // CAMERAS_PER_GROUP}"
+
+
+def list_units(
+    input_root: str, config: RunConfig, release: frozenset[str] | None = None
+) -> UnitPlan[SequenceCamera]:
     """Every (sequence, camera) pair: the cameras of train_meta.json, or ``pstudio.cameras``; on a
     release run, only the pairs the release names (``<sequence>_<camera>``)."""
-    units, listed = [], {}
+    units: list[SequenceCamera] = []
+    listed: dict[str, list[int] | None] = {}
     for sequence in list_sequences(input_root):
         try:
             listed[sequence] = [int(c) for c in read_views(input_root, sequence)[0].camera_ids]
         except InputError:
             listed[sequence] = None
         cameras = config.pstudio.cameras or listed[sequence] or [ALL_CAMERAS]
-        units += [(sequence, camera) for camera in sorted(cameras)]
+        units += [SequenceCamera(sequence, camera) for camera in sorted(cameras)]
     if release is None:
         return UnitPlan(units)
     return release_plan(units, listed, release, config)
@@ -49,37 +75,42 @@ def _pair(name: str) -> tuple[str, int] | None:
 
 
 def release_plan(
-    units: list[tuple[str, int]], listed: dict[str, list[int] | None], release: frozenset[str], config
-) -> UnitPlan:
+    units: list[SequenceCamera],
+    listed: dict[str, list[int] | None],
+    release: frozenset[str],
+    config: RunConfig,
+) -> UnitPlan[SequenceCamera]:
     """The units of ``units`` whose clip the release names, and why the other names make no clip.
 
     listed: sequence of --input -> its train_meta.json cameras (None when it cannot be read: then
     each named camera is a unit, which fails with the reason).
     """
-    kept, absent, not_made = [], {}, {}
+    kept: list[SequenceCamera] = []
+    absent, not_made = {}, {}
     for name in sorted(release):
         pair = _pair(name)
         if pair is None:
             absent[name] = "not a Panoptic Studio clip name (<sequence>_<camera id>)"
             continue
         sequence, camera = pair
+        cameras_of = listed.get(sequence, [])
         if sequence not in listed:
             absent[name] = f"sequence {sequence} is not in --input"
-        elif listed[sequence] is None:
-            kept.append((sequence, camera))
-        elif camera not in listed[sequence]:
+        elif cameras_of is None:
+            kept.append(SequenceCamera(sequence, camera))
+        elif camera not in cameras_of:
             held_out = " (a held-out test camera: no training masks)" if camera in HELD_OUT_CAMERAS else ""
             absent[name] = (
                 f"camera {camera} is not among {sequence}'s train_meta.json cameras "
-                f"({_ranges(listed[sequence])}){held_out}"
+                f"({_ranges(cameras_of)}){held_out}"
             )
-        elif (sequence, camera) not in units:
+        elif SequenceCamera(sequence, camera) not in units:
             cameras = ",".join(str(c) for c in config.pstudio.cameras)
             not_made[name] = f"camera {camera} is not in pstudio.cameras={cameras}"
         else:
-            kept.append((sequence, camera))
+            kept.append(SequenceCamera(sequence, camera))
     kept.sort()
-    expected = {unit_name(unit): (clip_name(*unit),) for unit in kept}
+    expected = {unit.name: (clip_name(unit.sequence, unit.camera),) for unit in kept}
     return UnitPlan(kept, expected=expected, absent=absent, not_made=not_made)
 
 
@@ -95,13 +126,3 @@ def _ranges(values: list[int]) -> str:
         if value is not None:
             start = previous = value
     return ", ".join(parts)
-
-
-def group_of(unit: tuple[str, int]) -> str:
-    """The group of a (sequence, camera) unit: its sequence and camera id // CAMERAS_PER_GROUP."""
-    sequence, camera = unit
-    return f"{sequence}/cameras_{camera // CAMERAS_PER_GROUP}"
-
-
-def unit_name(unit: tuple[str, int]) -> str:
-    return f"{unit[0]}/all_cameras" if unit[1] == ALL_CAMERAS else f"{unit[0]}/camera_{unit[1]}"

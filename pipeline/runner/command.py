@@ -143,7 +143,7 @@ class GaveUp(Exception):
 def run_pipeline(prepared: PreparedRun, job: UnitJob, plan: UnitPlan):
     """Run the Beam graph over the plan's units, reporting each unit as it finishes (worker processes
     silent unless ``--verbose``); the result. GaveUp when the monitor gave up on the run."""
-    names = [prepared.source.unit_name(unit) for unit in plan.units]
+    names = [unit.name for unit in plan.units]
     limit, started = prepared.config.max_failures_in_a_row, time.monotonic()
     monitor = None
     try:

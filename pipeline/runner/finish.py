@@ -137,7 +137,7 @@ def finish_run(
     metrics: the run's Beam counters, or why there are none.
     """
     source, output = job.source.name, job.output
-    outcomes = unit_outcomes(job, [job.source.unit_name(unit) for unit in plan.units])
+    outcomes = unit_outcomes(job, [unit.name for unit in plan.units])
     failures = all_failures(outcomes)
     write_atomic(
         failures_path(output, source),

@@ -19,6 +19,8 @@ units_failed, clips_annotated, clips_written, tracks_written, tracks_dropped_<fi
 
 from __future__ import annotations
 
+import operator
+
 import apache_beam as beam
 from apache_beam.metrics import Metrics
 from apache_beam.options.pipeline_options import PipelineOptions
@@ -64,7 +66,7 @@ class Annotate(_JobStep):
 
     def process(self, group):
         _, units = group
-        for item in unit.annotate_units(self.job, sorted(units, key=self.job.source.unit_name)):
+        for item in unit.annotate_units(self.job, sorted(units, key=operator.attrgetter("name"))):
             counter("units_read").inc()
             if isinstance(item, unit.Annotated):
                 counter("clips_annotated").inc(len(item.made.clips))

@@ -328,7 +328,7 @@ def provenance(prepared: PreparedRun, input_root: str, plan: UnitPlan) -> Proven
         config=scrubbed(prepared.config.to_dict()),
         rules=prepared.rules.to_json(),
         release=prepared.release.path if prepared.restricted else None,
-        units=tuple(prepared.source.unit_name(unit) for unit in plan.units),
+        units=tuple(unit.name for unit in plan.units),
         beam_options=tuple(prepared.beam_args),
         environment={
             "python": platform.python_version(),

@@ -121,7 +121,7 @@ def annotate_group(job: UnitJob, units: list) -> Iterator[UnitClips | Exception]
     while its group's next is annotated)."""
     if not units:
         return  # every unit of the group finished earlier
-    wanted = [job.wanted(job.source.unit_name(unit)) for unit in units]
+    wanted = [job.wanted(unit.name) for unit in units]
     made = job.source.annotate_group(job.input_root, units, job.config, wanted)
     for result, keep in zip(made, wanted, strict=True):
         if isinstance(result, UnitClips) and keep is not None:
@@ -255,7 +255,7 @@ def annotate_units(job: UnitJob, units: list) -> Iterator[UnitOutcome | Annotate
     clips (``Annotated``) or, for a unit that failed, its checkpointed UnitOutcome."""
     todo = []
     for item in units:
-        name = job.source.unit_name(item)
+        name = item.name
         outcome = finished_earlier(job, name)
         if outcome is not None:
             yield outcome
@@ -263,7 +263,7 @@ def annotate_units(job: UnitJob, units: list) -> Iterator[UnitOutcome | Annotate
             todo.append(item)
     started = time.time()
     for item, result in zip(todo, annotate_group(job, todo), strict=True):
-        name = job.source.unit_name(item)
+        name = item.name
         if isinstance(result, Exception):
             problem = failure(name, "annotate", result)
             progress(f"unit {name} FAILED: {result}")
@@ -281,4 +281,4 @@ def run_group(job: UnitJob, units: list) -> list[UnitOutcome]:
             outcomes[item.name] = write_unit(job, filter_unit(job, item))
         else:
             outcomes[item.name] = item
-    return [outcomes[job.source.unit_name(unit)] for unit in units]
+    return [outcomes[unit.name] for unit in units]

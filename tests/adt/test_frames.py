@@ -11,9 +11,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from pipeline.samples.adt_excerpt import EXCERPT_SETTINGS
 from pipeline.adt.reader import SequenceReader
 from pipeline.adt.rectify import Rectifier
-from pipeline.adt.source import EXCERPT_SETTINGS
+from pipeline.adt.units import SequenceChunk
 from pipeline.core.errors import InputError
 from pipeline.settings.fields import with_overrides, with_rules
 from pipeline.settings.run_config import RunConfig
@@ -121,7 +122,7 @@ def generator_pixels(points_stored, generator):
 
 def test_queries_are_where_their_points_appear_in_the_frames(generator):
     config = with_overrides(RunConfig(), [*EXCERPT_SETTINGS, "adt.tracks_per_clip=256"])
-    (clip,) = adt_clips(str(SAMPLE), (str(SAMPLE), 0), config)
+    (clip,) = adt_clips(str(SAMPLE), SequenceChunk(str(SAMPLE), 0), config)
     t_q = clip.queries_xyt[:, 2].astype(int)
     at_query = clip.tracks_xyz[t_q, np.arange(clip.num_tracks)]
     assert set(t_q.tolist()) == {0, 1}

@@ -1,4 +1,4 @@
-"""ADT chunks annotated in groups (``pipeline.adt.annotate.annotate_chunks``): a group opens its
+"""ADT chunks annotated in groups (``pipeline.adt.annotate.annotate_group``): a group opens its
 sequence once (and closes it once, after its last chunk) and makes, chunk by chunk, the clips each
 chunk makes alone; an unreadable sequence fails every chunk of the group, each error naming its own
 unit."""
@@ -8,6 +8,7 @@ import numpy as np
 from pipeline import sources
 from pipeline.adt import annotate
 from pipeline.adt import units as adt_units
+from pipeline.adt.units import SequenceChunk
 from pipeline.core.errors import InputError
 from pipeline.settings.fields import with_overrides
 from pipeline.settings.run_config import RunConfig
@@ -40,13 +41,13 @@ def test_a_group_opens_its_sequence_once_and_makes_each_chunks_own_clip(monkeypa
     config = with_overrides(RunConfig(), list(ONE_FRAME_CHUNKS))
     units = adt_units.list_units(str(SAMPLE), config).units
     assert len(units) == 2
-    assert len({adt_units.group_of(unit) for unit in units}) == 1
+    assert len({unit.group for unit in units}) == 1
     opened, closed = _count_openings_and_closings(monkeypatch)
-    alone = [list(annotate.annotate_chunks(str(SAMPLE), [unit], config))[0].clips for unit in units]
+    alone = [list(annotate.annotate_group(str(SAMPLE), [unit], config))[0].clips for unit in units]
     assert len(opened) == 2
     assert closed == opened  # a unit alone opens and closes its sequence
     del opened[:], closed[:]
-    made = annotate.annotate_chunks(str(SAMPLE), units, config)
+    made = annotate.annotate_group(str(SAMPLE), units, config)
     together = [next(made)]
     assert len(opened) == 1
     assert not closed  # still open for the group's next chunk
@@ -65,7 +66,7 @@ def test_a_group_opens_its_sequence_once_and_makes_each_chunks_own_clip(monkeypa
 def test_a_group_stopped_early_still_closes_its_sequence(monkeypatch):
     config = with_overrides(RunConfig(), list(ONE_FRAME_CHUNKS))
     opened, closed = _count_openings_and_closings(monkeypatch)
-    made = annotate.annotate_chunks(str(SAMPLE), adt_units.list_units(str(SAMPLE), config).units, config)
+    made = annotate.annotate_group(str(SAMPLE), adt_units.list_units(str(SAMPLE), config).units, config)
     next(made)
     made.close()  # the caller stops after the first chunk (a Ctrl-C, a failed write)
     assert len(opened) == 1
@@ -75,16 +76,17 @@ def test_a_group_stopped_early_still_closes_its_sequence(monkeypatch):
 def test_an_unreadable_sequence_fails_each_chunk_under_its_own_name(tmp_path):
     sequence = tmp_path / "Apartment_release_broken_seq001"
     sequence.mkdir()
-    units = [(str(sequence), chunk) for chunk in range(3)]
-    results = list(annotate.annotate_chunks(str(tmp_path), units, RunConfig()))
+    units = [SequenceChunk(str(sequence), chunk) for chunk in range(3)]
+    results = list(annotate.annotate_group(str(tmp_path), units, RunConfig()))
     assert len(results) == 3
     for unit, result in zip(units, results, strict=True):
         assert isinstance(result, InputError)
-        assert str(result).startswith(f"{adt_units.unit_name(unit)}: ")
+        assert str(result).startswith(f"{unit.name}: ")
 
 
 def test_groups_are_three_chunks_of_one_sequence():
     key = sources.get("adt").group_key
-    assert key(("/data/seq_a", 0)) == key(("/data/seq_a", 2)) != key(("/data/seq_a", 3))
-    assert key(("/data/seq_a", 3)) == key(("/data/seq_a", 5))
-    assert key(("/data/seq_a", 0)) != key(("/data/seq_b", 0))
+    assert key(SequenceChunk("/data/seq_a", 0)) == key(SequenceChunk("/data/seq_a", 2))
+    assert key(SequenceChunk("/data/seq_a", 2)) != key(SequenceChunk("/data/seq_a", 3))
+    assert key(SequenceChunk("/data/seq_a", 3)) == key(SequenceChunk("/data/seq_a", 5))
+    assert key(SequenceChunk("/data/seq_a", 0)) != key(SequenceChunk("/data/seq_b", 0))

@@ -166,10 +166,11 @@ def test_mask_filter_drops_planted_off_object_tracks(sample_split, world):
 
 
 def test_a_segments_cameras_share_one_lidar_read_and_make_the_same_clips(clips, sample_split, monkeypatch):
-    """The graph's group (``annotate_segment``): the TOP lidar is streamed once for the three cameras,
+    """The graph's group (``annotate_group``): the TOP lidar is streamed once for the three cameras,
     each frame once, and every clip is the one its camera makes alone."""
-    from pipeline.drivetrack.annotate import annotate_segment
+    from pipeline.drivetrack.annotate import annotate_group
     from pipeline.drivetrack.reader import SegmentReader
+    from pipeline.drivetrack.units import SegmentCamera
 
     streamed = []
     original = SegmentReader.top_lidar_frames
@@ -179,7 +180,9 @@ def test_a_segments_cameras_share_one_lidar_read_and_make_the_same_clips(clips, 
         return original(self, timestamps)
 
     monkeypatch.setattr(SegmentReader, "top_lidar_frames", counted)
-    grouped = annotate_segment(sample_split[0], [(SEGMENT, camera) for camera in (1, 2, 3)], RunConfig())
+    grouped = annotate_group(
+        sample_split[0], [SegmentCamera(SEGMENT, camera) for camera in (1, 2, 3)], RunConfig()
+    )
     assert len(streamed) == 1
     assert len(set(streamed[0])) == len(streamed[0])
     needed = {int(t) for camera_clips in clips.values() for clip in camera_clips for t in clip.frame_ids}

@@ -41,14 +41,14 @@ def test_each_mask_is_decoded_once_per_sequence(pstudio_sample, decoded):
     root, _ = pstudio_sample
     config = RunConfig()
     first, second = list_units(root, config).units[:2]
-    unit = pstudio_input(root, *first, config)
+    unit = pstudio_input(root, first.sequence, first.camera, config)
     (clip,) = annotate_unit(unit, config)
     assert clip.num_tracks > 0
     cameras, frames = len(unit.views.camera_ids), unit.gaussians.num_frames
     assert set(decoded.values()) == {1}
     assert 0 < len(decoded) <= cameras * frames
     decoded.clear()
-    annotate_unit(pstudio_input(root, *second, config), config)
+    annotate_unit(pstudio_input(root, second.sequence, second.camera, config), config)
     assert not decoded
 
 

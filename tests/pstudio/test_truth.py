@@ -23,10 +23,10 @@ def clips(pstudio_sample):
     config = RunConfig()
     result = []
     for unit in list_units(root, config).units:
-        unit_input = pstudio_input(root, *unit, config)
+        unit_input = pstudio_input(root, unit.sequence, unit.camera, config)
         (clip,) = annotate_unit(unit_input, config)
         kept, outcome = apply_filters(clip, config, config.pstudio.mask_min_agreement)
-        camera = next(c for c in studio.cameras if c.camera_id == unit[1])
+        camera = next(c for c in studio.cameras if c.camera_id == unit.camera)
         result.append((camera, clip, kept, outcome, unit_input))
     return result
 
@@ -126,7 +126,7 @@ def test_static_cameras_and_no_extrinsics(clips):
 
 
 def test_a_sequences_cameras_share_one_read_and_make_the_same_clips(clips, pstudio_sample, monkeypatch):
-    """The graph's group (``annotate_sequence``): params.npz is read once for every camera, each
+    """The graph's group (``annotate_group``): params.npz is read once for every camera, each
     mask decoded at most once, and every clip is the one its camera makes alone."""
     import pipeline.pstudio.annotate as source
     import pipeline.pstudio.reader as reader
@@ -148,7 +148,7 @@ def test_a_sequences_cameras_share_one_read_and_make_the_same_clips(clips, pstud
     monkeypatch.setattr(masks, "decode_image", counted_decode)
     monkeypatch.setattr(reader, "MASKS", masks.MaskCache())  # cold, as in a fresh worker
     units = list_units(root, RunConfig()).units
-    grouped = list(source.annotate_sequence(root, units, RunConfig()))
+    grouped = list(source.annotate_group(root, units, RunConfig()))
     assert len(reads) == 1
     assert len(decodes) == len(set(decodes)) > 0
     for (_, alone, _, _, _), (together,) in zip(clips, [made.clips for made in grouped], strict=True):

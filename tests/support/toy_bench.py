@@ -31,7 +31,7 @@ def prepare(workdir: str, size: str) -> UnitSetup:
     return UnitSetup(
         source="toy",
         input_root=root,
-        units=[[UNIT]],
+        units=[[[UNIT]]],
         overrides=[],
         frames=frames,
         description=[f"the toy's sample unit {UNIT!r}: 3 points over {frames} frames"],
@@ -51,7 +51,7 @@ def floor(spec: dict) -> dict:
     specs = []
 
     def read() -> None:
-        for unit in spec["unit"]:
+        for (unit,) in spec["unit"]:
             with open(os.path.join(spec["input_root"], f"{unit}.json")) as handle:
                 specs.append(json.load(handle))
 
@@ -59,16 +59,23 @@ def floor(spec: dict) -> dict:
     return {"floor_s": wall, "floor_cpu_s": cpu, "floor_frames": sum(s["frames"] for s in specs)}
 
 
+def unit_of(fields: list):
+    """The toy's unit of a spec's JSON fields (``[name]``)."""
+    from tests.support.toy_source import SpecFile
+
+    return SpecFile(*fields)
+
+
 def micro(frames: int) -> None:
     """Print the time to annotate the sample unit, the mean of ``frames`` calls."""
     from pipeline.settings.run_config import RunConfig
-    from tests.support.toy_source import annotate, write_sample
+    from tests.support.toy_source import SpecFile, annotate, write_sample
 
     with tempfile.TemporaryDirectory() as folder:
         root, config = write_sample(folder), RunConfig()
         started = time.perf_counter()
         for _ in range(frames):
-            annotate(root, UNIT, config)
+            annotate(root, SpecFile(UNIT), config)
         print(f"annotate the toy's unit {UNIT!r}: {1000 * (time.perf_counter() - started) / frames:.2f} ms")
 
 

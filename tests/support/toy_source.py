@@ -42,11 +42,20 @@ class ToyConfig:
     speed_scale: float = ranged(1.0, "[0, 10]")
 
 
-def list_units(input_root: str, config: RunConfig, release: frozenset[str] | None = None) -> UnitPlan:
+@dataclasses.dataclass(frozen=True, order=True)
+class SpecFile:
+    """A toy unit: the file ``<name>.json`` of the input folder."""
+
+    name: str
+
+
+def list_units(
+    input_root: str, config: RunConfig, release: frozenset[str] | None = None
+) -> UnitPlan[SpecFile]:
     names = sorted(name[: -len(".json")] for name in os.listdir(input_root) if name.endswith(".json"))
     if not names:
         raise InputError(f"{input_root}: no <unit>.json files")
-    return UnitPlan(names)
+    return UnitPlan([SpecFile(name) for name in names])
 
 
 def truth(spec: dict, speed_scale: float = 1.0) -> np.ndarray:
@@ -55,8 +64,8 @@ def truth(spec: dict, speed_scale: float = 1.0) -> np.ndarray:
     return np.asarray(spec["points"], float)[None] + steps * speed_scale * np.asarray(spec["velocity"], float)
 
 
-def annotate(input_root: str, unit: str, config: RunConfig) -> list[ClipRecord]:
-    with open(os.path.join(input_root, f"{unit}.json")) as handle:
+def annotate(input_root: str, unit: SpecFile, config: RunConfig) -> list[ClipRecord]:
+    with open(os.path.join(input_root, f"{unit.name}.json")) as handle:
         spec = json.load(handle)
     tracks = truth(spec, config.toy.speed_scale)
     fx, fy, cx, cy = INTRINSICS
@@ -73,8 +82,8 @@ def annotate(input_root: str, unit: str, config: RunConfig) -> list[ClipRecord]:
     return [
         ClipRecord(
             source="toy",
-            name=f"toy_{unit}",
-            unit=unit,
+            name=f"toy_{unit.name}",
+            unit=unit.name,
             images_jpeg=[frame] * spec["frames"],
             fx_fy_cx_cy=INTRINSICS,
             image_size=(WIDTH, HEIGHT),
@@ -101,10 +110,9 @@ def write_sample(folder: str) -> str:
     return folder
 
 
-TOY = Source(
+TOY: Source[SpecFile] = Source(
     name="toy",
     list_units=list_units,
-    unit_name=str,
     annotate_group=one_by_one(annotate),
     sample_input=write_sample,
     mask_min_agreement=lambda config: MASK_THRESHOLD,

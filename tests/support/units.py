@@ -3,7 +3,8 @@ its group form, ``Source.annotate_group``; these call it for one unit)."""
 
 from __future__ import annotations
 
-from pipeline.adt.annotate import annotate_chunks
+from pipeline.adt.annotate import annotate_group
+from pipeline.adt.units import SequenceChunk
 from pipeline.core.clip import ClipRecord
 from pipeline.drivetrack.annotate import annotate_cameras, load_units
 from pipeline.drivetrack.records import UnitInput as DriveTrackInput
@@ -33,6 +34,6 @@ def pstudio_input(input_root: str, sequence: str, camera: int, config: RunConfig
     return camera_input(load_sequence(input_root, sequence, config), camera)
 
 
-def adt_clips(input_root: str, unit: tuple[str, int], config: RunConfig) -> list[ClipRecord]:
+def adt_clips(input_root: str, unit: SequenceChunk, config: RunConfig) -> list[ClipRecord]:
     """The candidate clips of one ADT (sequence, chunk) unit (raises its failure)."""
-    return list(_ok(next(iter(annotate_chunks(input_root, [unit], config)))).clips)
+    return list(_ok(next(iter(annotate_group(input_root, [unit], config)))).clips)
