@@ -1,7 +1,8 @@
-"""ADT's benchmark entry. Unit: the real excerpt (``pipeline.samples.adt_excerpt.excerpt_path()``: $ADT_EXCERPT,
-else ../shared/data/adt_sample), read through projectaria-tools: its one 2-frame chunk run 15 times;
-the 300-frame unit is extrapolated (the opening of the sequence, measured apart, + 300 x per-frame
-cost), at every size. Micro: per-frame cost of reading and re-rendering RGB, depth and ids.
+"""ADT's benchmark entry. Unit: the real excerpt (``pipeline.samples.adt_excerpt.excerpt_path()``:
+$ADT_EXCERPT, else ../shared/data/adt_sample), read through projectaria-tools: its one 2-frame
+chunk run 15 times; the 300-frame unit is extrapolated (the opening of the sequence, measured
+apart, + 300 x per-frame cost), at every size. Micro: per-frame cost of reading and re-rendering
+RGB, depth and ids.
 
 Inputs (``prepare``): the excerpt's ground-truth window holds 2 frames, so its unit is that 2-frame
 chunk, run ``REPEAT`` times through ``pipeline.runner.stages.run_group`` (each run opens and closes the
@@ -94,6 +95,13 @@ def prepare(workdir: str, size: str) -> UnitSetup | None:
     )
 
 
+def _settings(config: RunConfig):
+    """The run's ADT section (what ADT's functions take)."""
+    from pipeline.adt.settings import AdtConfig
+
+    return config.section(AdtConfig)
+
+
 def _open_and_close_once(sequence: str, config: RunConfig) -> tuple[float, float]:
     """Wall and CPU seconds of what a group of ADT units does once, around its chunks: open the
     sequence, read its frame timestamps and build the re-rendering tables (``open_sequence``; the
@@ -102,7 +110,7 @@ def _open_and_close_once(sequence: str, config: RunConfig) -> tuple[float, float
     from pipeline.adt.frames import close_sequence, open_sequence
 
     wall, cpu = time.perf_counter(), time.process_time()
-    close_sequence(open_sequence(sequence, config))
+    close_sequence(open_sequence(sequence, _settings(config)))
     return time.perf_counter() - wall, time.process_time() - cpu
 
 
@@ -111,7 +119,7 @@ def _first_calls(sequence: str, config: RunConfig) -> tuple[float, float]:
     its cache: once per worker process, like the imports, so not a unit's cost)."""
     from pipeline.adt.frames import open_sequence
 
-    frames = open_sequence(sequence, config).frames
+    frames = open_sequence(sequence, _settings(config)).frames
     wall, cpu = time.perf_counter(), time.process_time()
     frames.rectifier.rgb(np.zeros((*frames.reader.image_shape, 3), np.uint8))
     frames.rectifier.depth_mm(np.zeros(frames.reader.image_shape, np.uint16))
@@ -203,12 +211,12 @@ def floor(spec: dict) -> dict:
     opened = {}
 
     def open_sequence() -> None:
-        reader = open_reader(sequence, config)
+        reader = open_reader(sequence, _settings(config))
         opened["reader"], opened["stamps"] = reader, reader.frame_timestamps()
 
     open_wall, open_cpu = wall_and_cpu(open_sequence)
     reader = opened["reader"]
-    size = config.adt.chunk_frames
+    size = _settings(config).chunk_frames
     stamps = opened["stamps"][chunk * size : (chunk + 1) * size]
     repeat = spec.get("repeat", 1)
 
@@ -240,9 +248,9 @@ def unit_of(fields: list):
 
 def micro(frames: int) -> None:
     """Print per-frame reading/re-rendering costs over ``frames`` frame reads, then the clip cost."""
-    from pipeline.samples.adt_excerpt import EXCERPT_SETTINGS, SHARED_EXCERPT, excerpt_path
     from pipeline.adt.frames import SequenceFrames, open_reader
     from pipeline.adt.rectify import _stored_remap
+    from pipeline.samples.adt_excerpt import EXCERPT_SETTINGS, SHARED_EXCERPT, excerpt_path
     from pipeline.settings.fields import with_overrides
     from pipeline.settings.run_config import RunConfig
 
@@ -252,13 +260,14 @@ def micro(frames: int) -> None:
         print(f"adt bench: no ADT excerpt at {where}; set ADT_EXCERPT to a sequence folder")
         return
     config = with_overrides(RunConfig(), EXCERPT_SETTINGS)
-    open_time, reader = _timed(open_reader, path, config)
+    settings = _settings(config)
+    open_time, reader = _timed(open_reader, path, settings)
     stamps = reader.frame_timestamps()
     _stored_remap.cache_clear()
-    build_time, sequence = _timed(SequenceFrames, reader, config)
-    cached_time = _timed(SequenceFrames, reader, config)[0]
-    jit_time, steps, largest = _per_frame_steps(reader, sequence, config, stamps, max(1, frames))
-    size = config.adt.image_size
+    build_time, sequence = _timed(SequenceFrames, reader, settings)
+    cached_time = _timed(SequenceFrames, reader, settings)[0]
+    jit_time, steps, largest = _per_frame_steps(reader, sequence, settings, stamps, max(1, frames))
+    size = settings.image_size
     print(f"ADT excerpt {path}")
     print(f"opening the sequence (projectaria-tools provider): {1000 * open_time:.0f} ms")
     print(
@@ -276,14 +285,14 @@ def _timed(function, *args):
     return time.perf_counter() - start, result
 
 
-def _library_renderers(reader, config):
+def _library_renderers(reader, settings):
     """The reference: projectaria-tools' re-rendering then the clockwise turn, per image kind."""
     from projectaria_tools.core import calibration
 
     from pipeline.adt.rectify import target_calibration
 
     source = reader.calibration
-    target = target_calibration(source, config.adt.image_size, config.adt.focal)
+    target = target_calibration(source, settings.image_size, settings.focal)
     return {
         "RGB": lambda image: np.rot90(calibration.distort_by_calibration(image, target, source), -1),
         "depth": lambda depth: np.rot90(
@@ -293,12 +302,12 @@ def _library_renderers(reader, config):
     }
 
 
-def _per_frame_steps(reader, sequence, config, stamps, frames: int) -> tuple[float, dict, dict]:
+def _per_frame_steps(reader, sequence, settings, stamps, frames: int) -> tuple[float, dict, dict]:
     """Over ``frames`` frame reads: (seconds of the first RGB and depth calls of ours, seconds of
     each step summed, the largest difference between the two renderings per image kind)."""
     from pipeline.adt.frames import encode_jpeg
 
-    rect, library = sequence.rectifier, _library_renderers(reader, config)
+    rect, library = sequence.rectifier, _library_renderers(reader, settings)
     ours = {"RGB": rect.rgb, "depth": rect.depth_mm, "ids": rect.ids}
     read = {"RGB": reader.rgb, "depth": reader.depth_mm, "ids": reader.ids}
     first = int(stamps[0])
@@ -346,9 +355,11 @@ def _clip_cost(path: str, sequence, stamps, config) -> None:
     from pipeline.adt.records import Chunk
     from pipeline.adt.tracks import annotate_chunk
     from pipeline.adt.units import SequenceChunk, clip_name
+    from pipeline.sources import RunChoices
 
-    chunk = Chunk(clip_name(path, 0), SequenceChunk(path, 0).name, stamps[: config.adt.chunk_frames])
-    seconds, clip = _timed(annotate_chunk, chunk, sequence.frame, sequence.jpeg, sequence.instances, config)
+    chunk = Chunk(clip_name(path, 0), SequenceChunk(path, 0).name, stamps[: _settings(config).chunk_frames])
+    reads = (sequence.frame, sequence.jpeg, sequence.instances)
+    seconds, clip = _timed(annotate_chunk, chunk, *reads, _settings(config), RunChoices.of(config, "adt"))
     per_frame = seconds / clip.num_frames
     print(
         f"annotation of one clip ({clip.num_frames} frames, {clip.num_tracks} candidate tracks; RGB, depth, "

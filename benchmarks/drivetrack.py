@@ -206,6 +206,7 @@ def measure_fixed_cost(spec: dict, config) -> dict:
     6.6 times over). The first camera's records are read first, untimed, to call the camera model
     with the types a unit calls it with. first_calls_s / first_calls_cpu_s."""
     from pipeline.drivetrack.annotate import load_units, unit_camera
+    from pipeline.drivetrack.settings import DriveTrackConfig
     from pipeline.drivetrack.visibility import camera_occluded_lidar, nearest_depth_max4
 
     segment, camera = spec["unit"][0]
@@ -216,7 +217,7 @@ def measure_fixed_cost(spec: dict, config) -> dict:
     pixels, depth = rng.uniform(0, size, (64, 2)), rng.uniform(5.0, 50.0, 64)
     wall, cpu = time.perf_counter(), time.process_time()
     unit_camera(unit).project(0, world)
-    camera_occluded_lidar(pixels, depth, config.drivetrack.occlusion_margin)
+    camera_occluded_lidar(pixels, depth, config.section(DriveTrackConfig).occlusion_margin)
     nearest_depth_max4(pixels, depth, pixels[:4], int(size[0]), int(size[1]))
     return {"first_calls_s": time.perf_counter() - wall, "first_calls_cpu_s": time.process_time() - cpu}
 

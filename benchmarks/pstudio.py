@@ -206,10 +206,12 @@ def _warm_numba() -> None:
     from pipeline.pstudio.nearest import nearest_centres
     from pipeline.pstudio.records import UnitInput
     from pipeline.pstudio.render import render_depth_at
+    from pipeline.pstudio.splats import gaussian_constants
     from pipeline.pstudio.tracks import splats_in_view
 
     gaussians, views = synthetic_scene(0, 2, 50, 50, 50, 1)
-    unit = UnitInput("warm", 0, views, gaussians, [], lambda view, t: None)
+    constants = gaussian_constants(gaussians.scales, gaussians.opacities)
+    unit = UnitInput("warm", 0, views, gaussians, constants, [], lambda view, t: None)
     points = np.array([[320.0, 180.0]])
     render_depth_at(splats_in_view(unit, 0, 0, points), points, np.array([10.0]))
     nearest_centres(gaussians.means[0], np.arange(3), np.zeros((1, 3)))
@@ -301,13 +303,16 @@ def _micro(frames: int) -> None:
     import cv2
 
     from pipeline.pstudio.records import UnitInput
+    from pipeline.pstudio.splats import gaussian_constants
 
     started = time.perf_counter()
     gaussians, views = synthetic_scene()
     count = gaussians.means.shape[1]
     print(f"scene: {count:,} Gaussians x {FRAMES} frames, {CAMERAS} cameras at {WIDTH}x{HEIGHT}; one thread")
     jpeg = cv2.imencode(".jpg", np.zeros((HEIGHT, WIDTH, 3), np.uint8))[1].tobytes()
-    unit = UnitInput("bench", 0, views, gaussians, [jpeg] * FRAMES, _drawn_masks(gaussians, views))
+    constants = gaussian_constants(gaussians.scales, gaussians.opacities)
+    masks = _drawn_masks(gaussians, views)
+    unit = UnitInput("bench", 0, views, gaussians, constants, [jpeg] * FRAMES, masks)
     print(f"  built and its masks drawn in {time.perf_counter() - started:.1f} s")
     full = _renders(unit, frames)
     _annotation(unit, full)
@@ -346,12 +351,14 @@ def _renders(unit: UnitInput, frames: int) -> float:
 
 def _annotation(unit: UnitInput, full_frame_s: float) -> None:
     """Print the time to annotate the unit's clip, and what full-frame renders would have cost."""
+    from pipeline.pstudio.settings import PstudioConfig
     from pipeline.pstudio.tracks import annotate_unit
     from pipeline.settings.run_config import RunConfig
+    from pipeline.sources import RunChoices
 
     config = RunConfig()
     start = time.perf_counter()
-    (clip,) = annotate_unit(unit, config)
+    (clip,) = annotate_unit(unit, config.section(PstudioConfig), RunChoices.of(config, "pstudio"))
     elapsed = time.perf_counter() - start
     print(
         f"annotate one {FRAMES}-frame clip: {elapsed:.1f} s ({1000 * elapsed / FRAMES:.0f} ms/frame), "

@@ -19,6 +19,7 @@ from typing import Any, Generic, Protocol, TypeVar
 
 from pipeline.core.clip import ClipRecord
 from pipeline.core.outcomes import UnitClips
+from pipeline.io.given_queries import GivenQueries
 from pipeline.settings import sections
 from pipeline.settings.run_config import RunConfig
 
@@ -74,6 +75,26 @@ class UnitPlan(Generic[U]):
 
 # One unit's wanted clip names (a release run's), or None for every clip it can make.
 Wanted = frozenset[str] | None
+
+
+@dataclasses.dataclass(frozen=True)
+class RunChoices:
+    """What a source's annotation reads of the run's settings besides its own section (its entry
+    hands its algorithm code these and its section, never the whole ``RunConfig``).
+
+    seed: every random choice is seeded from it and the clip's name (``core.sampling.rng_for``).
+    given: the source's clips of ``--queries-from`` (inactive without one): re-annotate their
+      queries, and make only the clips found there.
+    export_depth: also keep the depth each visibility test read (``ClipRecord.depth_export``).
+    """
+
+    seed: int
+    given: GivenQueries
+    export_depth: bool
+
+    @classmethod
+    def of(cls, config: RunConfig, source: str) -> RunChoices:
+        return cls(config.seed, GivenQueries(config.queries_from, source, config.http), config.export_depth)
 
 
 @dataclasses.dataclass(frozen=True)

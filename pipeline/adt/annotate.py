@@ -15,6 +15,7 @@ from pipeline.adt.download import fetch_sequence, plan_download, read_url_file
 from pipeline.adt.frames import OpenedSequence, close_sequence, open_sequence
 from pipeline.adt.reader import required_files
 from pipeline.adt.records import Chunk
+from pipeline.adt.settings import AdtConfig
 from pipeline.adt.tracks import annotate_chunk
 from pipeline.adt.units import (
     ALL_CHUNKS,
@@ -29,8 +30,8 @@ from pipeline.adt.units import (
 from pipeline.core.clip import ClipRecord
 from pipeline.core.errors import InputError
 from pipeline.core.outcomes import UnitClips
-from pipeline.io.given_queries import given_queries
-from pipeline.sources import Wanted
+from pipeline.io.http import HttpConfig
+from pipeline.sources import RunChoices, Wanted
 
 if TYPE_CHECKING:
     from pipeline.settings.run_config import RunConfig
@@ -50,62 +51,61 @@ def _unit_error(error: Exception, sequence: str, name: str) -> Exception:
     return _named(error, sequence, name) if isinstance(error, InputError) else error
 
 
-def in_queries_from(sequence: str, chunk: int, config: RunConfig) -> bool:
-    """False when ``--queries-from`` holds no clip of this chunk's name (then it makes no clip)."""
-    return (
-        not config.queries_from
-        or given_queries(config.queries_from, "adt", clip_name(sequence, chunk), config.http) is not None
-    )
-
-
-def annotate_opened(opened: OpenedSequence, chunk: int, config: RunConfig) -> list[ClipRecord]:
+def annotate_opened(
+    opened: OpenedSequence, chunk: int, settings: AdtConfig, choices: RunChoices
+) -> list[ClipRecord]:
     """One chunk of an opened sequence -> its clip; InputError messages start with the unit's name."""
     sequence = opened.path
     name = SequenceChunk(sequence, chunk).name
-    size = config.adt.chunk_frames
+    size = settings.chunk_frames
     stamps = opened.stamps[chunk * size : (chunk + 1) * size]
-    if len(stamps) < config.adt.min_frames:
-        raise InputError(f"{name}: {len(stamps)} frame(s), fewer than adt.min_frames={config.adt.min_frames}")
+    if len(stamps) < settings.min_frames:
+        raise InputError(f"{name}: {len(stamps)} frame(s), fewer than adt.min_frames={settings.min_frames}")
     frames = opened.frames
     record = Chunk(name=clip_name(sequence, chunk), unit=name, timestamps=stamps)
     try:
-        return [annotate_chunk(record, frames.frame, frames.jpeg, frames.instances, config)]
+        return [annotate_chunk(record, frames.frame, frames.jpeg, frames.instances, settings, choices)]
     except InputError as error:
         raise _named(error, sequence, name) from error
 
 
-def chunk_clips(opened: OpenedSequence, chunk: int, config: RunConfig) -> UnitClips:
+def chunk_clips(opened: OpenedSequence, chunk: int, settings: AdtConfig, choices: RunChoices) -> UnitClips:
     """One unit of an opened sequence: its chunk's clip; every chunk's for ``ALL_CHUNKS``; for a
     chunk past the sequence's end (a release run's name), why there is none."""
     frames = len(opened.stamps)
-    count = chunk_count(frames, config)
+    count = chunk_count(frames, settings)
     if chunk == ALL_CHUNKS:
-        return UnitClips(tuple(clip for k in range(count) for clip in annotate_opened(opened, k, config)))
+        return UnitClips(
+            tuple(clip for k in range(count) for clip in annotate_opened(opened, k, settings, choices))
+        )
     if chunk >= count:
-        return UnitClips((), {clip_name(opened.path, chunk): chunk_beyond(chunk, frames, config)})
-    return UnitClips(tuple(annotate_opened(opened, chunk, config)))
+        return UnitClips((), {clip_name(opened.path, chunk): chunk_beyond(chunk, frames, settings)})
+    return UnitClips(tuple(annotate_opened(opened, chunk, settings, choices)))
 
 
-def annotate_local(units: list[SequenceChunk], config: RunConfig) -> Iterator[UnitClips | Exception]:
+def annotate_local(
+    units: list[SequenceChunk], settings: AdtConfig, choices: RunChoices
+) -> Iterator[UnitClips | Exception]:
     """Chunks of one local sequence: the sequence opened once (on the first chunk that makes a
-    clip) and closed after the last (or when the caller stops early)."""
+    clip) and closed after the last (or when the caller stops early). With ``--queries-from``, a
+    chunk it holds no clip of makes none."""
     opened: OpenedSequence | Exception | None = None
     try:
         for unit in units:
             sequence, chunk = unit.sequence, unit.chunk
-            if chunk != ALL_CHUNKS and not in_queries_from(sequence, chunk, config):
+            if chunk != ALL_CHUNKS and not choices.given.admits(clip_name(sequence, chunk)):
                 yield UnitClips(())
                 continue
             if opened is None:
                 try:
-                    opened = open_sequence(sequence, config)
+                    opened = open_sequence(sequence, settings)
                 except Exception as error:  # noqa: BLE001 - becomes each unit's failure
                     opened = error
             if isinstance(opened, Exception):
                 yield _unit_error(opened, sequence, unit.name)
                 continue
             try:
-                result = chunk_clips(opened, chunk, config)
+                result = chunk_clips(opened, chunk, settings, choices)
             except Exception as error:  # noqa: BLE001 - this chunk's failure only
                 result = error
             yield result
@@ -115,7 +115,7 @@ def annotate_local(units: list[SequenceChunk], config: RunConfig) -> Iterator[Un
 
 
 def annotate_fetched(
-    input_root: str, units: list[SequenceChunk], config: RunConfig
+    input_root: str, units: list[SequenceChunk], settings: AdtConfig, choices: RunChoices, http: HttpConfig
 ) -> Iterator[UnitClips | Exception]:
     """Chunks of one sequence of the download-URLs JSON ``input_root``: the files the annotation
     reads fetched into the scratch folder, the chunks annotated, the folder deleted (also when the
@@ -124,14 +124,14 @@ def annotate_fetched(
     with contextlib.ExitStack() as stack:
         try:
             download = plan_download(
-                read_url_file(input_root), name, required_files(config.adt.with_skeleton)
+                read_url_file(input_root), name, required_files(settings.with_skeleton)
             )
-            folder = stack.enter_context(fetch_sequence(download, scratch_folder(config), config.http))
+            folder = stack.enter_context(fetch_sequence(download, scratch_folder(settings), http))
         except Exception as error:  # noqa: BLE001 - the sequence's failure, each unit's
             for unit in units:
                 yield _unit_error(error, name, unit.name)
             return
-        yield from annotate_local([SequenceChunk(folder, unit.chunk) for unit in units], config)
+        yield from annotate_local([SequenceChunk(folder, unit.chunk) for unit in units], settings, choices)
 
 
 def annotate_group(
@@ -142,7 +142,8 @@ def annotate_group(
     sequences = {unit.sequence for unit in units}
     if len(sequences) != 1:
         raise ValueError(f"annotate_group takes the chunks of one sequence, got {sorted(sequences)}")
+    settings, choices = config.section(AdtConfig), RunChoices.of(config, "adt")
     if is_fetched(units[0].sequence):
-        yield from annotate_fetched(input_root, units, config)
+        yield from annotate_fetched(input_root, units, settings, choices, config.http)
     else:
-        yield from annotate_local(units, config)
+        yield from annotate_local(units, settings, choices)

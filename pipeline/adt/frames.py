@@ -4,7 +4,6 @@ frame in the stored camera (re-rendered RGB as JPEG, depth, ids, poses), read on
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -12,15 +11,13 @@ import numpy as np
 from pipeline.adt.reader import SequenceReader
 from pipeline.adt.records import Frame, Instances
 from pipeline.adt.rectify import Rectifier, stored_cam_from_world
-
-if TYPE_CHECKING:
-    from pipeline.settings.run_config import RunConfig
+from pipeline.adt.settings import AdtConfig
 
 JPEG_QUALITY = 95
 
 
-def open_reader(sequence: str, config: RunConfig) -> SequenceReader:
-    return SequenceReader(sequence, config.adt.with_skeleton, int(config.adt.max_gt_offset_ms * 1e6))
+def open_reader(sequence: str, settings: AdtConfig) -> SequenceReader:
+    return SequenceReader(sequence, settings.with_skeleton, int(settings.max_gt_offset_ms * 1e6))
 
 
 def encode_jpeg(image_rgb: np.ndarray) -> bytes:
@@ -38,9 +35,9 @@ class SequenceFrames:
     """A sequence's frames in the stored camera, read one at a time (the callables annotate uses);
     the re-rendering tables are built on construction (once per calibration per process)."""
 
-    def __init__(self, reader: SequenceReader, config: RunConfig):
+    def __init__(self, reader: SequenceReader, settings: AdtConfig):
         self.reader = reader
-        self.rectifier = Rectifier(reader.calibration, config.adt.image_size, config.adt.focal)
+        self.rectifier = Rectifier(reader.calibration, settings.image_size, settings.focal)
 
     def frame(self, timestamp: int) -> Frame:
         return Frame(
@@ -77,10 +74,10 @@ class OpenedSequence:
     frames: SequenceFrames
 
 
-def open_sequence(sequence: str, config: RunConfig) -> OpenedSequence:
+def open_sequence(sequence: str, settings: AdtConfig) -> OpenedSequence:
     """Open a sequence: its reader, frame timestamps and re-rendering tables."""
-    reader = open_reader(sequence, config)
-    return OpenedSequence(sequence, reader.frame_timestamps(), SequenceFrames(reader, config))
+    reader = open_reader(sequence, settings)
+    return OpenedSequence(sequence, reader.frame_timestamps(), SequenceFrames(reader, settings))
 
 
 def close_sequence(opened: OpenedSequence) -> None:

@@ -7,9 +7,9 @@ from __future__ import annotations
 import operator
 
 from pipeline.adt.annotate import annotate_group
-from pipeline.samples.adt_excerpt import no_sample_message
 from pipeline.adt.settings import AdtConfig
 from pipeline.adt.units import SequenceChunk, list_units
+from pipeline.samples.adt_excerpt import no_sample_message
 from pipeline.sources import NoSample, Source
 
 
@@ -23,7 +23,7 @@ SOURCE: Source[SequenceChunk] = Source(
     list_units=list_units,
     annotate_group=annotate_group,
     sample_input=sample_input,
-    mask_min_agreement=operator.attrgetter("adt.mask_min_agreement"),
+    mask_min_agreement=lambda config: config.section(AdtConfig).mask_min_agreement,
     sweepable=("adt.mask_min_agreement",),
     settings=AdtConfig,
     group_of=operator.attrgetter("group"),

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 from pipeline.adt.download import is_url_file, plan_download, read_url_file, reclaim_scratch
 from pipeline.adt.frames import open_reader
 from pipeline.adt.reader import list_sequences, required_files, v1_name
+from pipeline.adt.settings import AdtConfig
 from pipeline.core.errors import InputError
 from pipeline.core.progress import progress
 from pipeline.core.sizes import format_bytes
@@ -71,19 +72,18 @@ def clip_name(sequence: str, chunk: int) -> str:
     return f"{v1_name(sequence)}_{chunk}"
 
 
-def chunk_count(frames: int, config: RunConfig) -> int:
+def chunk_count(frames: int, settings: AdtConfig) -> int:
     """Chunks of ``chunk_frames`` frames; the last one only if it has ``min_frames`` or more."""
-    size = config.adt.chunk_frames
-    full, rest = divmod(frames, size)
-    return full + (1 if rest and rest >= config.adt.min_frames else 0)
+    full, rest = divmod(frames, settings.chunk_frames)
+    return full + (1 if rest and rest >= settings.min_frames else 0)
 
 
-def chunk_beyond(chunk: int, frames: int, config: RunConfig) -> str:
+def chunk_beyond(chunk: int, frames: int, settings: AdtConfig) -> str:
     """Why chunk ``chunk`` of a sequence of ``frames`` annotated frames makes no clip."""
-    start = chunk * config.adt.chunk_frames
+    start = chunk * settings.chunk_frames
     if start >= frames:
         return f"chunk {chunk} starts past the sequence's {frames:,} annotated frames"
-    return f"chunk {chunk} has {frames - start} frame(s), fewer than adt.min_frames={config.adt.min_frames}"
+    return f"chunk {chunk} has {frames - start} frame(s), fewer than adt.min_frames={settings.min_frames}"
 
 
 def _chunk_of(name: str) -> tuple[str, int] | None:
@@ -102,10 +102,10 @@ def release_chunks(release: frozenset[str]) -> dict[str, set[int]]:
     return named
 
 
-def scratch_folder(config: RunConfig) -> str:
+def scratch_folder(settings: AdtConfig) -> str:
     """Where fetched sequences are unpacked: ``adt.scratch_dir``, or one under the system's
     temporary folder."""
-    return config.adt.scratch_dir or os.path.join(tempfile.gettempdir(), "tapvid3d-adt-scratch")
+    return settings.scratch_dir or os.path.join(tempfile.gettempdir(), "tapvid3d-adt-scratch")
 
 
 def list_units(
@@ -113,13 +113,14 @@ def list_units(
 ) -> UnitPlan[SequenceChunk]:
     """The chunks of every sequence of ``input_root`` (a sequence folder, a folder of them, or the
     download-URLs JSON); on a release run, only the chunks the release names."""
-    if config.adt.chunk_frames < 1 or config.adt.min_frames < 1:
+    settings = config.section(AdtConfig)
+    if settings.chunk_frames < 1 or settings.min_frames < 1:
         raise InputError("adt.chunk_frames and adt.min_frames must be at least 1")
     named = release_chunks(release) if release is not None else None
     if is_url_file(input_root):
-        plan = list_fetched(input_root, config, named)
+        plan = list_fetched(input_root, settings, named)
     else:
-        plan = list_local(input_root, config, named)
+        plan = list_local(input_root, settings, named)
     if release is None:
         return plan
     invalid = {
@@ -136,7 +137,7 @@ def list_units(
 
 
 def list_local(
-    input_root: str, config: RunConfig, named: dict[str, set[int]] | None
+    input_root: str, settings: AdtConfig, named: dict[str, set[int]] | None
 ) -> UnitPlan[SequenceChunk]:
     """The chunks of local sequence folders (each opened to count its frames). A sequence that
     cannot be read yields one unit (chunk 0; on a release run, each chunk named), which fails at
@@ -150,16 +151,16 @@ def list_local(
         if named is not None and v1 not in named:
             continue
         try:
-            frames = len(open_reader(sequence, config).frame_timestamps())
+            frames = len(open_reader(sequence, settings).frame_timestamps())
         except InputError:
             units += [SequenceChunk(sequence, k) for k in sorted(named[v1] if named is not None else {0})]
             continue
-        chunks = chunk_count(frames, config)
+        chunks = chunk_count(frames, settings)
         if named is None:
             if not chunks:
                 progress(
                     f"{os.path.basename(sequence)}: {frames} frame(s) in the ground-truth window, fewer "
-                    f"than adt.min_frames={config.adt.min_frames}; skipped"
+                    f"than adt.min_frames={settings.min_frames}; skipped"
                 )
             units += [SequenceChunk(sequence, k) for k in range(chunks)]
             continue
@@ -167,7 +168,7 @@ def list_local(
             if k < chunks:
                 units.append(SequenceChunk(sequence, k))
             else:
-                not_made[f"{v1}_{k}"] = chunk_beyond(k, frames, config)
+                not_made[f"{v1}_{k}"] = chunk_beyond(k, frames, settings)
     if named is None:
         return UnitPlan(units)
     absent = {
@@ -189,12 +190,12 @@ def release_name_of(name: str, named: dict[str, set[int]]) -> str | None:
 
 
 def list_fetched(
-    url_path: str, config: RunConfig, named: dict[str, set[int]] | None
+    url_path: str, settings: AdtConfig, named: dict[str, set[int]] | None
 ) -> UnitPlan[SequenceChunk]:
     """The units of the sequences of a download-URLs JSON (on a release run, those it names),
     and what fetching them takes: their download size and a worker's peak scratch space."""
     url_file = read_url_file(url_path)
-    needed = required_files(config.adt.with_skeleton)
+    needed = required_files(settings.with_skeleton)
     units: list[SequenceChunk] = []
     expected: dict[str, tuple[str, ...]] = {}
     matched: set[str] = set()
@@ -223,7 +224,7 @@ def list_fetched(
         }
     peak = max((d.peak_bytes for d in downloads), default=0)
     total = sum(d.download_bytes for d in downloads)
-    scratch = scratch_folder(config)
+    scratch = scratch_folder(settings)
     notes = [
         f"adt: {len({u.sequence for u in units})} sequence(s) to fetch from {url_path} "
         f"({format_bytes(total)}), "

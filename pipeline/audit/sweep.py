@@ -38,7 +38,7 @@ from pipeline.export.layout import audit_path, provenance_path, sweep_folder
 from pipeline.filters.select import count_dropped, verdicts_from_stats
 from pipeline.io.files import list_files, read_bytes, write_atomic
 from pipeline.runner.splits import SPLITS, Release, read_release
-from pipeline.settings.fields import SettingsError, config_from_dict, setting_keys, with_overrides
+from pipeline.settings.fields import SettingsError, config_from_dict, setting_keys, value_at, with_overrides
 from pipeline.settings.run_config import RunConfig
 from pipeline.sources import Source
 
@@ -441,10 +441,7 @@ def sweep(args: argparse.Namespace) -> int:
 
 
 def _current(config: RunConfig, key: str) -> str:
-    node = config
-    for part in key.split("."):
-        node = getattr(node, part)
-    return str(node)
+    return str(value_at(config, key))
 
 
 def matches_run(result: dict, summary: dict) -> bool:

@@ -33,6 +33,7 @@ from pipeline.drivetrack.masks import object_masks
 from pipeline.drivetrack.objects import ObjectRun, select_objects
 from pipeline.drivetrack.reader import SegmentReader
 from pipeline.drivetrack.records import UnitInput, clip_name
+from pipeline.drivetrack.settings import DriveTrackConfig
 from pipeline.drivetrack.tracks import choose_points, clip_queries, point_keys, point_pool, query_draws
 from pipeline.drivetrack.units import SegmentCamera
 from pipeline.drivetrack.visibility import track_visibility
@@ -52,7 +53,7 @@ def object_visibility(
 ) -> np.ndarray:
     """Visibility [T, N] of tracks seen as ``seen`` (one Projection per clip frame) whose box-frame
     normals are ``normals`` [N, 3]: in view, facing the camera, not occluded in the lidar's depth."""
-    rules = config.drivetrack
+    rules = config.section(DriveTrackConfig)
     frames = range(run.start, run.stop)
     # Normals turn with the frame's pose (the camera turns by under a milliradian during a readout).
     cam_from_box = camera.cam_from_world[run.start : run.stop] @ run.world_from_box
@@ -104,7 +105,7 @@ def track_object(
     stored_jpegs: the stored frame per unit frame index, for the run's frames.
     """
     name = clip_name(unit.segment, unit.camera, run.object_id)
-    rules = config.drivetrack
+    rules = config.section(DriveTrackConfig)
     pool = point_pool(evidence, run, unit.frames.timestamps)
     if pool is None:
         log.info("%s: object %s has no lidar points in its box; no clip", unit.name, run.object_id)
@@ -186,7 +187,7 @@ def annotate_cameras(
     wanted: per camera, the clip names to make (a release run's; the others' objects are not
       tracked, and each wanted name not made says why), or None for every vehicle.
     """
-    rules = config.drivetrack
+    rules = config.section(DriveTrackConfig)
     wanted = wanted or [None] * len(units)
     results: list[UnitClips | Exception | None] = [None] * len(units)
     passes, stored, index, skipped = [], [], [], []

@@ -17,6 +17,7 @@ from pipeline.drivetrack.camera_model import UnitCamera
 from pipeline.drivetrack.lidar import LidarEvidence
 from pipeline.drivetrack.objects import ObjectRun
 from pipeline.drivetrack.records import UnitInput
+from pipeline.drivetrack.settings import DriveTrackConfig
 from pipeline.io.files import read_input
 
 if TYPE_CHECKING:
@@ -85,8 +86,8 @@ def object_masks(
     frame (placed by the run's boxes)."""
     calibration = unit.calibration
     frames = range(run.start, run.stop)
-    if config.drivetrack.masks_dir:
-        folder = f"{config.drivetrack.masks_dir.rstrip('/')}/{clip_name}"
+    if config.section(DriveTrackConfig).masks_dir:
+        folder = f"{config.section(DriveTrackConfig).masks_dir.rstrip('/')}/{clip_name}"
         masks = [
             read_mask_png(f"{folder}/{unit.frames.timestamps[t]}.png", calibration.width, calibration.height)
             for t in frames
@@ -95,7 +96,7 @@ def object_masks(
         bodies = [evidence.body_points[run.object_id].get(t, np.zeros((0, 3))) for t in frames]
         world = [transform_points(run.world_from_box[i], body) for i, body in enumerate(bodies)]
         uvs = [seen.pixels[seen.in_view] for seen in camera.project_frames(frames, world)]
-        closing = config.drivetrack.mask_closing_px
+        closing = config.section(DriveTrackConfig).mask_closing_px
         masks = [
             silhouette_mask(uv, calibration.width, calibration.height, closing) if len(uv) else None
             for uv in uvs

@@ -14,6 +14,7 @@ from pipeline.core.errors import InputError
 from pipeline.core.geometry import rotation_z, se3_from_rotation_translation, transform_points
 from pipeline.drivetrack.camera_model import Projection, UnitCamera
 from pipeline.drivetrack.records import UnitInput
+from pipeline.drivetrack.settings import DriveTrackConfig
 
 if TYPE_CHECKING:
     from pipeline.settings.run_config import RunConfig
@@ -116,7 +117,7 @@ def object_run(
     unit: UnitInput, camera: UnitCamera, world_from_frame: np.ndarray, object_id: str, config: RunConfig
 ) -> ObjectRun | str:
     """The clip run of one object of the segment, or why it makes none on this unit's camera."""
-    rules, boxes = config.drivetrack, unit.boxes
+    rules, boxes = config.section(DriveTrackConfig), unit.boxes
     rows = np.nonzero(boxes.object_ids == object_id)[0]
     kind = int(boxes.types[rows[0]])
     if kind not in rules.object_types:

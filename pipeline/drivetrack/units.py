@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 
 from pipeline.drivetrack.reader import list_segments
 from pipeline.drivetrack.records import clip_name
+from pipeline.drivetrack.settings import DriveTrackConfig
 from pipeline.sources import UnitPlan
 
 if TYPE_CHECKING:
@@ -43,7 +44,7 @@ def list_units(
     """Every (segment, camera) pair of the split folder, sorted; on a release run, the pairs the
     release names a clip of, each to make only those clips."""
     segments = list_segments(input_root)
-    units = [SegmentCamera(s, c) for s in segments for c in config.drivetrack.cameras]
+    units = [SegmentCamera(s, c) for s in segments for c in config.section(DriveTrackConfig).cameras]
     if release is None:
         return UnitPlan(units)
     expected = {
@@ -58,7 +59,7 @@ def list_units(
     kept = [unit for unit in units if unit.name in expected]
     made = {name for names in expected.values() for name in names}
     absent, not_made = {}, {}
-    cameras = ",".join(str(c) for c in config.drivetrack.cameras)
+    cameras = ",".join(str(c) for c in config.section(DriveTrackConfig).cameras)
     for name in sorted(release - made):
         parsed = RELEASE_NAME.fullmatch(name)
         if parsed is None:

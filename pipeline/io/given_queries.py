@@ -9,6 +9,7 @@ Range requests (its directory and that member only), and a 404 means the release
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import numpy as np
@@ -18,6 +19,33 @@ from pipeline.core.errors import InputError
 from pipeline.io.clip_reader import read_clip_file
 from pipeline.io.http import HttpConfig, HttpError, is_http, join, shared_client, shown
 from pipeline.io.npz_reader import NpzError
+
+
+@dataclasses.dataclass(frozen=True)
+class GivenQueries:
+    """One source's clips of ``--queries-from``, looked up by clip name (``of``).
+
+    folder: the ``--queries-from`` folder or http(s) base; "" when the run has none.
+    source: the source whose clips they are (the ``<folder>/<source>/`` subfolder).
+    http: how an http(s) base is read.
+    """
+
+    folder: str
+    source: str
+    http: HttpConfig = dataclasses.field(default_factory=HttpConfig)
+
+    @property
+    def active(self) -> bool:
+        """True when the run re-annotates existing clips (then only clips found there are made)."""
+        return bool(self.folder.rstrip("/"))
+
+    def admits(self, clip: str) -> bool:
+        """False when ``--queries-from`` is set and holds no clip ``clip`` (then none is made)."""
+        return not self.active or self.of(clip) is not None
+
+    def of(self, clip: str) -> np.ndarray | None:
+        """Queries [N, 3] (x, y, t) of the existing clip ``clip``, or None (``given_queries``)."""
+        return given_queries(self.folder, self.source, clip, self.http)
 
 
 def given_queries(

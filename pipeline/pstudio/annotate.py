@@ -12,10 +12,12 @@ from typing import TYPE_CHECKING
 from pipeline.core.errors import InputError
 from pipeline.core.outcomes import UnitClips
 from pipeline.pstudio.reader import SequenceFiles, params_path, read_gaussians, read_views
-from pipeline.pstudio.records import Gaussians, UnitInput, Views
+from pipeline.pstudio.records import GaussianConstants, Gaussians, UnitInput, Views
+from pipeline.pstudio.settings import PstudioConfig
+from pipeline.pstudio.splats import gaussian_constants
 from pipeline.pstudio.tracks import annotate_unit
 from pipeline.pstudio.units import SequenceCamera
-from pipeline.sources import Wanted
+from pipeline.sources import RunChoices, Wanted
 
 if TYPE_CHECKING:
     from pipeline.settings.run_config import RunConfig
@@ -24,21 +26,23 @@ if TYPE_CHECKING:
 @dataclasses.dataclass(frozen=True)
 class LoadedSequence:
     """What every camera's unit of a sequence shares: its views, its files (images, and masks
-    through the process's mask cache) and its Gaussians."""
+    through the process's mask cache), its Gaussians and their constants."""
 
     name: str
     views: Views
     files: SequenceFiles
     frames: int
     gaussians: Gaussians
+    constants: GaussianConstants
 
 
-def load_sequence(input_root: str, sequence: str, config: RunConfig) -> LoadedSequence:
+def load_sequence(input_root: str, sequence: str, settings: PstudioConfig) -> LoadedSequence:
     """Read a sequence's train_meta.json and Gaussians (params.npz); masks are read when asked."""
     views, meta = read_views(input_root, sequence)
     files = SequenceFiles(input_root, sequence, meta, views)
-    gaussians = read_gaussians(params_path(input_root, sequence, config.pstudio), len(meta["fn"]))
-    return LoadedSequence(sequence, views, files, len(meta["fn"]), gaussians)
+    gaussians = read_gaussians(params_path(input_root, sequence, settings), len(meta["fn"]))
+    constants = gaussian_constants(gaussians.scales, gaussians.opacities)
+    return LoadedSequence(sequence, views, files, len(meta["fn"]), gaussians, constants)
 
 
 def camera_input(opened: LoadedSequence, camera: int) -> UnitInput:
@@ -51,7 +55,8 @@ def camera_input(opened: LoadedSequence, camera: int) -> UnitInput:
         )
     view = views.index(camera)
     frames = [opened.files.image(view, t) for t in range(opened.frames)]
-    return UnitInput(opened.name, camera, views, opened.gaussians, frames, opened.files.mask)
+    mask = opened.files.mask
+    return UnitInput(opened.name, camera, views, opened.gaussians, opened.constants, frames, mask)
 
 
 def annotate_group(
@@ -64,14 +69,15 @@ def annotate_group(
     sequences = {unit.sequence for unit in units}
     if len(sequences) != 1:
         raise ValueError(f"annotate_group takes the units of one sequence, got {sorted(sequences)}")
+    settings, choices = config.section(PstudioConfig), RunChoices.of(config, "pstudio")
     try:
-        opened = load_sequence(input_root, units[0].sequence, config)
+        opened = load_sequence(input_root, units[0].sequence, settings)
     except Exception as error:  # noqa: BLE001 - becomes each unit's failure
         yield from [error] * len(units)
         return
     for camera in (unit.camera for unit in units):
         try:
-            result = UnitClips(tuple(annotate_unit(camera_input(opened, camera), config)))
+            result = UnitClips(tuple(annotate_unit(camera_input(opened, camera), settings, choices)))
         except Exception as error:  # noqa: BLE001 - this camera's failure only
             result = error
         yield result

@@ -4,12 +4,9 @@ camera's unit input, and what a group of cameras of one sequence shares."""
 from __future__ import annotations
 
 import dataclasses
-import functools
 from collections.abc import Callable
 
 import numpy as np
-
-from pipeline.pstudio.splats import GaussianConstants, gaussian_constants
 
 
 @dataclasses.dataclass
@@ -29,8 +26,7 @@ class Views:
 @dataclasses.dataclass
 class Gaussians:
     """Dynamic 3D Gaussians: means [T, N, 3], quaternions [T, N, 4] (w, x, y, z, unnormalised),
-    scales [N, 3], opacities [N], foreground [N] bool; ``constants`` (what no frame changes) is
-    computed on first use, once for every frame and camera."""
+    scales [N, 3], opacities [N], foreground [N] bool."""
 
     means: np.ndarray
     quaternions: np.ndarray
@@ -42,9 +38,20 @@ class Gaussians:
     def num_frames(self) -> int:
         return int(self.means.shape[0])
 
-    @functools.cached_property
-    def constants(self) -> GaussianConstants:
-        return gaussian_constants(self.scales, self.opacities)
+
+@dataclasses.dataclass(frozen=True)
+class GaussianConstants:
+    """Per-Gaussian quantities no frame changes (N Gaussians), float64: scales [N, 3], opacity [N],
+    reach [N] = 2 ln(255 opacity), the squared Mahalanobis radius where alpha falls to 1/255,
+    max_variance [N], the largest scale squared, and cutoff [N] = ln(1 / (255 opacity)), the
+    exponent below which alpha falls under 1/255 (render.py skips a splat there; computed as the
+    rasterizer writes it, not as -reach / 2, which may round differently)."""
+
+    scales: np.ndarray
+    opacity: np.ndarray
+    reach: np.ndarray
+    max_variance: np.ndarray
+    cutoff: np.ndarray
 
 
 def clip_name(sequence: str, camera: int) -> str:
@@ -54,13 +61,15 @@ def clip_name(sequence: str, camera: int) -> str:
 
 @dataclasses.dataclass
 class UnitInput:
-    """Everything one unit reads. ``mask(view, t)`` returns camera ``view``'s foreground mask
-    [H, W] bool at frame t; ``frames_jpeg`` are the unit camera's T frames."""
+    """Everything one unit reads. ``constants``: the Gaussians' (``splats.gaussian_constants``, once
+    per sequence); ``mask(view, t)`` returns camera ``view``'s foreground mask [H, W] bool at frame
+    t; ``frames_jpeg`` are the unit camera's T frames."""
 
     sequence: str
     camera_id: int
     views: Views
     gaussians: Gaussians
+    constants: GaussianConstants
     frames_jpeg: list[bytes]
     mask: Callable[[int, int], np.ndarray]
 

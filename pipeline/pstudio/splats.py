@@ -40,6 +40,8 @@ import dataclasses
 import numba
 import numpy as np
 
+from pipeline.pstudio.records import GaussianConstants
+
 TILE = 16  # pixels per side of the square tiles splats are binned into
 BLOCK = 4  # pixels per side of the blocks a point's splat list is cut to (TILE / BLOCK blocks a side)
 CHUNK = 1024  # splats bounded together before their boxes are tested (_candidates)
@@ -47,21 +49,6 @@ PREPROCESS_CHUNK = 128  # candidates projected together (_preprocess): their col
 # The widest box (blocks a side) tested against depth limits, 2 x 4 - 1: block_limits' windows are
 # 1, 2 and 4 blocks a side, and two cover a box's side. A wider box is kept untested.
 LIMIT_BOX_BLOCKS = 7
-
-
-@dataclasses.dataclass(frozen=True)
-class GaussianConstants:
-    """Per-Gaussian quantities no frame changes (N Gaussians), float64: scales [N, 3], opacity [N],
-    reach [N] = 2 ln(255 opacity), the squared Mahalanobis radius where alpha falls to 1/255,
-    max_variance [N], the largest scale squared, and cutoff [N] = ln(1 / (255 opacity)), the
-    exponent below which alpha falls under 1/255 (render.py skips a splat there; computed as the
-    rasterizer writes it, not as -reach / 2, which may round differently)."""
-
-    scales: np.ndarray
-    opacity: np.ndarray
-    reach: np.ndarray
-    max_variance: np.ndarray
-    cutoff: np.ndarray
 
 
 @numba.njit(cache=True)

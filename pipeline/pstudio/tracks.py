@@ -1,4 +1,4 @@
-"""One Panoptic Studio camera's candidate tracks, on arrays (no Beam, no files).
+"""One Panoptic Studio camera's candidate clip, on arrays (no Beam, no files).
 
 1. Queries: pixels on the unit camera's foreground mask at random frames; the splats' median
    depth (pipeline/pstudio/render.py) rendered at those pixels' centres; unprojected; attached
@@ -9,16 +9,12 @@
    there (no hand term for this source).
 3. A candidate is kept only if it is visible at its own query frame; the query (x, y) is the
    centre's projection there.
-4. Multi-view mask statistic: over every (frame, camera) pair where the centre projects into
-   the image, the fraction that lands on that camera's foreground mask.
+4. Multi-view mask statistic (``multiview_masks.py``): over every (frame, camera) pair where the
+   centre projects into the image, the fraction that lands on that camera's foreground mask.
 """
 
 from __future__ import annotations
 
-import dataclasses
-from typing import TYPE_CHECKING
-
-import numba
 import numpy as np
 
 from pipeline.core.clip import ClipRecord
@@ -27,14 +23,14 @@ from pipeline.core.geometry import invert_se3, project, transform_points, unproj
 from pipeline.core.sampling import rng_for
 from pipeline.core.visibility import in_view
 from pipeline.export.depth_export import dense_depth_mm, dense_record
-from pipeline.io.given_queries import given_queries, given_query_frames
+from pipeline.io.given_queries import given_query_frames
+from pipeline.pstudio.multiview_masks import multiview_mask_fraction
 from pipeline.pstudio.nearest import nearest_centres
 from pipeline.pstudio.records import UnitInput
 from pipeline.pstudio.render import render_depth_at, render_depth_image
+from pipeline.pstudio.settings import PstudioConfig
 from pipeline.pstudio.splats import Splats2D, project_splats
-
-if TYPE_CHECKING:
-    from pipeline.settings.run_config import RunConfig
+from pipeline.sources import RunChoices
 
 
 def splats_in_view(
@@ -47,7 +43,7 @@ def splats_in_view(
     return project_splats(
         g.means[t],
         g.quaternions[t],
-        g.constants,
+        unit.constants,
         v.w2c[view],
         v.fx_fy_cx_cy[view],
         v.width,
@@ -58,7 +54,7 @@ def splats_in_view(
 
 
 def attach_queries(
-    unit: UnitInput, attempts: int, config: RunConfig
+    unit: UnitInput, attempts: int, max_attach_distance_m: float, seed: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Draw ``attempts`` query pixels on the unit camera's mask at random frames; attach the
     surface rendered at each pixel's centre to the nearest foreground Gaussian centre there.
@@ -71,12 +67,12 @@ def attach_queries(
     intrinsics = unit.views.fx_fy_cx_cy[view]
     world_from_cam = invert_se3(unit.views.w2c[view])
     foreground = np.nonzero(unit.gaussians.foreground)[0]
-    rng = rng_for(config.seed, f"{unit.clip_name}/queries")
+    rng = rng_for(seed, f"{unit.clip_name}/queries")
     frames = rng.integers(0, unit.gaussians.num_frames, size=attempts)
     draws = rng.random(attempts)
     gaussian = np.full(attempts, -1)
     distance = np.full(attempts, np.nan)
-    within = config.pstudio.max_attach_distance_m or np.inf
+    within = max_attach_distance_m or np.inf
     for t in np.unique(frames):
         on_mask = np.flatnonzero(unit.mask(view, int(t)))  # row-major, as np.nonzero's (row, column)
         picked = np.nonzero(frames == t)[0]
@@ -97,7 +93,7 @@ def attach_queries(
     return frames[keep], gaussian[keep], distance[keep]
 
 
-def match_given_queries(unit: UnitInput, queries: np.ndarray, config: RunConfig) -> np.ndarray:
+def match_given_queries(unit: UnitInput, queries: np.ndarray) -> np.ndarray:
     """The foreground Gaussian behind each given query [N, 3] (x, y, t): among the centres that
     project within half a pixel of (x, y) at t, the one whose depth is nearest the rendered
     depth there (the release moved each query onto its centre's projection); failing that, the
@@ -132,11 +128,11 @@ def match_given_queries(unit: UnitInput, queries: np.ndarray, config: RunConfig)
 
 
 def track_visibility(
-    unit: UnitInput, gaussians: np.ndarray, config: RunConfig
+    unit: UnitInput, gaussians: np.ndarray, delta: float, export_depth: bool = False
 ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
-    """Tracks [T, K, 3] (camera frame) of Gaussian centres [K] and their visibility [T, K]; with
-    ``export_depth``, also each frame's full depth map as uint16 millimetres [H, W], 0 where
-    there is no surface (else [])."""
+    """Tracks [T, K, 3] (camera frame) of Gaussian centres [K] and their visibility [T, K] (depth
+    test within ``delta`` metres); with ``export_depth``, also each frame's full depth map as uint16
+    millimetres [H, W], 0 where there is no surface (else [])."""
     view = unit.views.index(unit.camera_id)
     intrinsics = unit.views.fx_fy_cx_cy[view]
     frames = unit.gaussians.num_frames
@@ -153,9 +149,9 @@ def track_visibility(
         # nothing is seen there, whatever the track's depth. A median depth beyond z + delta fails
         # the test whatever it is, so no splat deeper than that is projected or composited (the
         # limit's micrometre covers rounding).
-        z, delta = tracks[t, seen, 2], config.pstudio.depth_delta_m
+        z = tracks[t, seen, 2]
         limits = z + delta + 1e-6
-        if config.export_depth:  # every splat, for the full frame; the same projection serves the tracks
+        if export_depth:  # every splat, for the full frame; the same projection serves the tracks
             splats = splats_in_view(unit, view, t)
             depth_image, surface_image = render_depth_image(splats)
             depth_maps.append(dense_depth_mm(np.where(surface_image, depth_image, np.nan)))
@@ -168,7 +164,12 @@ def track_visibility(
 
 
 def track_first_visible(
-    unit: UnitInput, query_frames: np.ndarray, gaussians: np.ndarray, wanted: int, config: RunConfig
+    unit: UnitInput,
+    query_frames: np.ndarray,
+    gaussians: np.ndarray,
+    wanted: int,
+    delta: float,
+    export_depth: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[np.ndarray]]:
     """``track_visibility`` of the first ``wanted`` candidates (query frames [A], Gaussians [A],
     in draw order) that are visible at their own query frame.
@@ -186,8 +187,10 @@ def track_first_visible(
     while depth_maps is None or (found < wanted and done < len(gaussians)):
         short = wanted - found
         batch = np.arange(done, min(len(gaussians), done + short + short // 16 + 8))
-        batch_config = config if depth_maps is None else dataclasses.replace(config, export_depth=False)
-        batch_tracks, batch_visible, maps = track_visibility(unit, gaussians[batch], batch_config)
+        first = depth_maps is None
+        batch_tracks, batch_visible, maps = track_visibility(
+            unit, gaussians[batch], delta, export_depth and first
+        )
         depth_maps = maps if depth_maps is None else depth_maps
         seen = np.nonzero(batch_visible[query_frames[batch], np.arange(len(batch))])[0][:short]
         kept.append(batch[seen])
@@ -197,68 +200,25 @@ def track_first_visible(
     return np.concatenate(kept), np.concatenate(tracks, axis=1), np.concatenate(visible, axis=1), depth_maps
 
 
-@numba.njit(cache=True, nogil=True)
-def camera_pixel(x, y, z, w2c, fx_fy_cx_cy):
-    """(u, v, depth) of the world point (x, y, z) in a camera (w2c [4, 4], fx_fy_cx_cy [4]):
-    ``transform_points`` then ``project``, bit for bit (each row's products summed as NumPy's
-    einsum sums them, (x + z) + y, then the translation; u = fx x / z + cx; NumPy 2.4's order,
-    tests/pstudio/test_pixels.py compares with those functions). u and v are meaningless where
-    the depth is not positive."""
-    depth = ((w2c[2, 0] * x + w2c[2, 2] * z) + w2c[2, 1] * y) + w2c[2, 3]
-    if not depth > 0:
-        return 0.0, 0.0, depth
-    px = ((w2c[0, 0] * x + w2c[0, 2] * z) + w2c[0, 1] * y) + w2c[0, 3]
-    py = ((w2c[1, 0] * x + w2c[1, 2] * z) + w2c[1, 1] * y) + w2c[1, 3]
-    return fx_fy_cx_cy[0] * px / depth + fx_fy_cx_cy[2], fx_fy_cx_cy[1] * py / depth + fx_fy_cx_cy[3], depth
-
-
-@numba.njit(cache=True, nogil=True)
-def _add_view(centres, w2c, fx_fy_cx_cy, width, height, mask, on_mask, seen_count):
-    """One camera's share of ``multiview_mask_fraction`` at one frame: for each centre [K, 3] in
-    front of it and inside its image [H, W] (``camera_pixel``), seen_count += 1 and on_mask +=
-    the mask at pixel (floor(u), floor(v))."""
-    for k in range(centres.shape[0]):
-        u, v, depth = camera_pixel(centres[k, 0], centres[k, 1], centres[k, 2], w2c, fx_fy_cx_cy)
-        if depth > 0 and u >= 0 and u < width and v >= 0 and v < height:
-            seen_count[k] += 1
-            on_mask[k] += mask[int(np.floor(v)), int(np.floor(u))]
-
-
-def multiview_mask_fraction(unit: UnitInput, gaussians: np.ndarray) -> np.ndarray:
-    """[K] fraction of (frame, camera) pairs with the centre in the image whose pixel
-    (floor(u), floor(v)) is on that camera's foreground mask (NaN when never in any image)."""
-    views = unit.views
-    w2c = np.ascontiguousarray(views.w2c, dtype=np.float64)
-    intrinsics = np.ascontiguousarray(views.fx_fy_cx_cy, dtype=np.float64)
-    on_mask = np.zeros(len(gaussians), np.int64)
-    seen_count = np.zeros(len(gaussians), np.int64)
-    for t in range(unit.gaussians.num_frames):
-        centres = unit.gaussians.means[t, gaussians].astype(np.float64)
-        for view in range(len(views.camera_ids)):
-            mask = unit.mask(view, t)
-            _add_view(
-                centres, w2c[view], intrinsics[view], views.width, views.height, mask, on_mask, seen_count
-            )
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(seen_count > 0, on_mask / seen_count, np.nan)
-
-
-def annotate_unit(unit: UnitInput, config: RunConfig) -> list[ClipRecord]:
-    """One candidate clip (oversampled tracks with their statistics) for the unit."""
-    settings = config.pstudio
+def annotate_unit(unit: UnitInput, settings: PstudioConfig, choices: RunChoices) -> list[ClipRecord]:
+    """One candidate clip (oversampled tracks with their statistics) for the unit; none when
+    ``--queries-from`` holds no clip of its name."""
     wanted = settings.tracks_per_clip * settings.oversample
-    queries = given_queries(config.queries_from, "pstudio", unit.clip_name, config.http)
-    if config.queries_from and queries is None:
+    delta, export_depth = settings.depth_delta_m, choices.export_depth
+    queries = choices.given.of(unit.clip_name)
+    if choices.given.active and queries is None:
         return []
     if queries is not None:
-        gaussians = match_given_queries(unit, queries, config)
+        gaussians = match_given_queries(unit, queries)
         query_frames, distance = queries[:, 2].astype(np.int64), np.full(len(queries), np.nan)
-        tracks, visible, depth_maps = track_visibility(unit, gaussians, config)
+        tracks, visible, depth_maps = track_visibility(unit, gaussians, delta, export_depth)
         valid = np.arange(len(gaussians))
     else:
-        query_frames, gaussians, distance = attach_queries(unit, 2 * wanted, config)
+        query_frames, gaussians, distance = attach_queries(
+            unit, 2 * wanted, settings.max_attach_distance_m, choices.seed
+        )
         valid, tracks, visible, depth_maps = track_first_visible(
-            unit, query_frames, gaussians, wanted, config
+            unit, query_frames, gaussians, wanted, delta, export_depth
         )
     query_frames, gaussians, distance = query_frames[valid], gaussians[valid], distance[valid]
     view = unit.views.index(unit.camera_id)
@@ -284,6 +244,6 @@ def annotate_unit(unit: UnitInput, config: RunConfig) -> list[ClipRecord]:
         },
         target_tracks=settings.tracks_per_clip,
         given_queries=queries is not None,
-        depth_export=dense_record(depth_maps, frame_ids) if config.export_depth else None,
+        depth_export=dense_record(depth_maps, frame_ids) if export_depth else None,
     )
     return [clip]

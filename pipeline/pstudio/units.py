@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 from pipeline.core.errors import InputError
 from pipeline.pstudio.reader import list_sequences, read_views
 from pipeline.pstudio.records import clip_name
+from pipeline.pstudio.settings import PstudioConfig
 from pipeline.sources import UnitPlan
 
 if TYPE_CHECKING:
@@ -54,6 +55,7 @@ def list_units(
 ) -> UnitPlan[SequenceCamera]:
     """Every (sequence, camera) pair: the cameras of train_meta.json, or ``pstudio.cameras``; on a
     release run, only the pairs the release names (``<sequence>_<camera>``)."""
+    settings = config.section(PstudioConfig)
     units: list[SequenceCamera] = []
     listed: dict[str, list[int] | None] = {}
     for sequence in list_sequences(input_root):
@@ -61,11 +63,11 @@ def list_units(
             listed[sequence] = [int(c) for c in read_views(input_root, sequence)[0].camera_ids]
         except InputError:
             listed[sequence] = None
-        cameras = config.pstudio.cameras or listed[sequence] or [ALL_CAMERAS]
+        cameras = settings.cameras or listed[sequence] or [ALL_CAMERAS]
         units += [SequenceCamera(sequence, camera) for camera in sorted(cameras)]
     if release is None:
         return UnitPlan(units)
-    return release_plan(units, listed, release, config)
+    return release_plan(units, listed, release, settings)
 
 
 def _pair(name: str) -> tuple[str, int] | None:
@@ -78,7 +80,7 @@ def release_plan(
     units: list[SequenceCamera],
     listed: dict[str, list[int] | None],
     release: frozenset[str],
-    config: RunConfig,
+    settings: PstudioConfig,
 ) -> UnitPlan[SequenceCamera]:
     """The units of ``units`` whose clip the release names, and why the other names make no clip.
 
@@ -105,7 +107,7 @@ def release_plan(
                 f"({_ranges(cameras_of)}){held_out}"
             )
         elif SequenceCamera(sequence, camera) not in units:
-            cameras = ",".join(str(c) for c in config.pstudio.cameras)
+            cameras = ",".join(str(c) for c in settings.cameras)
             not_made[name] = f"camera {camera} is not in pstudio.cameras={cameras}"
         else:
             kept.append(SequenceCamera(sequence, camera))

@@ -206,6 +206,23 @@ def settings_dict(node) -> dict:
     }
 
 
+def setting(node, name: str) -> typing.Any:
+    """Setting ``name`` of the dataclass ``node``: a field, or a section held by its ``sections``
+    field."""
+    for field in dataclasses.fields(node):
+        if field.metadata.get("sections") and name in getattr(node, field.name):
+            return getattr(node, field.name)[name]
+    return getattr(node, name)
+
+
+def value_at(config, key: str) -> typing.Any:
+    """The value of the dotted settings key ``key`` (``adt.chunk_frames``) in ``config``."""
+    node = config
+    for part in key.split("."):
+        node = setting(node, part)
+    return node
+
+
 def _with_setting(node, name: str, value):
     """``node`` with setting ``name`` (a field, or a held section) set to ``value``."""
     fields = {field.name: field for field in dataclasses.fields(node)}
@@ -341,7 +358,7 @@ def _replace_path(node, path: list[str], text: str, key: str, root, option: str,
         near = difflib.get_close_matches(key, valid, n=1, cutoff=0.6)
         hint = f"did you mean {near[0]}? " if near else ""
         raise ValueError(f"{option} {key}: unknown setting; {hint}every key: docs/configuration.md")
-    current = getattr(node, name)
+    current = setting(node, name)
     if dataclasses.is_dataclass(current):
         if len(path) == 1:
             raise ValueError(f"{option} {key}: is a section; name one of its fields")

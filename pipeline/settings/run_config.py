@@ -1,15 +1,17 @@
 """The run's settings: the run-wide fields, the filters' thresholds, and one section per source, named
 after it, that each source declares (``Source.settings``: ``pipeline/<source>/settings.py``).
 
-Read ``config.<source>.<field>``; set from the command line with ``--set <source>.<field>=value``.
-A source registered at run time (a plug-in) brings its section with it.
+A source's code reads its own section, ``config.section(AdtConfig)``, and hands its algorithm code
+that section (or plain values), never the whole run's settings. Set from the command line with
+``--set <source>.<field>=value``. A source registered at run time (a plug-in) brings its section
+with it.
 """
 
 from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, TypeVar
 
 from pipeline.filters.flicker import FlickerConfig
 from pipeline.io.http import HttpConfig
@@ -24,6 +26,8 @@ from pipeline.settings.fields import (
     sections,
     settings_dict,
 )
+
+S = TypeVar("S")
 
 
 def default_sections() -> dict[str, Any]:
@@ -54,7 +58,7 @@ class RunConfig:
       never. Finished units are kept; a rerun resumes.
     flicker: the flicker filter's threshold.
     http: how every HTTP transfer behaves (the release's files, ADT's downloads).
-    source_sections: each source's section, by name (``config.adt`` reads the ``adt`` one).
+    source_sections: each source's section, by name (``section`` reads one by its class).
     """
 
     rules: str = one_of("refined", RULE_SETS, release="release")
@@ -69,11 +73,13 @@ class RunConfig:
     http: HttpConfig = dataclasses.field(default_factory=HttpConfig, metadata={"clip_bytes": False})
     source_sections: Mapping[str, Any] = sections(default_sections)
 
-    def __getattr__(self, name: str):
-        held = self.__dict__.get("source_sections", {})
-        if name in held:
-            return held[name]
-        raise AttributeError(f"RunConfig has no setting or source section {name!r}")
+    def section(self, kind: type[S]) -> S:
+        """The source section of class ``kind`` (``config.section(AdtConfig)``); LookupError when
+        no registered source declares it."""
+        for held in self.source_sections.values():
+            if type(held) is kind:
+                return held
+        raise LookupError(f"the run's settings hold no {kind.__name__} section (is its source registered?)")
 
     def to_dict(self) -> dict:
         return settings_dict(self)

@@ -11,11 +11,12 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from pipeline.samples.adt_excerpt import EXCERPT_SETTINGS
 from pipeline.adt.reader import SequenceReader
 from pipeline.adt.rectify import Rectifier
+from pipeline.adt.settings import AdtConfig
 from pipeline.adt.units import SequenceChunk
 from pipeline.core.errors import InputError
+from pipeline.samples.adt_excerpt import EXCERPT_SETTINGS
 from pipeline.settings.fields import with_overrides, with_rules
 from pipeline.settings.run_config import RunConfig
 from tests.support.adt_excerpt import SAMPLE, needs_excerpt
@@ -183,8 +184,8 @@ def test_a_far_ground_truth_sample_fails_by_our_rule_and_passes_by_the_releases(
     """The excerpt's depth stops one frame early: its second frame's nearest depth image is 33.2 ms
     away. ``adt.max_gt_offset_ms`` 5 (refined) refuses it; 0 (release: the closest sample however
     far, as the release's generator) reads it."""
-    refined = SequenceReader(str(SAMPLE), True, int(RunConfig().adt.max_gt_offset_ms * 1e6))
-    release_limit = with_rules(RunConfig(), "release").adt.max_gt_offset_ms
+    refined = SequenceReader(str(SAMPLE), True, int(AdtConfig().max_gt_offset_ms * 1e6))
+    release_limit = with_rules(AdtConfig(), "release").max_gt_offset_ms
     release = SequenceReader(str(SAMPLE), True, int(release_limit * 1e6))
     try:
         last = int(refined.frame_timestamps()[-1])

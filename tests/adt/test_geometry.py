@@ -4,6 +4,7 @@ depth-test visibility with the hand term, and a whole chunk through ``annotate_c
 import numpy as np
 import pytest
 
+from pipeline.adt.queries import draw_query_pixels
 from pipeline.adt.records import Chunk, Frame, IdRuns, Instances
 from pipeline.adt.rectify import (
     CAM_ROT_FROM_CAM,
@@ -13,17 +14,12 @@ from pipeline.adt.rectify import (
     stored_intrinsics,
     unrotate_pixels_cw,
 )
-from pipeline.adt.tracks import (
-    annotate_chunk,
-    attach,
-    carry,
-    draw_query_pixels,
-    frame_visibility,
-    interior,
-    sample_depth,
-)
+from pipeline.adt.settings import AdtConfig
+from pipeline.adt.tracks import annotate_chunk, attach, carry
+from pipeline.adt.visibility import frame_visibility, interior, sample_depth
 from pipeline.settings.fields import with_overrides
 from pipeline.settings.run_config import RunConfig
+from pipeline.sources import RunChoices
 
 S, F = 512, 280.0
 # The generator's camera has its principal point at projectaria-tools' (256, 256), pixel centres at
@@ -249,7 +245,12 @@ def test_annotate_chunk_matches_the_card_world():
         return world.frame(t)
 
     clip = annotate_chunk(
-        Chunk("card_0", "card/chunk_0", np.arange(4)), read_frame, lambda t: b"jpeg", world.instances, config
+        Chunk("card_0", "card/chunk_0", np.arange(4)),
+        read_frame,
+        lambda t: b"jpeg",
+        world.instances,
+        config.section(AdtConfig),
+        RunChoices.of(config, "adt"),
     )
     assert reads == [0, 1, 2, 3]  # each frame's depth and ids are read once
     n = clip.num_tracks

@@ -116,7 +116,7 @@ def test_folded_counts_equal_the_sweeps_at_every_slider_value(out, source):
     (flicker, fgrid), (mask, mgrid), (_, tgrid) = data["grids"].items()
     run_f, run_m = (
         fgrid.index(base.flicker.max_fraction),
-        mgrid.index(getattr(base, source).mask_min_agreement),
+        mgrid.index(base.source_sections[source].mask_min_agreement),
     )
     points = [(k, run_m, base.min_tracks) for k in range(len(fgrid))]
     points += [(run_f, k, base.min_tracks) for k in range(len(mgrid))]

@@ -6,6 +6,7 @@ import dataclasses
 
 import pytest
 
+from pipeline.adt.settings import AdtConfig
 from pipeline.settings.fields import check_ranges, config_from_dict, settings_items, with_overrides
 from pipeline.settings.run_config import RunConfig
 from tests.support.cli import run_pipeline
@@ -121,7 +122,8 @@ def test_boundary_values_are_accepted(assignment):
 
 def test_min_frames_may_equal_chunk_frames():
     config = with_overrides(RunConfig(), ["adt.chunk_frames=2", "adt.min_frames=2"])
-    assert (config.adt.chunk_frames, config.adt.min_frames) == (2, 2)
+    adt = config.section(AdtConfig)
+    assert (adt.chunk_frames, adt.min_frames) == (2, 2)
 
 
 def test_every_number_and_tuple_field_declares_a_range():

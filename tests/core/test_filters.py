@@ -4,6 +4,7 @@ import numpy as np
 
 from pipeline.core.clip import ClipRecord
 from pipeline.drivetrack.masks import adaptive_closing_px, silhouette_mask
+from pipeline.drivetrack.settings import DriveTrackConfig
 from pipeline.filters.flicker import passes_flicker, visibility_flips
 from pipeline.filters.mask import agreement, on_mask
 from pipeline.filters.select import apply_filters
@@ -99,7 +100,7 @@ def test_filter_stage_counts_each_track_once_in_order():
     visibility[::2, 2] = False  # flickers and off-mask: counted against flicker
     mask_agreement = np.array([1.0, 1.0, 0.1, 0.3, 0.9, np.nan])  # default keeps >= 0.5
     kept, outcome = apply_filters(
-        _clip(visibility, mask_agreement, target=10), RunConfig(), RunConfig().drivetrack.mask_min_agreement
+        _clip(visibility, mask_agreement, target=10), RunConfig(), DriveTrackConfig().mask_min_agreement
     )
     assert outcome.dropped_by() == {"never_visible": 1, "flicker": 2, "mask": 1}
     assert outcome.selected.tolist() == [4, 5]  # NaN agreement: no evidence, kept
@@ -109,13 +110,13 @@ def test_filter_stage_counts_each_track_once_in_order():
 def test_subsample_is_seeded_by_clip_name():
     visibility = np.ones((10, 50), bool)
     clip = _clip(visibility, np.ones(50), target=7)
-    first = apply_filters(clip, RunConfig(), RunConfig().drivetrack.mask_min_agreement)[1].selected
+    first = apply_filters(clip, RunConfig(), DriveTrackConfig().mask_min_agreement)[1].selected
     assert (
         first.tolist()
-        == apply_filters(clip, RunConfig(), RunConfig().drivetrack.mask_min_agreement)[1].selected.tolist()
+        == apply_filters(clip, RunConfig(), DriveTrackConfig().mask_min_agreement)[1].selected.tolist()
     )
     assert len(first) == 7
     other_seed = apply_filters(
-        clip, with_overrides(RunConfig(), ["seed=1"]), RunConfig().drivetrack.mask_min_agreement
+        clip, with_overrides(RunConfig(), ["seed=1"]), DriveTrackConfig().mask_min_agreement
     )[1].selected
     assert other_seed.tolist() != first.tolist()

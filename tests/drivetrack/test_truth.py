@@ -8,6 +8,7 @@ from pipeline.drivetrack import annotate as A
 from pipeline.drivetrack.camera_model import frame_poses
 from pipeline.drivetrack.lidar import gather_lidar
 from pipeline.drivetrack.objects import select_objects
+from pipeline.drivetrack.settings import DriveTrackConfig
 from pipeline.drivetrack.tracks import match_given_queries, point_pool
 from pipeline.filters.select import apply_filters, decide
 from pipeline.samples.waymo_world import SEGMENT
@@ -61,7 +62,8 @@ def test_visibility_agrees_with_ray_cast_truth(clips, world):
             _, _, _, visible, _ = true_tracks(world, clip, camera)
             candidate_agree += (visible == clip.visibility).sum()
             candidate_total += visible.size
-            selected = apply_filters(clip, config, config.drivetrack.mask_min_agreement)[1].selected
+            threshold = config.section(DriveTrackConfig).mask_min_agreement
+            selected = apply_filters(clip, config, threshold)[1].selected
             written_agree += (visible[:, selected] == clip.visibility[:, selected]).sum()
             written_total += visible[:, selected].size
     print(
@@ -158,7 +160,7 @@ def test_mask_filter_drops_planted_off_object_tracks(sample_split, world):
     )
     is_planted = np.linalg.norm(body[:, None] - planted[None], axis=2).min(axis=1) < 1e-6
     assert is_planted.sum() == 12
-    verdicts, _ = decide(clip, config, config.drivetrack.mask_min_agreement)
+    verdicts, _ = decide(clip, config, config.section(DriveTrackConfig).mask_min_agreement)
     visible = clip.visibility[:, is_planted].any(axis=0)
     assert visible.sum() >= 6, "planted points should be visible (ground beside the car)"
     assert not verdicts["mask"][is_planted & clip.visibility.any(axis=0)].any()

@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
+from pipeline.drivetrack.settings import DriveTrackConfig
 from pipeline.export.invariants import check_arrays, check_clip_bytes
 from pipeline.export.manifests import split_clips
 from pipeline.export.npz_writer import FixedWidthBytes, encode_npz
@@ -212,8 +213,8 @@ def test_config_overrides_are_typed_and_checked():
         ["flicker.max_fraction=0.2", "drivetrack.cameras=1,3", "drivetrack.facing_test=false", "seed=4"],
     )
     assert config.flicker.max_fraction == 0.2
-    assert config.drivetrack.cameras == (1, 3)
-    assert config.drivetrack.facing_test is False
+    assert config.section(DriveTrackConfig).cameras == (1, 3)
+    assert config.section(DriveTrackConfig).facing_test is False
     assert config.seed == 4
     expected = r"unknown setting; did you mean flicker.max_fraction\? every key: docs/configuration.md$"
     with pytest.raises(ValueError, match=expected):

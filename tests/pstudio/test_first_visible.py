@@ -4,18 +4,17 @@ their own query frame gives the bits of tracking all of them and keeping the fir
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 
 from pipeline.pstudio import tracks as annotate
 from pipeline.pstudio.records import Gaussians, UnitInput, Views
+from pipeline.pstudio.settings import PstudioConfig
 from pipeline.pstudio.tracks import track_first_visible, track_visibility
-from pipeline.settings.run_config import RunConfig
 from tests.pstudio.test_culling import HEIGHT, INTRINSICS, WIDTH, crowded_scene
 
 FRAMES = 4
+DELTA = PstudioConfig().depth_delta_m
 
 
 @pytest.fixture(scope="module")
@@ -34,6 +33,7 @@ def unit() -> UnitInput:
             opacities=constants.opacity,
             foreground=np.ones(len(means), bool),
         ),
+        constants=constants,
         frames_jpeg=[],
         mask=lambda view, t: np.zeros((HEIGHT, WIDTH), bool),
     )
@@ -43,7 +43,7 @@ def unit() -> UnitInput:
 def seen(unit) -> np.ndarray:
     """The Gaussians [S] visible in some frame (most of the crowd is hidden)."""
     everyone = np.arange(unit.gaussians.means.shape[1])
-    return np.nonzero(track_visibility(unit, everyone, RunConfig())[1].any(axis=0))[0]
+    return np.nonzero(track_visibility(unit, everyone, DELTA)[1].any(axis=0))[0]
 
 
 def candidates(seen: np.ndarray, count: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -59,10 +59,10 @@ def candidates(seen: np.ndarray, count: int, seed: int) -> tuple[np.ndarray, np.
 
 def test_a_tracks_visibility_does_not_depend_on_the_others(unit, seen):
     _, gaussians = candidates(seen, 600, seed=3)
-    tracks, visible, _ = track_visibility(unit, gaussians, RunConfig())
+    tracks, visible, _ = track_visibility(unit, gaussians, DELTA)
     assert 0.2 < visible.mean() < 0.8  # occluded and visible tracks alike
     for part in (gaussians[:1], gaussians[:137], gaussians[450:], gaussians[::-7]):
-        part_tracks, part_visible, _ = track_visibility(unit, part, RunConfig())
+        part_tracks, part_visible, _ = track_visibility(unit, part, DELTA)
         columns = [np.nonzero(gaussians == g)[0][0] for g in part]
         np.testing.assert_array_equal(part_tracks, tracks[:, columns])
         np.testing.assert_array_equal(part_visible, visible[:, columns])
@@ -71,18 +71,16 @@ def test_a_tracks_visibility_does_not_depend_on_the_others(unit, seen):
 @pytest.mark.parametrize("wanted", [1, 40, 150, 599])
 def test_batches_keep_the_first_candidates_seen_at_their_query_frame(unit, seen, wanted, monkeypatch):
     query_frames, gaussians = candidates(seen, 600, seed=4)
-    tracks, visible, _ = track_visibility(unit, gaussians, RunConfig())
+    tracks, visible, _ = track_visibility(unit, gaussians, DELTA)
     expected = np.nonzero(visible[query_frames, np.arange(len(gaussians))])[0][:wanted]
     assert len(expected) < 599  # the last case asks for more than there are
     batches = []
     monkeypatch.setattr(
         annotate,
         "track_visibility",
-        lambda unit, g, config: batches.append(len(g)) or track_visibility(unit, g, config),
+        lambda unit, g, delta, export: batches.append(len(g)) or track_visibility(unit, g, delta, export),
     )
-    kept, kept_tracks, kept_visible, _ = track_first_visible(
-        unit, query_frames, gaussians, wanted, RunConfig()
-    )
+    kept, kept_tracks, kept_visible, _ = track_first_visible(unit, query_frames, gaussians, wanted, DELTA)
     np.testing.assert_array_equal(kept, expected)
     np.testing.assert_array_equal(kept_tracks, tracks[:, expected])
     np.testing.assert_array_equal(kept_visible, visible[:, expected])
@@ -93,14 +91,15 @@ def test_batches_keep_the_first_candidates_seen_at_their_query_frame(unit, seen,
 
 
 def test_the_depth_maps_come_once_and_with_no_candidates(unit, seen):
-    config = dataclasses.replace(RunConfig(), export_depth=True)
     query_frames, gaussians = candidates(seen, 300, seed=5)
-    _, _, all_maps = track_visibility(unit, gaussians, config)
-    _, _, _, maps = track_first_visible(unit, query_frames, gaussians, 100, config)
+    _, _, all_maps = track_visibility(unit, gaussians, DELTA, export_depth=True)
+    _, _, _, maps = track_first_visible(unit, query_frames, gaussians, 100, DELTA, export_depth=True)
     assert len(maps) == FRAMES
     for map_all, map_batched in zip(all_maps, maps, strict=True):
         np.testing.assert_array_equal(map_batched, map_all)
-    kept, tracks, visible, maps = track_first_visible(unit, query_frames[:0], gaussians[:0], 100, config)
+    kept, tracks, visible, maps = track_first_visible(
+        unit, query_frames[:0], gaussians[:0], 100, DELTA, export_depth=True
+    )
     assert kept.shape == (0,)
     assert tracks.shape == (FRAMES, 0, 3)
     assert visible.shape == (FRAMES, 0)

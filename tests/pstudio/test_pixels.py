@@ -7,14 +7,17 @@ import numpy as np
 
 from pipeline.core.geometry import project, rotation_from_roll_pitch_yaw, transform_points
 from pipeline.core.visibility import in_view
+from pipeline.pstudio.multiview_masks import camera_pixel, multiview_mask_fraction
 from pipeline.pstudio.records import Gaussians, UnitInput, Views
-from pipeline.pstudio.tracks import attach_queries, camera_pixel, multiview_mask_fraction, track_visibility
+from pipeline.pstudio.settings import PstudioConfig
+from pipeline.pstudio.splats import gaussian_constants
+from pipeline.pstudio.tracks import attach_queries, track_visibility
 from pipeline.settings.fields import with_rules
-from pipeline.settings.run_config import RunConfig
 
 SIZE = 32
 FOCAL = 500.0
 PRINCIPAL = 16.0
+REFINED = PstudioConfig()
 
 
 def unit_with(pixels, depths, opacities, mask: np.ndarray | None = None, scale: float = 1e-6) -> UnitInput:
@@ -26,6 +29,7 @@ def unit_with(pixels, depths, opacities, mask: np.ndarray | None = None, scale: 
     means = np.column_stack([(pixels - PRINCIPAL) / FOCAL * depths[:, None], depths])
     count = len(depths)
     mask = np.zeros((SIZE, SIZE), bool) if mask is None else mask
+    scales, opacities = np.full((count, 3), scale), np.asarray(opacities, float)
     return UnitInput(
         sequence="hand",
         camera_id=0,
@@ -39,10 +43,11 @@ def unit_with(pixels, depths, opacities, mask: np.ndarray | None = None, scale: 
         gaussians=Gaussians(
             means=means[None],
             quaternions=np.tile([1.0, 0.0, 0.0, 0.0], (1, count, 1)),
-            scales=np.full((count, 3), scale),
-            opacities=np.asarray(opacities, float),
+            scales=scales,
+            opacities=opacities,
             foreground=np.ones(count, bool),
         ),
+        constants=gaussian_constants(scales, opacities),
         frames_jpeg=[],
         mask=lambda view, t: mask,
     )
@@ -54,7 +59,8 @@ def test_a_query_pixel_is_rendered_at_its_centre():
     be 0.9 exp(-0.5 / 0.6) = 0.39 (no surface, no query)."""
     mask = np.zeros((SIZE, SIZE), bool)
     mask[8, 8] = True
-    frames, gaussians, distance = attach_queries(unit_with([[8.5, 8.5]], [2.0], [0.9], mask), 4, RunConfig())
+    unit = unit_with([[8.5, 8.5]], [2.0], [0.9], mask)
+    frames, gaussians, distance = attach_queries(unit, 4, REFINED.max_attach_distance_m, 0)
     np.testing.assert_array_equal(frames, [0])
     np.testing.assert_array_equal(gaussians, [0])
     assert distance[0] < 1e-9
@@ -68,10 +74,10 @@ def test_a_far_attachment_is_refused_by_our_rule_and_kept_by_the_releases():
     mask = np.zeros((SIZE, SIZE), bool)
     mask[8, 20] = True
     unit = unit_with([[8.5, 8.5]], [2.0], [0.9], mask, scale=0.1)
-    refused = attach_queries(unit, 4, RunConfig())
+    refused = attach_queries(unit, 4, REFINED.max_attach_distance_m, 0)
     assert [len(part) for part in refused] == [0, 0, 0]
-    release = with_rules(RunConfig(), "release")
-    frames, gaussians, distance = attach_queries(unit, 4, release)
+    release = with_rules(REFINED, "release")
+    frames, gaussians, distance = attach_queries(unit, 4, release.max_attach_distance_m, 0)
     np.testing.assert_array_equal(gaussians, [0])
     np.testing.assert_allclose(distance, [0.048], atol=1e-9)
 
@@ -90,7 +96,7 @@ def test_the_15_m_background_makes_nothing_visible():
     depth is the 15 m background (no surface), equal to the point's depth yet not a sighting;
     opacity 0.9 is a surface at 15 m and is seen."""
     unit = unit_with([[8.5, 8.5], [24.5, 24.5]], [15.0, 15.0], [0.3, 0.9])
-    tracks, visible, _ = track_visibility(unit, np.array([0, 1]), RunConfig())
+    tracks, visible, _ = track_visibility(unit, np.array([0, 1]), REFINED.depth_delta_m)
     np.testing.assert_allclose(tracks[0, :, 2], [15.0, 15.0])
     np.testing.assert_array_equal(visible, [[False, True]])
 
@@ -150,6 +156,7 @@ def test_the_mask_statistic_matches_its_definition_camera_by_camera():
             gaussians=Gaussians(
                 means, np.zeros((frames, count, 4)), np.ones((count, 3)), np.ones(count), np.ones(count, bool)
             ),
+            constants=gaussian_constants(np.ones((count, 3)), np.ones(count)),
             frames_jpeg=[],
             mask=lambda view, t, masks=masks: masks[t, view],
         )

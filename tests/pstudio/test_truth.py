@@ -9,10 +9,12 @@ from pipeline.core.geometry import invert_se3, project, transform_points
 from pipeline.export.invariants import check_arrays
 from pipeline.export.npz_writer import clip_arrays
 from pipeline.filters.select import apply_filters
+from pipeline.pstudio.settings import PstudioConfig
 from pipeline.pstudio.tracks import annotate_unit, multiview_mask_fraction
 from pipeline.pstudio.units import list_units
 from pipeline.samples.studio_world import FRAMES
 from pipeline.settings.run_config import RunConfig
+from pipeline.sources import RunChoices
 from tests.support.units import pstudio_input
 
 
@@ -24,8 +26,9 @@ def clips(pstudio_sample):
     result = []
     for unit in list_units(root, config).units:
         unit_input = pstudio_input(root, unit.sequence, unit.camera, config)
-        (clip,) = annotate_unit(unit_input, config)
-        kept, outcome = apply_filters(clip, config, config.pstudio.mask_min_agreement)
+        settings = config.section(PstudioConfig)
+        (clip,) = annotate_unit(unit_input, settings, RunChoices.of(config, "pstudio"))
+        kept, outcome = apply_filters(clip, config, settings.mask_min_agreement)
         camera = next(c for c in studio.cameras if c.camera_id == unit.camera)
         result.append((camera, clip, kept, outcome, unit_input))
     return result

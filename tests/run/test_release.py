@@ -17,6 +17,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from pipeline.audit.__main__ import main as audit_main
+from pipeline.drivetrack.settings import DriveTrackConfig
 from pipeline.runner.command import parse_args
 from pipeline.runner.prepare import prepare_run
 from pipeline.runner.resume import run_fingerprint
@@ -210,8 +211,8 @@ def test_an_explicit_setting_wins_over_the_rules_and_says_so(release_file, sampl
     args, beam_args = parse_args([*argv, "--release", release_file, "--set", "drivetrack.facing_test=true"])
     prepared = prepare_run(args, beam_args)
     assert prepared.config.rules == "release"
-    assert prepared.config.drivetrack.facing_test is True
-    assert prepared.config.drivetrack.undistort_frames is False
+    assert prepared.config.section(DriveTrackConfig).facing_test is True
+    assert prepared.config.section(DriveTrackConfig).undistort_frames is False
     assert (
         "rules: --set drivetrack.facing_test=true wins over rules=release (false)" in prepared.rules.lines()
     )

@@ -67,7 +67,7 @@ def truth(spec: dict, speed_scale: float = 1.0) -> np.ndarray:
 def annotate(input_root: str, unit: SpecFile, config: RunConfig) -> list[ClipRecord]:
     with open(os.path.join(input_root, f"{unit.name}.json")) as handle:
         spec = json.load(handle)
-    tracks = truth(spec, config.toy.speed_scale)
+    tracks = truth(spec, config.section(ToyConfig).speed_scale)
     fx, fy, cx, cy = INTRINSICS
     pixels = np.stack(
         [fx * tracks[..., 0] / tracks[..., 2] + cx, fy * tracks[..., 1] / tracks[..., 2] + cy], -1

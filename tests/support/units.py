@@ -9,7 +9,8 @@ from pipeline.core.clip import ClipRecord
 from pipeline.drivetrack.annotate import annotate_cameras, load_units
 from pipeline.drivetrack.records import UnitInput as DriveTrackInput
 from pipeline.pstudio.annotate import camera_input, load_sequence
-from pipeline.pstudio.tracks import UnitInput as StudioInput
+from pipeline.pstudio.records import UnitInput as StudioInput
+from pipeline.pstudio.settings import PstudioConfig
 from pipeline.settings.run_config import RunConfig
 
 
@@ -31,7 +32,7 @@ def drivetrack_clips(unit: DriveTrackInput, config: RunConfig) -> list[ClipRecor
 
 def pstudio_input(input_root: str, sequence: str, camera: int, config: RunConfig) -> StudioInput:
     """What the (sequence, camera) unit reads."""
-    return camera_input(load_sequence(input_root, sequence, config), camera)
+    return camera_input(load_sequence(input_root, sequence, config.section(PstudioConfig)), camera)
 
 
 def adt_clips(input_root: str, unit: SequenceChunk, config: RunConfig) -> list[ClipRecord]:
