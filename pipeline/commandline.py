@@ -112,7 +112,7 @@ def beam_parser(error_class=UsageError) -> argparse.ArgumentParser:
             raise error_class(message)
 
     parser = Parser(allow_abbrev=False, add_help=False)
-    classes = {}
+    classes: dict[str, type[PipelineOptions]] = {}
     for kind in PipelineOptions.__subclasses__():
         classes.setdefault(str(kind), kind)
     for kind in classes.values():
