@@ -99,14 +99,12 @@ def structure_problems(arrays: dict[str, np.ndarray]) -> list[str]:
 def query_problems(arrays: dict[str, np.ndarray]) -> list[str]:
     """Violations of the query invariants of a structurally sound clip: each track visible, in front
     of the camera and projecting onto its query (within 0.5 px) at its query frame, each query
-    inside the frame. ValueError for a clip ``structure_problems`` refuses."""
+    inside the frame. ValueError for a clip whose first frame gives no size (``structure_problems``
+    refuses it)."""
     problems = []
     queries, tracks, visibility = arrays["queries_xyt"], arrays["tracks_XYZ"], arrays["visibility"]
     intrinsics, num_tracks = arrays["fx_fy_cx_cy"], len(arrays["queries_xyt"])
-    size = jpeg_size(bytes(arrays["images_jpeg_bytes"][0]))
-    if size is None:
-        raise ValueError("query_problems reads a structurally sound clip: see structure_problems")
-    height, width = size
+    height, width = frame_size(arrays)
     outside = ~in_image(queries[:, :2].astype(np.float64), width, height)
     if outside.any():
         problems.append(f"{int(outside.sum())} query point(s) outside the {width}x{height} frame")
@@ -126,6 +124,15 @@ def query_problems(arrays: dict[str, np.ndarray]) -> list[str]:
             f"track's projection (worst {np.nanmax(np.where(np.isfinite(error), error, np.inf)):.3f} px)"
         )
     return problems
+
+
+def frame_size(arrays: dict[str, np.ndarray]) -> tuple[int, int]:
+    """(height, width) of the frames of a clip ``structure_problems`` accepts (every frame a JPEG
+    of one size); ValueError for a clip whose first frame gives no size."""
+    size = jpeg_size(bytes(arrays["images_jpeg_bytes"][0]))
+    if size is None:
+        raise ValueError("images_jpeg_bytes[0]: not JPEG bytes with a readable size header")
+    return size
 
 
 def frame_problems(images: np.ndarray) -> list[str]:
