@@ -13,6 +13,7 @@ import difflib
 import re
 import sys
 from collections.abc import Iterable
+from typing import NoReturn
 
 
 class UsageError(Exception):
@@ -82,7 +83,7 @@ class StrictParser(argparse.ArgumentParser):
     def option_names(self) -> list[str]:
         return [name for action in self._actions for name in action.option_strings]
 
-    def error(self, message: str):
+    def error(self, message: str) -> NoReturn:
         print(f"{self.prog}: {message}", file=sys.stderr)
         raise SystemExit(2)
 
@@ -108,11 +109,11 @@ def beam_parser(error_class=UsageError) -> argparse.ArgumentParser:
     from apache_beam.options.pipeline_options import PipelineOptions, _BeamArgumentParser
 
     class Parser(_BeamArgumentParser):
-        def error(self, message):
+        def error(self, message: str) -> NoReturn:
             raise error_class(message)
 
     parser = Parser(allow_abbrev=False, add_help=False)
-    classes = {}
+    classes: dict[str, type[PipelineOptions]] = {}
     for kind in PipelineOptions.__subclasses__():
         classes.setdefault(str(kind), kind)
     for kind in classes.values():

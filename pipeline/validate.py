@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import os
 import sys
+from typing import Any
 
 from pipeline.commandline import StrictParser
 from pipeline.export.invariants import FINDINGS, FLICKER_MAX_FRACTION, NO_FINDINGS, inspect_clip_bytes
@@ -19,7 +20,7 @@ from pipeline.io.files import file_size, is_local, list_files, read_bytes, write
 from pipeline.pipes import run_command
 
 
-def findings_table(rows: list[dict]) -> str:
+def findings_table(rows: list[dict[str, Any]]) -> str:
     """Plain-text table: clip, tracks, then one column per finding ('-' where it could not be looked at)."""
     header = ("clip", "tracks", *FINDINGS)
     cells = [header] + [tuple("-" if row[key] is None else str(row[key]) for key in header) for row in rows]
@@ -67,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"validate: {error}", file=sys.stderr)
         return 2
     bad = 0
-    rows = []
+    rows: list[dict[str, Any]] = []  # a clip's path, findings (counts, residuals, None) and violations
     for path in paths:
         try:
             data = read_bytes(path, limits.max_file_bytes)

@@ -38,6 +38,7 @@ import tempfile
 import zipfile
 from collections.abc import Iterable, Iterator, Mapping
 from fractions import Fraction
+from typing import TypeVar
 
 from projectaria_tools.tools.dataset_downloader.dataset_downloader import MPS_DATA_TYPE_TO_SAVE_PATH
 from projectaria_tools.tools.dataset_downloader.dataset_downloader_utils import load_data_groups_from_cdn
@@ -47,6 +48,8 @@ from pipeline.core.progress import progress
 from pipeline.core.sizes import format_bytes
 from pipeline.io.files import PARTIAL, is_abandoned, writer_host
 from pipeline.io.http import HttpClient, HttpConfig, HttpError
+
+T = TypeVar("T")
 
 RECORDING_GROUP = "main_vrs"
 MAX_URL_FILE_BYTES = 64 << 20
@@ -162,18 +165,20 @@ def _load_json(path: str) -> dict:
     return data
 
 
-def _need(path: str, where: str, value: object, kind: type) -> None:
+def _need(path: str, where: str, value: object, kind: type[T]) -> T:
+    """``value`` when it is a ``kind`` (a bool is no int); InputError naming ``where`` otherwise."""
     if not isinstance(value, kind) or isinstance(value, bool):
         raise InputError(f"{path}: {where} must be a {kind.__name__}, not {type(value).__name__}")
+    return value
 
 
 def _safe_relative(path: str, where: str, name: object) -> str:
     """A relative path with no '..', no empty part and no backslash (file names of a sequence)."""
-    _need(path, where, name, str)
-    parts = name.split("/")
-    if name.startswith("/") or "\\" in name or "\0" in name or any(p in ("", ".", "..") for p in parts):
-        raise InputError(f"{path}: {where}: {name!r} is not a plain relative file name")
-    return name
+    text = _need(path, where, name, str)
+    parts = text.split("/")
+    if text.startswith("/") or "\\" in text or "\0" in text or any(p in ("", ".", "..") for p in parts):
+        raise InputError(f"{path}: {where}: {text!r} is not a plain relative file name")
+    return text
 
 
 def read_url_file(path: str) -> UrlFile:
@@ -182,45 +187,41 @@ def read_url_file(path: str) -> UrlFile:
     for key in ("sequences", "sequence_config"):
         if key not in data:
             raise InputError(f"{path}: no '{key}' key, not an ADT URL file")
-    sequences, config = data["sequences"], data["sequence_config"]
-    _need(path, "'sequences'", sequences, dict)
-    _need(path, "'sequence_config'", config, dict)
-    _need(path, "'sequence_config/main'", config.get("main"), dict)
+    sequences = _need(path, "'sequences'", data["sequences"], dict)
+    config = _need(path, "'sequence_config'", data["sequence_config"], dict)
+    main = _need(path, "'sequence_config/main'", config.get("main"), dict)
     _need(path, "'sequence_config/data_groups'", config.get("data_groups"), dict)
-    main = config["main"]
     recording = _safe_relative(path, "'sequence_config/main/recording'", main.get("recording"))
-    _need(path, "'sequence_config/main/mps'", main.get("mps"), str)
+    mps = _need(path, "'sequence_config/main/mps'", main.get("mps"), str)
     entries = {
         str(name): _read_entries(path, f"'sequences/{name}'", groups) for name, groups in sequences.items()
     }
-    groups = _data_groups(path, main["mps"])
-    return UrlFile(path, tuple(entries), entries, groups, recording, main["mps"])
+    groups = _data_groups(path, mps)
+    return UrlFile(path, tuple(entries), entries, groups, recording, mps)
 
 
 def _read_entries(path: str, where: str, groups: object) -> dict[str, GroupEntry]:
-    _need(path, where, groups, dict)
-    return {str(group): _read_entry(path, f"{where[:-1]}/{group}'", entry) for group, entry in groups.items()}
+    named = _need(path, where, groups, dict)
+    return {str(group): _read_entry(path, f"{where[:-1]}/{group}'", entry) for group, entry in named.items()}
 
 
 def _read_entry(path: str, where: str, entry: object) -> GroupEntry:
-    _need(path, where, entry, dict)
-    if "download_url" not in entry:
+    fields = _need(path, where, entry, dict)
+    if "download_url" not in fields:
         raise InputError(f"{path}: {where} has no 'download_url'")
-    url = entry["download_url"]
-    if not url:  # the library skips such a group: it is not available
+    if not fields["download_url"]:  # the library skips such a group: it is not available
         return GroupEntry("", "", "", 0)
-    _need(path, f"{where[:-1]}/download_url'", url, str)
+    url = _need(path, f"{where[:-1]}/download_url'", fields["download_url"], str)
     if not url.startswith(("http://", "https://")):
         raise InputError(f"{path}: {where}: the download URL is not http:// or https://")
-    sha1, size = entry.get("sha1sum"), entry.get("file_size_bytes")
+    sha1, size = fields.get("sha1sum"), fields.get("file_size_bytes")
     if not isinstance(sha1, str) or not _SHA1.fullmatch(sha1):
         raise InputError(f"{path}: {where}: 'sha1sum' must be 40 hex digits, not {sha1!r}")
     if isinstance(size, str) and size.isdigit():
         size = int(size)
     if not isinstance(size, int) or isinstance(size, bool) or size < 0:
         raise InputError(f"{path}: {where}: 'file_size_bytes' must be a byte count, not {size!r}")
-    filename = entry.get("filename", "")
-    _need(path, f"{where[:-1]}/filename'", filename, str)
+    filename = _need(path, f"{where[:-1]}/filename'", fields.get("filename", ""), str)
     return GroupEntry(url, filename, sha1.lower(), size)
 
 
@@ -233,11 +234,11 @@ def _data_groups(path: str, mps_folder: str) -> dict[str, tuple[str, ...]]:
         raise InputError(f"{path}: {_one_line(error) or type(error).__name__}") from error
     out = {}
     for group, files in groups.items():
-        files = [files] if isinstance(files, str) else files
-        _need(path, f"'sequence_config/data_groups/{group}'", files, list)
-        folder, where = _group_folder(mps_folder, group), f"'sequence_config/data_groups/{group}'"
+        where = f"'sequence_config/data_groups/{group}'"
+        names = _need(path, where, [files] if isinstance(files, str) else files, list)
+        folder = _group_folder(mps_folder, group)
         out[str(group)] = tuple(
-            _safe_relative(path, where, posixpath.join(folder, name) if folder else name) for name in files
+            _safe_relative(path, where, posixpath.join(folder, name) if folder else name) for name in names
         )
     return out
 

@@ -108,10 +108,11 @@ class _Camera:
 
     @classmethod
     def of(cls, calibration, size: int, focal: float) -> _Camera:
+        width, height = calibration.get_image_size()
         return cls(
             str(calibration.get_model_name()),
             np.asarray(calibration.get_projection_params(), np.float64).tobytes(),
-            tuple(int(n) for n in calibration.get_image_size()),
+            (int(width), int(height)),
             float(calibration.get_valid_radius()),
             float(calibration.get_max_solid_angle()),
             int(size),

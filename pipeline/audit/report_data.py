@@ -17,6 +17,8 @@ with ``min_tracks`` and the clip's target as ``evaluate`` compares them.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from pipeline import sources
@@ -41,8 +43,11 @@ def fraction_grid(run_value: float) -> list[float]:
 
 def flicker_buckets(flips: np.ndarray, num_frames: int, grid: list[float]) -> np.ndarray:
     """Per track [N] int: how many values of ``grid`` (ascending) ``passes_flicker`` rejects it at."""
-    passes = passes_flicker(np.asarray(flips)[:, None], num_frames, np.asarray(grid)[None, :])
-    return (~passes).sum(axis=1)
+    flips = np.asarray(flips)
+    rejections = np.zeros(len(flips), np.int64)
+    for fraction in grid:
+        rejections += ~passes_flicker(flips, num_frames, fraction)
+    return rejections
 
 
 def mask_buckets(agreement: np.ndarray | None, count: int, grid: list[float]) -> np.ndarray:
@@ -135,7 +140,8 @@ def source_data(output: str, source: Source) -> dict | None:
     splits = None if verdicts is None else {row["clip"]: row["split"] for row in verdicts}
     flicker_grid = fraction_grid(config.flicker.max_fraction)
     mask_grid = fraction_grid(source.mask_min_agreement(config))
-    clips, histograms = [], {}
+    clips: list[dict] = []
+    histograms: dict[str, Any] = {}
     for path in sorted(paths):
         table = read_clip_table(path)
         if splits is not None and table["clip"] not in splits:

@@ -38,7 +38,7 @@ SUMMARY_KEYS = ("candidate_tracks", "dropped_by_filter", "tracks_passing_filters
 
 def packed(values, dtype) -> str:
     """Base64 of ``values`` as a little-endian array of ``dtype`` (read by the page as a typed array)."""
-    return base64.b64encode(np.ascontiguousarray(values, dtype=np.dtype(dtype).newbyteorder("<"))).decode()
+    return base64.b64encode(np.asarray(values, dtype=np.dtype(dtype).newbyteorder("<")).tobytes()).decode()
 
 
 def pairs_json(clips: list[dict]) -> dict:
@@ -173,8 +173,10 @@ def run_check(data: dict) -> str:
     """Whether the folded counts at the run's thresholds reproduce its provenance file, in words."""
     if data["summary"] is None:
         return "no run's provenance"
-    indices = [grid.index(data["thresholds"][key]) for key, grid in list(data["grids"].items())[:2]]
-    result = counts_at(data, *indices, data["thresholds"]["min_tracks"])
+    flicker_index, mask_index = (
+        grid.index(data["thresholds"][key]) for key, grid in list(data["grids"].items())[:2]
+    )
+    result = counts_at(data, flicker_index, mask_index, data["thresholds"]["min_tracks"])
     if matches_run(result, data["summary"]):
         return "reproduces the run's provenance"
     return "DOES NOT reproduce it"

@@ -25,6 +25,7 @@ import json
 import os
 import sys
 from collections.abc import Iterable, Mapping
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -413,7 +414,10 @@ def sweep(args: argparse.Namespace) -> int:
         print(f"sweep: no audit tables{which} in {output}/audit/{args.source}/", file=sys.stderr)
         return 1
     keys = list(grid)
-    rows = [{"values": {k: _current(base, k) for k in keys}, "result": evaluate(clips, source, base, splits)}]
+    # A combination's values and totals; the run's own row also says whether it matches the run.
+    rows: list[dict[str, Any]] = [
+        {"values": {k: _current(base, k) for k in keys}, "result": evaluate(clips, source, base, splits)}
+    ]
     for values in itertools.product(*grid.values()) if keys else []:
         config = with_overrides(base, [f"{k}={v}" for k, v in zip(keys, values, strict=True)])
         rows.append(

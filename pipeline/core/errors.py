@@ -12,8 +12,8 @@ class OutputError(Exception):
 def root_cause(error: BaseException) -> BaseException:
     """The innermost exception of a chain (Beam re-raises a step's error as a RuntimeError; numba
     hands back a Ctrl-C taken during a kernel's call as a SystemError caused by it)."""
-    while (error.__cause__ or error.__context__) is not None:
-        error = error.__cause__ or error.__context__
+    while (inner := error.__cause__ or error.__context__) is not None:
+        error = inner
     return error
 
 
@@ -22,9 +22,10 @@ def interruption(error: BaseException) -> KeyboardInterrupt | None:
     Ctrl-C taken while another error was being handled (a retry's wait) has that error as its
     context, and Beam or numba may wrap it in turn."""
     seen: list[BaseException] = []
-    while error is not None and not any(error is other for other in seen):
-        if isinstance(error, KeyboardInterrupt):
-            return error
-        seen.append(error)
-        error = error.__cause__ or error.__context__
+    link: BaseException | None = error
+    while link is not None and not any(link is other for other in seen):
+        if isinstance(link, KeyboardInterrupt):
+            return link
+        seen.append(link)
+        link = link.__cause__ or link.__context__
     return None

@@ -9,12 +9,12 @@ DirectRunner starts inherit a silenced stderr (``workers_silenced``).
 from __future__ import annotations
 
 import contextlib
-import io
 import logging
 import os
 import sys
 import time
 from collections.abc import Iterator
+from typing import TextIO
 
 VERBOSE_ENV = "TAPVID3D_VERBOSE"
 # Loggers that speak on a worker: Beam's own, and the GCP client's import warning.
@@ -44,7 +44,7 @@ def quiet_worker_logs() -> None:
 
 
 @contextlib.contextmanager
-def workers_silenced() -> Iterator[io.TextIOBase]:
+def workers_silenced() -> Iterator[TextIO]:
     """For the ``with`` block, file descriptor 2 goes to /dev/null (unless ``--verbose``): worker
     processes started meanwhile inherit it, so Beam's harness lines and a worker's log stay out of
     the user's terminal. Yields the stream the main process reports on: the real stderr."""

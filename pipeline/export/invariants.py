@@ -99,11 +99,12 @@ def structure_problems(arrays: dict[str, np.ndarray]) -> list[str]:
 def query_problems(arrays: dict[str, np.ndarray]) -> list[str]:
     """Violations of the query invariants of a structurally sound clip: each track visible, in front
     of the camera and projecting onto its query (within 0.5 px) at its query frame, each query
-    inside the frame."""
+    inside the frame. ValueError for a clip whose first frame gives no size (``structure_problems``
+    refuses it)."""
     problems = []
     queries, tracks, visibility = arrays["queries_xyt"], arrays["tracks_XYZ"], arrays["visibility"]
     intrinsics, num_tracks = arrays["fx_fy_cx_cy"], len(arrays["queries_xyt"])
-    height, width = jpeg_size(bytes(arrays["images_jpeg_bytes"][0]))
+    height, width = frame_size(arrays)
     outside = ~in_image(queries[:, :2].astype(np.float64), width, height)
     if outside.any():
         problems.append(f"{int(outside.sum())} query point(s) outside the {width}x{height} frame")
@@ -125,15 +126,26 @@ def query_problems(arrays: dict[str, np.ndarray]) -> list[str]:
     return problems
 
 
+def frame_size(arrays: dict[str, np.ndarray]) -> tuple[int, int]:
+    """(height, width) of the frames of a clip ``structure_problems`` accepts (every frame a JPEG
+    of one size); ValueError for a clip whose first frame gives no size."""
+    size = jpeg_size(bytes(arrays["images_jpeg_bytes"][0]))
+    if size is None:
+        raise ValueError("images_jpeg_bytes[0]: not JPEG bytes with a readable size header")
+    return size
+
+
 def frame_problems(images: np.ndarray) -> list[str]:
     """The first frame [T] that is not a JPEG with a readable size header, or whose size differs
     from frame 0's (a clip's frames share one size)."""
-    first = jpeg_size(bytes(images[0])) if len(images) else None
+    first = None
     for index, frame in enumerate(images):
         size = jpeg_size(bytes(frame))
         if size is None:
             return [f"images_jpeg_bytes[{index}]: not JPEG bytes with a readable size header"]
-        if size != first:
+        if first is None:
+            first = size
+        elif size != first:
             return [
                 f"images_jpeg_bytes[{index}]: {size[1]}x{size[0]} pixels, frame 0 is {first[1]}x{first[0]}"
             ]

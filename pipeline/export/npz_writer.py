@@ -9,6 +9,8 @@ from __future__ import annotations
 import dataclasses
 import io
 import zipfile
+from collections.abc import Mapping
+from typing import IO
 
 import numpy as np
 
@@ -34,11 +36,11 @@ class FixedWidthBytes:
     def nbytes(self) -> int:
         return self.width * len(self.items)
 
-    def header(self) -> dict:
+    def header(self) -> dict[str, object]:
         """The ``.npy`` header fields of the array."""
         return {"descr": f"|S{self.width}", "fortran_order": False, "shape": (len(self.items),)}
 
-    def write(self, stream) -> None:
+    def write(self, stream: IO[bytes]) -> None:
         """The array's bytes, item by item: each item, then its NUL padding."""
         width = self.width
         padding = memoryview(bytes(width))
@@ -61,7 +63,7 @@ def clip_members(clip: ClipRecord) -> dict[str, np.ndarray | FixedWidthBytes]:
     float64 intrinsics as the release writes them, float64 extrinsics (a camera 15 km from the
     world's origin is rounded by ~1 mm in float32). No object array: the file opens with a
     plain ``np.load``."""
-    members = {
+    members: dict[str, np.ndarray | FixedWidthBytes] = {
         "images_jpeg_bytes": FixedWidthBytes(clip.images_jpeg),
         "queries_xyt": clip.queries_xyt.astype(np.float32),
         "tracks_XYZ": clip.tracks_xyz.astype(np.float32),
@@ -79,7 +81,7 @@ def clip_arrays(clip: ClipRecord) -> dict[str, np.ndarray]:
     return {key: v.array() if isinstance(v, FixedWidthBytes) else v for key, v in members.items()}
 
 
-def encode_npz(members: dict[str, np.ndarray | FixedWidthBytes], compress: bool = False) -> bytes:
+def encode_npz(members: Mapping[str, np.ndarray | FixedWidthBytes], compress: bool = False) -> bytes:
     """A deterministic ``.npz`` readable by np.load: stored like ``np.savez``, or deflated like
     ``np.savez_compressed`` with ``compress``.
 
@@ -94,18 +96,19 @@ def encode_npz(members: dict[str, np.ndarray | FixedWidthBytes], compress: bool 
     with zipfile.ZipFile(buffer, "w", compression=method, allowZip64=True) as archive:
         for key in sorted(members):
             value = members[key]
-            padded = isinstance(value, FixedWidthBytes)
-            if not padded:
+            if isinstance(value, FixedWidthBytes):
+                fields = value.header()
+            else:
                 value = np.asanyarray(value)
+                fields = np.lib.format.header_data_from_array_1_0(value)
             header = io.BytesIO()
-            fields = value.header() if padded else np.lib.format.header_data_from_array_1_0(value)
             np.lib.format.write_array_header_1_0(header, fields)
             info = zipfile.ZipInfo(f"{key}.npy", date_time=FIXED_ZIP_TIME)
             info.compress_type = method
             info.external_attr = 0o644 << 16
             info.file_size = header.tell() + value.nbytes
             with archive.open(info, "w") as member:
-                if padded:
+                if isinstance(value, FixedWidthBytes):
                     member.write(header.getvalue())
                     value.write(member)
                 else:

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import importlib.util
 import os
+from collections.abc import Callable
+from typing import Any
 
 from apache_beam.io.filesystem import BeamIOError, FileSystem
 from apache_beam.io.filesystems import FileSystems
@@ -30,6 +32,8 @@ S3_CLIENT_OPTIONS = (
     "s3_api_version",
     "s3_verify",
 )
+# Set on a library method this module replaced (``replace_method_once``), so a second call keeps it.
+REPLACED_MARK = "replaced_by_tapvid3d_storage"
 
 
 class StorageError(ValueError):
@@ -79,17 +83,16 @@ def allow_empty_s3_objects() -> None:
         from apache_beam.io.aws.s3io import S3Uploader
     except ImportError:
         return
-    finish = S3Uploader.finish
-    if getattr(finish, "sends_a_part", False):
-        return
 
-    def finish_with_a_part(self) -> None:
-        if not self.parts and not self.buffer:
-            self._write_to_s3(b"")
-        finish(self)
+    def with_a_part(finish: Callable[[S3Uploader], None]) -> Callable[[S3Uploader], None]:
+        def finish_with_a_part(self: S3Uploader) -> None:
+            if not self.parts and not self.buffer:
+                self._write_to_s3(b"")
+            finish(self)
 
-    finish_with_a_part.sends_a_part = True
-    S3Uploader.finish = finish_with_a_part
+        return finish_with_a_part
+
+    replace_method_once(S3Uploader, "finish", with_a_part)
 
 
 def share_s3_clients() -> None:
@@ -102,22 +105,32 @@ def share_s3_clients() -> None:
         from apache_beam.io.aws.clients.s3.boto3_client import Client
     except ImportError:
         return
-    build = Client.__init__
-    if getattr(build, "shares_clients", False):
-        return
     built: dict[tuple, dict] = {}
 
-    def build_once(self, options) -> None:
-        key = (os.getpid(), *s3_client_options(options))
-        state = built.get(key)
-        if state is None:
-            build(self, options)
-            built[key] = dict(vars(self))
-        else:
-            vars(self).update(state)
+    def once_per_options(build: Callable[[Client, Any], None]) -> Callable[[Client, Any], None]:
+        def build_once(self: Client, options: Any) -> None:
+            key = (os.getpid(), *s3_client_options(options))
+            state = built.get(key)
+            if state is None:
+                build(self, options)
+                built[key] = dict(vars(self))
+            else:
+                vars(self).update(state)
 
-    build_once.shares_clients = True
-    Client.__init__ = build_once
+        return build_once
+
+    replace_method_once(Client, "__init__", once_per_options)
+
+
+def replace_method_once(owner: type, name: str, wrap: Callable[[Any], Callable[..., None]]) -> None:
+    """Put ``wrap(method)`` in place of the library method ``owner.<name>``, unless this module
+    already replaced it in this process (the replacement carries the attribute ``REPLACED_MARK``)."""
+    method = getattr(owner, name)
+    if getattr(method, REPLACED_MARK, False):
+        return
+    replacement = wrap(method)
+    setattr(replacement, REPLACED_MARK, True)
+    setattr(owner, name, replacement)
 
 
 def s3_client_options(options) -> tuple:

@@ -22,7 +22,7 @@ from pipeline.pstudio.settings import PstudioConfig
 # More Gaussians than any Dynamic 3D Gaussians scene holds (a few hundred thousand): a header claiming
 # more is refused before anything is allocated.
 MAX_GAUSSIANS = 20_000_000
-PARAMS_SHAPES = {  # member -> shape with T, N symbolic
+PARAMS_SHAPES: dict[str, tuple[str | int, ...]] = {  # member -> shape with T, N symbolic
     "means3D": ("T", "N", 3),
     "unnorm_rotations": ("T", "N", 4),
     "log_scales": ("N", 3),
@@ -145,8 +145,9 @@ def read_gaussians(path: str, frames: int) -> Gaussians:
             count = shapes["means3D"][1] if len(shapes["means3D"]) == 3 else -1
             if count > MAX_GAUSSIANS:
                 raise InputError(f"{path}: means3D claims {count} Gaussians, more than {MAX_GAUSSIANS} read")
+            sizes = {"T": frames, "N": count}
             for name, shape in PARAMS_SHAPES.items():
-                expected = tuple({"T": frames, "N": count}.get(d, d) for d in shape)
+                expected = tuple(sizes[d] if isinstance(d, str) else d for d in shape)
                 if shapes[name] != expected:
                     raise InputError(
                         f"{path}: {name} has shape {shapes[name]}, expected {expected} "

@@ -430,9 +430,10 @@ def project_splats(
 
     With ``points_uv`` [P, 2], keep only the splats that can touch a block holding one of those
     points: enough to render depth there, and much less to project, sort and bin. With
-    ``limits`` [P] too (view-space z, metres), only those no deeper than the largest limit of the
-    points in a block they touch: enough for ``render.render_depth_at`` with those limits (a
-    point's splats deeper than its limit may be left out).
+    ``limits`` [P] too (view-space z, metres; ValueError without ``points_uv``), only those no
+    deeper than the largest limit of the points in a block they touch: enough for
+    ``render.render_depth_at`` with those limits (a point's splats deeper than its limit may be
+    left out).
 
     Args:
       means: [N, 3] world centres. quaternions: [N, 4] (w, x, y, z), unnormalised; float32 or
@@ -443,7 +444,11 @@ def project_splats(
     w2c = np.ascontiguousarray(w2c, dtype=np.float64)
     intrinsics = np.asarray(fx_fy_cx_cy, dtype=np.float64)
     wanted = wanted_blocks(points_uv, width, height)
-    depth_limits = None if limits is None else block_limits(points_uv, limits, width, height)
+    depth_limits = None
+    if limits is not None:
+        if points_uv is None:
+            raise ValueError("project_splats: limits [P] are depths of points_uv [P, 2], which is None")
+        depth_limits = block_limits(points_uv, limits, width, height)
     max_depth = np.inf if depth_limits is None else depth_limits[0, 0].max()
     view = (w2c, intrinsics, int(width), int(height))
     candidates = cull(means, constants, view, float(max_depth), wanted)

@@ -145,8 +145,10 @@ def _section(key: str) -> str:
 
 
 def markdown() -> str:
-    """The page: the header, then one table per section (run-wide first), built-in sources only."""
-    config = RunConfig(source_sections={name: sources.settings_of(name)() for name in sources.BUILT_IN})
+    """The page: the header, then one table per section (run-wide first), built-in sources with
+    settings only."""
+    sections = {name: kind() for name in sources.BUILT_IN if (kind := sources.settings_of(name)) is not None}
+    config = RunConfig(source_sections=sections)
     table = rows(config)
     titles = {
         "": "Run-wide",

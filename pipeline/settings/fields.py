@@ -12,6 +12,7 @@ import dataclasses
 import difflib
 import re
 import typing
+from collections.abc import Mapping
 
 _INTERVAL = re.compile(r"([\[(])\s*([^,\s]+)\s*,\s*([^\])\s]+)\s*([\])])")
 
@@ -123,10 +124,15 @@ def one_of(default: str, values: tuple[str, ...], *, release=_SAME):
     return dataclasses.field(default=default, metadata=_metadata(Choice(values), release))
 
 
+def _declared_metadata(config) -> dict[str, Mapping[str, typing.Any]]:
+    """Field name -> its metadata, for each field of the dataclass ``config``."""
+    return {field.name: field.metadata for field in dataclasses.fields(config)}
+
+
 def release_values(config, prefix: str = "") -> dict[str, object]:
     """Key -> the release's value (or NOT_KNOWN) of every setting of ``config`` whose release value
     is marked (``ranged(..., release=...)``, ``flag``), sections included."""
-    declared = {field.name: field.metadata for field in dataclasses.fields(config)}
+    declared = _declared_metadata(config)
     found = {}
     for name, value, _ in settings_items(config):
         if dataclasses.is_dataclass(value):
@@ -168,7 +174,7 @@ def path_setting(default: str = "", label: str = "", clip_bytes: bool = True):
 
 def path_settings(config, prefix: str = "") -> dict[str, str]:
     """The paths the run reads: label (or key) -> value of every set ``path_setting`` of ``config``."""
-    declared = {field.name: field.metadata for field in dataclasses.fields(config)}
+    declared = _declared_metadata(config)
     found = {}
     for name, value, _ in settings_items(config):
         if dataclasses.is_dataclass(value):

@@ -18,8 +18,7 @@ from matplotlib.figure import Figure
 from PIL import Image
 
 from pipeline.core.geometry import invert_se3, project
-from pipeline.core.images import jpeg_size
-from pipeline.export.invariants import structure_problems
+from pipeline.export.invariants import frame_size, structure_problems
 from pipeline.io.clip_reader import CLIP_KEYS, DEFAULT_LIMITS, ReadLimits, read_clip_file
 
 IMAGES_KEY = "images_jpeg_bytes"
@@ -45,7 +44,7 @@ def load_clip(
         problems = structure_problems(clip)
         if problems:
             raise ValueError(f"{path}: not a clip that can be drawn: {problems[0]}")
-        height, width = jpeg_size(bytes(clip[IMAGES_KEY][0]))
+        height, width = frame_size(clip)
         if height * width > limits.max_image_pixels:
             raise ValueError(
                 f"{path}: frames of {width}x{height} pixels, more than {limits.max_image_pixels}"
@@ -133,11 +132,11 @@ def draw_tracks(
                 cv2.line(image, start, end, color, 2, cv2.LINE_AA, SUBPIXEL_BITS)
     small = max(2, radius // 2)
     greyed = occluded_colors(colors)
-    for k in np.flatnonzero(drawable[t] & ~visibility[t]):
+    for k in np.flatnonzero(drawable[t] & ~visibility[t]).tolist():
         centre = tuple(fixed[t, k].tolist())
         cv2.circle(image, centre, small * scale, greyed[k].tolist(), -1, cv2.LINE_AA, SUBPIXEL_BITS)
         cv2.circle(image, centre, small * scale, OCCLUDED_EDGE, 1, cv2.LINE_AA, SUBPIXEL_BITS)
-    for k in np.flatnonzero(drawable[t] & visibility[t]):
+    for k in np.flatnonzero(drawable[t] & visibility[t]).tolist():
         centre = tuple(fixed[t, k].tolist())
         cv2.circle(image, centre, radius * scale, colors[k].tolist(), -1, cv2.LINE_AA, SUBPIXEL_BITS)
     return image
@@ -166,7 +165,7 @@ class TrajectoryView:
         self.greyed = occluded_colors(colors) / 255.0
         self.title = wrap_title(title, TITLE_WIDTH)
         self.figure = Figure(figsize=(PANEL_INCHES, PANEL_INCHES), dpi=size_px / PANEL_INCHES)
-        FigureCanvasAgg(self.figure)
+        self.canvas = FigureCanvasAgg(self.figure)
         self.axes = self.figure.add_subplot(projection="3d", computed_zorder=False)  # drawn by zorder
         for k, color in enumerate(self.colors):
             self.axes.plot(*self.points[:, k].T, color=color, linewidth=1.0, alpha=0.7)
@@ -209,8 +208,8 @@ class TrajectoryView:
                     )
                 )
         self.axes.set_title(f"{self.title}\nframe {t + 1} of {len(self.points)}", fontsize=9)
-        self.figure.canvas.draw()
-        return np.asarray(self.figure.canvas.buffer_rgba())[..., :3].copy()
+        self.canvas.draw()
+        return np.asarray(self.canvas.buffer_rgba())[..., :3].copy()
 
 
 def compose(frame: np.ndarray, panel: np.ndarray) -> np.ndarray:
@@ -286,12 +285,12 @@ def write_clip_figure(
         rest = (Image.fromarray(image) for image in images)
         first.save(out, save_all=True, append_images=rest, duration=round(1000 / fps), loop=0)
     else:
-        first = next(images)
-        size = (first.shape[1], first.shape[0])
-        writer = cv2.VideoWriter(out, cv2.VideoWriter_fourcc(*"mp4v"), fps, size)
+        first_frame = next(images)
+        size = (first_frame.shape[1], first_frame.shape[0])
+        writer = cv2.VideoWriter(out, cv2.VideoWriter.fourcc(*"mp4v"), fps, size)
         if not writer.isOpened():
             raise ValueError(f"OpenCV cannot write {out}")
-        writer.write(cv2.cvtColor(first, cv2.COLOR_RGB2BGR))
+        writer.write(cv2.cvtColor(first_frame, cv2.COLOR_RGB2BGR))
         for image in images:
             writer.write(cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
         writer.release()

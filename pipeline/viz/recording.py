@@ -34,7 +34,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from pipeline.core.geometry import invert_se3, project
-from pipeline.core.images import jpeg_size
+from pipeline.export.invariants import frame_size
 from pipeline.io.clip_reader import DEFAULT_LIMITS, ReadLimits
 from pipeline.viz.clip_figure import IMAGES_KEY, load_clip, occluded_colors, select_tracks, track_colors
 
@@ -97,16 +97,16 @@ def log_camera(
         height=height,
         camera_xyz=rr.ViewCoordinates.RDF,
     )
-    recording.log("world/camera/image", pinhole, static=True)
+    rr.log("world/camera/image", pinhole, static=True, recording=recording)
     if "extrinsics_w2c" not in clip:
-        recording.log("world", rr.ViewCoordinates.RDF, static=True)
-        recording.log(
-            "world/camera", rr.Transform3D(translation=c2w[0, :3, 3], mat3x3=c2w[0, :3, :3]), static=True
-        )
+        rr.log("world", rr.ViewCoordinates.RDF, static=True, recording=recording)
+        identity = rr.Transform3D(translation=c2w[0, :3, 3], mat3x3=c2w[0, :3, :3])
+        rr.log("world/camera", identity, static=True, recording=recording)
         return
     for t, pose in enumerate(c2w):
-        recording.set_time_sequence(TIMELINE, t)
-        recording.log("world/camera", rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3]))
+        rr.set_time_sequence(TIMELINE, t, recording=recording)
+        camera = rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3])
+        rr.log("world/camera", camera, recording=recording)
 
 
 def write_recording(
@@ -132,36 +132,31 @@ def write_recording(
     # corner at (0, 0), centre at (c + 0.5, r + 0.5)): the clip's own convention, so its pixel
     # coordinates are logged as they are, with no half-pixel shift.
     pixels = project(tracks, clip["fx_fy_cx_cy"].astype(np.float64))
-    height, width = jpeg_size(bytes(clip[IMAGES_KEY][0]))
+    height, width = frame_size(clip)
 
     name = os.path.splitext(os.path.basename(clip_path))[0]
     recording = rr.new_recording(APPLICATION_ID, recording_id=name)
     try:
-        recording.save(out, default_blueprint=recording_blueprint())
+        rr.save(out, default_blueprint=recording_blueprint(), recording=recording)
     except RuntimeError as error:  # rerun's file sink cannot create the file
         raise OSError(str(error)) from error
     log_camera(recording, clip, c2w, (height, width))
     for t in range(num_frames):
-        recording.set_time_sequence(TIMELINE, t)
+        rr.set_time_sequence(TIMELINE, t, recording=recording)
         image = rr.EncodedImage(contents=bytes(clip[IMAGES_KEY][t]), media_type="image/jpeg")
-        recording.log("world/camera/image", image)
+        rr.log("world/camera/image", image, recording=recording)
         shown, radii = point_style(visibility[t], colors)
-        recording.log("world/tracks", rr.Points3D(world[t], colors=shown, radii=radii))
+        rr.log("world/tracks", rr.Points3D(world[t], colors=shown, radii=radii), recording=recording)
         seen = inside_image(pixels[t], tracks[t, :, 2], width, height)
-        recording.log(
-            "world/camera/image/tracks",
-            rr.Points2D(pixels[t, seen], colors=shown[seen], radii=radii[seen]),
-        )
+        on_image = rr.Points2D(pixels[t, seen], colors=shown[seen], radii=radii[seen])
+        rr.log("world/camera/image/tracks", on_image, recording=recording)
         queried = query_frames == t
-        recording.log(
-            "world/queries",
-            rr.Points3D(world[t, queried], colors=colors[queried], radii=-QUERY_RADIUS_UI),
-        )
+        queries = rr.Points3D(world[t, queried], colors=colors[queried], radii=-QUERY_RADIUS_UI)
+        rr.log("world/queries", queries, recording=recording)
         start = max(t - tail, 0)
         if t > start:
             strips = world[start : t + 1].transpose(1, 0, 2)
-            recording.log(
-                "world/tracks/trails", rr.LineStrips3D(strips, colors=colors, radii=-TRAIL_RADIUS_UI)
-            )
-    recording.disconnect()
+            trails = rr.LineStrips3D(strips, colors=colors, radii=-TRAIL_RADIUS_UI)
+            rr.log("world/tracks/trails", trails, recording=recording)
+    rr.disconnect(recording=recording)
     return num_frames

@@ -55,6 +55,18 @@ def test_configuration_md_is_the_settings_table():
     )
 
 
+def test_a_built_in_source_without_settings_has_no_section():
+    """A source's settings section is optional (``settings_of`` gives None): the page leaves it out."""
+    settings_of = sources.settings_of
+    without_adt = mock.patch.object(
+        sources, "settings_of", side_effect=lambda name: None if name == "adt" else settings_of(name)
+    )
+    with without_adt:
+        page = settings_doc.markdown()
+    assert "## `adt`" not in page and "| `adt." not in page
+    assert "## `pstudio`" in page and "## `drivetrack`" in page
+
+
 def test_every_setting_is_documented_once():
     text = read(os.path.join(DOCS, "configuration.md"))
     documented = re.findall(r"^\| `([\w.]+)` \|", text, re.M)

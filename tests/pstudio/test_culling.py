@@ -6,6 +6,7 @@ depth bit for bit."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 from pipeline.pstudio.render import render_depth_at, render_depth_image
@@ -179,6 +180,15 @@ def box_meets_a_block(u, v, ext_x, ext_y, blocks) -> bool:
     columns = slice(max(0, int(np.floor((u - ext_x) / BLOCK))), int(np.floor((u + ext_x) / BLOCK)) + 1)
     rows = slice(max(0, int(np.floor((v - ext_y) / BLOCK))), int(np.floor((v + ext_y) / BLOCK)) + 1)
     return bool(blocks[rows, columns].any())
+
+
+def test_depth_limits_without_their_points_are_refused():
+    """Limits [P] are the depths of points_uv [P, 2]: without the points they bound nothing."""
+    means = np.array([[0.0, 0.0, 2.0]])
+    constants = gaussian_constants(np.full((1, 3), 0.01), np.full(1, 0.8))
+    quaternions = np.array([[1.0, 0.0, 0.0, 0.0]])
+    with pytest.raises(ValueError, match="limits .* points_uv"):
+        project_splats(means, quaternions, constants, np.eye(4), INTRINSICS, WIDTH, HEIGHT, limits=np.ones(1))
 
 
 def test_the_culls_branchless_box_test_is_the_box_test():
