@@ -29,11 +29,11 @@ from pipeline.adt.records import Chunk, Frame, IdRuns, Instances
 from pipeline.adt.rectify import stored_intrinsics
 from pipeline.adt.settings import AdtConfig
 from pipeline.adt.visibility import frame_visibility, pixel_at, pixel_centres, sample_depth
-from pipeline.core.clip import ClipRecord
+from pipeline.core.clip import ClipRecord, TrackStats
 from pipeline.core.errors import InputError
 from pipeline.core.geometry import invert_se3, unproject
 from pipeline.core.sampling import rng_for
-from pipeline.export.depth_export import dense_depth_mm, dense_record
+from pipeline.export.depth_export import dense_depth_mm, dense_export
 from pipeline.filters.mask import agreement
 from pipeline.io.given_queries import given_query_frames
 from pipeline.sources import RunChoices
@@ -259,13 +259,11 @@ def annotate_chunk(
         visibility=visibility,
         queries_xyt=np.concatenate([queries.xy, queries.t[:, None].astype(np.float64)], axis=1),
         frame_ids=np.asarray(chunk.timestamps, dtype=np.int64),
-        track_stats={
-            "mask_agreement": agreement(on_own_object, visibility, np.ones(len(made.kept), bool)),
-            "visible_frames": visibility.sum(axis=0).astype(np.int64),
-            "object_id": queries.object_ids.astype(np.uint64),
-            "dynamic": dynamic,
-        },
+        track_stats=TrackStats(
+            agreement(on_own_object, visibility, np.ones(len(made.kept), bool)),
+            {"object_id": queries.object_ids.astype(np.uint64), "dynamic": dynamic},
+        ),
         target_tracks=settings.tracks_per_clip,
         given_queries=given is not None,
-        depth_export=dense_record(made.depth_maps, chunk.timestamps) if choices.export_depth else None,
+        depth_export=dense_export(made.depth_maps, chunk.timestamps) if choices.export_depth else None,
     )

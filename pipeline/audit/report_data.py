@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from pipeline import sources
-from pipeline.audit.sweep import ClipCount, read_audit_table, run_provenance, totals
+from pipeline.audit.sweep import AuditTable, ClipCount, read_audit_table, run_provenance, totals
 from pipeline.audit.verdict_rows import read_verdicts
 from pipeline.export.layout import audit_path
 from pipeline.filters.flicker import passes_flicker
@@ -59,31 +59,25 @@ def mask_buckets(agreement: np.ndarray | None, count: int, grid: list[float]) ->
     return (np.isnan(score) | (score >= np.asarray(grid)[None, :])).sum(axis=1)
 
 
-def read_clip_table(path: str) -> dict:
+def read_clip_table(path: str) -> AuditTable:
     """The statistics of one audit table the filters read (``read_audit_table``)."""
-    table = read_audit_table(path, ("visible_frames", "visibility_flips", "mask_agreement"))
-    stats = table.pop("stats")
-    return {
-        **table,
-        "visible_frames": stats["visible_frames"],
-        "visibility_flips": stats.get("visibility_flips"),
-        "mask_agreement": stats.get("mask_agreement"),
-    }
+    return read_audit_table(path, ())
 
 
-def fold_clip(table: dict, flicker_grid: list[float], mask_grid: list[float]) -> dict:
+def fold_clip(table: AuditTable, flicker_grid: list[float], mask_grid: list[float]) -> dict:
     """One clip's counts: candidates, never-visible tracks and the sparse (flicker bucket, mask bucket)
     pairs [P] of the others, with their counts [P]."""
-    seen = np.asarray(table["visible_frames"]) > 0
-    flips = np.asarray(table["visibility_flips"])[seen]
-    agreement = None if table["mask_agreement"] is None else np.asarray(table["mask_agreement"])[seen]
-    flicker = flicker_buckets(flips, table["num_frames"], flicker_grid)
+    stats = table.stats
+    seen = np.asarray(stats.visible_frames) > 0
+    flips = np.asarray(stats.visibility_flips)[seen]
+    agreement = None if stats.mask_agreement is None else np.asarray(stats.mask_agreement)[seen]
+    flicker = flicker_buckets(flips, table.num_frames, flicker_grid)
     mask = mask_buckets(agreement, len(flips), mask_grid)
     pairs, counts = np.unique(flicker * (len(mask_grid) + 1) + mask, return_counts=True)
     return {
-        "clip": table["clip"],
-        "num_frames": table["num_frames"],
-        "target_tracks": table["target_tracks"],
+        "clip": table.clip,
+        "num_frames": table.num_frames,
+        "target_tracks": table.target_tracks,
         "candidates": len(seen),
         "never_visible": int((~seen).sum()),
         "flicker": (pairs // (len(mask_grid) + 1)).astype(np.int64),
@@ -92,20 +86,21 @@ def fold_clip(table: dict, flicker_grid: list[float], mask_grid: list[float]) ->
     }
 
 
-def histogram_counts(table: dict, flicker_grid: list[float], mask_grid: list[float]) -> dict:
+def histogram_counts(table: AuditTable, flicker_grid: list[float], mask_grid: list[float]) -> dict:
     """One clip's histograms over all its candidates: per flicker bucket [len(grid) + 1], per mask
     bucket [len(grid) + 1] (tracks with agreement only), tracks without mask evidence, visible frames
     per count [T + 1]."""
-    flicker = flicker_buckets(table["visibility_flips"], table["num_frames"], flicker_grid)
-    agreement = table["mask_agreement"]
+    stats = table.stats
+    flicker = flicker_buckets(stats.visibility_flips, table.num_frames, flicker_grid)
+    agreement = stats.mask_agreement
     scored = np.zeros(0) if agreement is None else np.asarray(agreement, np.float64)[~np.isnan(agreement)]
     mask = mask_buckets(scored, len(scored), mask_grid)
-    visible = np.clip(np.asarray(table["visible_frames"]), 0, table["num_frames"])
+    visible = np.clip(np.asarray(stats.visible_frames), 0, table.num_frames)
     return {
         "flicker": np.bincount(flicker, minlength=len(flicker_grid) + 1),
         "mask": np.bincount(mask, minlength=len(mask_grid) + 1),
-        "no_mask_evidence": len(table["visible_frames"]) - len(scored),
-        "visible_frames": np.bincount(visible, minlength=table["num_frames"] + 1),
+        "no_mask_evidence": stats.count - len(scored),
+        "visible_frames": np.bincount(visible, minlength=table.num_frames + 1),
     }
 
 
@@ -144,10 +139,8 @@ def source_data(output: str, source: Source) -> dict | None:
     histograms: dict[str, Any] = {}
     for path in sorted(paths):
         table = read_clip_table(path)
-        if splits is not None and table["clip"] not in splits:
+        if splits is not None and table.clip not in splits:
             continue
-        if table["visibility_flips"] is None:
-            raise ValueError(f"audit table {path} lacks column(s) ['visibility_flips']")
         clips.append(fold_clip(table, flicker_grid, mask_grid))
         histograms = add_histograms(histograms, histogram_counts(table, flicker_grid, mask_grid))
     clips.sort(key=lambda clip: clip["clip"])

@@ -36,7 +36,7 @@ from pipeline.commandline import StrictParser, closest
 from pipeline.core.errors import InputError
 from pipeline.core.outcomes import FILTER_ORDER
 from pipeline.export.layout import audit_path, provenance_path, sweep_folder
-from pipeline.filters.select import count_dropped, verdicts_from_stats
+from pipeline.filters.select import FILTERED_BY, FilterStats, count_dropped, verdicts_from_stats
 from pipeline.io.files import list_files, read_bytes, write_atomic
 from pipeline.runner.splits import SPLITS, Release, read_release
 from pipeline.settings.fields import SettingsError, config_from_dict, setting_keys, value_at, with_overrides
@@ -53,34 +53,48 @@ def sweepable(source: Source) -> tuple[str, ...]:
 NOT_STATISTICS = ("source", "clip", "num_frames", "target_tracks", "candidate", "output_index")
 
 
-def read_audit_table(path: str, columns: tuple[str, ...] | None = None) -> dict:
-    """One clip's audit table: {"clip", "num_frames", "target_tracks", "stats": {name: [N] array}}
-    with every statistic, or those of ``columns`` it holds; ValueError naming the file when it is
-    unreadable or lacks the columns the filters read."""
+@dataclasses.dataclass(frozen=True)
+class AuditTable:
+    """One clip's audit table as the audit reads it: the clip, its frames, its target track count
+    and its candidates' statistics."""
+
+    clip: str
+    num_frames: int
+    target_tracks: int
+    stats: FilterStats
+
+
+def read_audit_table(path: str, columns: tuple[str, ...] | None = None) -> AuditTable:
+    """One clip's audit table, with every statistic, or the filters' and those of ``columns``;
+    ValueError naming the file when it is unreadable or lacks the columns the filters read."""
     try:
         names = pq.read_schema(path).names
-        wanted = names if columns is None else [name for name in (*NOT_STATISTICS, *columns) if name in names]
+        chosen = (*NOT_STATISTICS, *FILTERED_BY, *(columns or ()))
+        wanted = names if columns is None else [name for name in chosen if name in names]
         table = pq.read_table(path, columns=wanted)
     except (pa.ArrowException, OSError) as error:
         raise ValueError(f"audit table {path} is unreadable ({error})") from error
-    missing = {"clip", "num_frames", "target_tracks", "visible_frames"} - set(table.column_names)
+    missing = {"clip", "num_frames", "target_tracks", "visible_frames", "visibility_flips"} - set(
+        table.column_names
+    )
     if missing:
         raise ValueError(f"audit table {path} lacks column(s) {sorted(missing)}")
     found = {name: table.column(name).to_numpy(zero_copy_only=False) for name in table.column_names}
     rows = len(found["clip"])
-    return {
-        "clip": str(found["clip"][0]) if rows else os.path.basename(path)[: -len(".parquet")],
-        "num_frames": int(found["num_frames"][0]) if rows else 0,
-        "target_tracks": int(found["target_tracks"][0]) if rows else 0,
-        "stats": {
-            name: values
-            for name, values in found.items()
-            if not name.startswith("pass_") and name not in NOT_STATISTICS
-        },
+    stats = {
+        name: values
+        for name, values in found.items()
+        if not name.startswith("pass_") and name not in NOT_STATISTICS
     }
+    return AuditTable(
+        str(found["clip"][0]) if rows else os.path.basename(path)[: -len(".parquet")],
+        int(found["num_frames"][0]) if rows else 0,
+        int(found["target_tracks"][0]) if rows else 0,
+        FilterStats.from_columns(stats),
+    )
 
 
-def load_statistics(output: str, source: str) -> list[dict]:
+def load_statistics(output: str, source: str) -> list[AuditTable]:
     """Per clip of ``source`` in ``output``: its audit table (``read_audit_table``)."""
     return [read_audit_table(path) for path in list_files(audit_path(output, source, "*"))]
 
@@ -130,17 +144,14 @@ def totals(counts: Iterable[ClipCount], min_tracks: int, splits: dict[str, str] 
 
 
 def evaluate(
-    clips: list[dict], source: Source, config: RunConfig, splits: dict[str, str] | None = None
+    clips: list[AuditTable], source: Source, config: RunConfig, splits: dict[str, str] | None = None
 ) -> dict:
     """The filter stage's totals (``totals``) at ``config``, replayed from the recorded statistics."""
 
-    def replayed(clip: dict) -> ClipCount:
-        verdicts = verdicts_from_stats(
-            clip["stats"], clip["num_frames"], config, source.mask_min_agreement(config)
-        )
+    def replayed(clip: AuditTable) -> ClipCount:
+        verdicts = verdicts_from_stats(clip.stats, clip.num_frames, config, source.mask_min_agreement(config))
         survivors = int(np.logical_and.reduce([verdicts[name] for name in FILTER_ORDER]).sum())
-        candidates = len(clip["stats"]["visible_frames"])
-        return ClipCount(clip["clip"], candidates, count_dropped(verdicts), survivors, clip["target_tracks"])
+        return ClipCount(clip.clip, clip.stats.count, count_dropped(verdicts), survivors, clip.target_tracks)
 
     return totals(map(replayed, clips), config.min_tracks, splits)
 
@@ -187,16 +198,16 @@ def _pyplot():
     return plt
 
 
-def survival_figure(clips: list[dict], source: Source, config: RunConfig, path: str) -> None:
+def survival_figure(clips: list[AuditTable], source: Source, config: RunConfig, path: str) -> None:
     """Share of candidates each filter keeps as its threshold varies (default marked)."""
     plt = _pyplot()
-    flips = np.concatenate([c["stats"]["visibility_flips"] / max(c["num_frames"], 1) for c in clips])
+    flips = np.concatenate([c.stats.visibility_flips / max(c.num_frames, 1) for c in clips])
     figure, axes = plt.subplots(1, 2, figsize=(10, 3.8))
     grid = np.linspace(0, 0.5, 201)
     axes[0].plot(grid, [(flips <= g + 1e-12).mean() for g in grid])
     axes[0].axvline(config.flicker.max_fraction, color="k", linestyle="--", label="default")
     axes[0].set(xlabel="flicker.max_fraction (flips / T)", ylabel="share of candidates kept", title="flicker")
-    agreement = [c["stats"]["mask_agreement"] for c in clips if "mask_agreement" in c["stats"]]
+    agreement = [c.stats.mask_agreement for c in clips if c.stats.mask_agreement is not None]
     if agreement:
         score = np.concatenate(agreement).astype(np.float64)
         grid = np.linspace(0, 1, 201)
@@ -209,7 +220,7 @@ def survival_figure(clips: list[dict], source: Source, config: RunConfig, path: 
         ax.legend()
     figure.suptitle(
         f"{source.name}: survival per filter "
-        f"({sum(len(c['stats']['visible_frames']) for c in clips)} candidates)"
+        f"({sum(c.stats.count for c in clips)} candidates)"
     )
     figure.tight_layout()
     figure.savefig(path, dpi=110)
@@ -231,16 +242,17 @@ def histogram_figure(statistics: dict[str, np.ndarray], source: str, path: str) 
     plt.close(figure)
 
 
-def numeric_statistics(clips: list[dict]) -> dict[str, np.ndarray]:
+def numeric_statistics(clips: list[AuditTable]) -> dict[str, np.ndarray]:
     """Every numeric statistic over all candidates, flips as a fraction of T."""
-    names = sorted(set.intersection(*(set(c["stats"]) for c in clips)))
+    columns = [c.stats.columns() for c in clips]
+    names = sorted(set.intersection(*(set(named) for named in columns)))
     result = {}
     for name in names:
-        parts = [np.asarray(c["stats"][name]) for c in clips]
+        parts = [np.asarray(named[name]) for named in columns]
         if all(p.dtype.kind in "fiu" for p in parts) and name not in ("gaussian_index", "object_id"):
             result[name] = np.concatenate(parts).astype(np.float64)
     result["flip_fraction"] = np.concatenate(
-        [c["stats"]["visibility_flips"] / max(c["num_frames"], 1) for c in clips]
+        [c.stats.visibility_flips / max(c.num_frames, 1) for c in clips]
     )
     return result
 
@@ -408,7 +420,7 @@ def sweep(args: argparse.Namespace) -> int:
     splits = dict(release.clips.get(args.source, {})) if release is not None else None
     clips = load_statistics(output, args.source)
     if splits is not None:
-        clips = [clip for clip in clips if clip["clip"] in splits]
+        clips = [clip for clip in clips if clip.clip in splits]
     if not clips:
         which = " of the release's clips" if splits is not None else ""
         print(f"sweep: no audit tables{which} in {output}/audit/{args.source}/", file=sys.stderr)

@@ -3,8 +3,53 @@
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 
 import numpy as np
+
+
+@dataclasses.dataclass(frozen=True)
+class TrackStats:
+    """What a source records of each candidate track for the filters and the audit, each [N].
+
+    mask_agreement: [N] float64, the share of a track's visible frames (with a mask) where it lies
+      on its own object's mask, NaN where it has none; None: the source has no masks (the mask
+      filter passes every track).
+    extra: name -> [N], the source's own statistics, kept in the audit table (ADT: object_id,
+      dynamic; Panoptic Studio: attach_distance_m, gaussian_index).
+    """
+
+    mask_agreement: np.ndarray | None = None
+    extra: Mapping[str, np.ndarray] = dataclasses.field(default_factory=dict)
+
+    def select(self, indices: np.ndarray) -> TrackStats:
+        """The statistics of the tracks at ``indices`` [K] (in that order)."""
+        return TrackStats(
+            None if self.mask_agreement is None else self.mask_agreement[indices],
+            {name: values[indices] for name, values in self.extra.items()},
+        )
+
+
+@dataclasses.dataclass(frozen=True)
+class DenseDepth:
+    """The depth images a clip's visibility test read (ADT's re-rendered depth, Panoptic Studio's
+    splat depth): depth_mm uint16 [T, H, W] millimetres of z-depth, 0 where there is no surface;
+    frame_ids int64 [T]."""
+
+    depth_mm: np.ndarray
+    frame_ids: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
+class SparseDepth:
+    """The depth points a clip's visibility test read (DriveTrack's projected lidar): uv float32
+    [M, 2] pixels, z float32 [M] metres, frame_offsets int64 [T + 1] (frame t's points are rows
+    ``frame_offsets[t]:frame_offsets[t + 1]``), frame_ids int64 [T]."""
+
+    uv: np.ndarray
+    z: np.ndarray
+    frame_offsets: np.ndarray
+    frame_ids: np.ndarray
 
 
 @dataclasses.dataclass
@@ -25,10 +70,10 @@ class ClipRecord:
       visibility: [T, N] bool.
       queries_xyt: [N, 3] float64 (x, y, query frame index).
       frame_ids: [T] int64 source frame identifiers (timestamps or indices).
-      track_stats: per-track statistics the filters read, each [N].
+      track_stats: per-track statistics the filters and the audit read (``TrackStats``).
       target_tracks: how many tracks the released clip keeps.
-      depth_export: with ``--export-depth``, the depth the visibility test read
-        (pipeline/export/depth_export.py), written beside the clip; else None.
+      depth_export: with ``--export-depth``, the depth the visibility test read, written beside the
+        clip (pipeline/export/depth_export.py); else None.
       given_queries: the queries came from an existing clip (``--queries-from``): filters report
         on every track but drop none, so old and new tracks correspond one to one.
       track_keys: [N] uint64 per-track draw keys, or None. With keys, the final subsample keeps
@@ -47,10 +92,10 @@ class ClipRecord:
     visibility: np.ndarray
     queries_xyt: np.ndarray
     frame_ids: np.ndarray
-    track_stats: dict[str, np.ndarray]
+    track_stats: TrackStats
     target_tracks: int
     given_queries: bool = False
-    depth_export: dict[str, np.ndarray] | None = None
+    depth_export: DenseDepth | SparseDepth | None = None
     track_keys: np.ndarray | None = None
 
     @property
@@ -68,6 +113,6 @@ class ClipRecord:
             tracks_xyz=self.tracks_xyz[:, indices],
             visibility=self.visibility[:, indices],
             queries_xyt=self.queries_xyt[indices],
-            track_stats={key: value[indices] for key, value in self.track_stats.items()},
+            track_stats=self.track_stats.select(indices),
             track_keys=None if self.track_keys is None else self.track_keys[indices],
         )

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from pipeline.core.clip import ClipRecord
+from pipeline.core.clip import ClipRecord, TrackStats
 from pipeline.core.geometry import transform_directions_batch, transform_points_batch
 from pipeline.core.images import check_jpeg
 from pipeline.core.outcomes import UnitClips
@@ -37,7 +37,7 @@ from pipeline.drivetrack.settings import DriveTrackConfig
 from pipeline.drivetrack.tracks import choose_points, clip_queries, point_keys, point_pool, query_draws
 from pipeline.drivetrack.units import SegmentCamera
 from pipeline.drivetrack.visibility import track_visibility
-from pipeline.export.depth_export import sparse_record
+from pipeline.export.depth_export import sparse_export
 from pipeline.filters.mask import agreement, on_mask
 from pipeline.io.given_queries import given_queries
 from pipeline.sources import Wanted
@@ -134,13 +134,10 @@ def track_object(
         visibility=visibility,
         queries_xyt=clip_queries(uv, visibility, given, query_draws(keys[chosen])),
         frame_ids=frame_ids.copy(),
-        track_stats={
-            "visible_frames": visibility.sum(axis=0).astype(np.int64),
-            "mask_agreement": mask_agreement(unit, run, name, evidence, camera, uv, visibility, config),
-        },
+        track_stats=TrackStats(mask_agreement(unit, run, name, evidence, camera, uv, visibility, config)),
         target_tracks=rules.tracks_per_clip,
         given_queries=given is not None,
-        depth_export=sparse_record(*depth, frame_ids) if config.export_depth else None,
+        depth_export=sparse_export(*depth, frame_ids) if config.export_depth else None,
         track_keys=keys[chosen],
     )
 

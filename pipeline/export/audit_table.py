@@ -14,7 +14,7 @@ from pipeline.filters.select import FilterOutcome
 def outcome_table(outcome: FilterOutcome) -> pa.Table:
     """One row per candidate track: its statistics, each filter's verdict, and whether it was
     written (``output_index`` = its column in the clip, -1 if not)."""
-    count = outcome.candidates
+    count = outcome.stats.count
     output_index = np.full(count, -1, dtype=np.int64)
     output_index[outcome.selected] = np.arange(len(outcome.selected))
     columns = {
@@ -24,8 +24,9 @@ def outcome_table(outcome: FilterOutcome) -> pa.Table:
         "target_tracks": pa.array(np.full(count, outcome.target_tracks, dtype=np.int64)),
         "candidate": pa.array(np.arange(count, dtype=np.int64)),
     }
-    for name in sorted(outcome.stats):
-        columns[name] = pa.array(outcome.stats[name])
+    stats = outcome.stats.columns()
+    for name in sorted(stats):
+        columns[name] = pa.array(stats[name])
     for name in sorted(outcome.verdicts):
         columns[f"pass_{name}"] = pa.array(outcome.verdicts[name])
     columns["output_index"] = pa.array(output_index)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline.core.clip import DenseDepth, SparseDepth
 from pipeline.export.npz_writer import encode_npz
 
 
@@ -25,24 +26,32 @@ def dense_depth_mm(depth_m: np.ndarray) -> np.ndarray:
     return np.clip(millimetres, 0, np.iinfo(np.uint16).max).astype(np.uint16)
 
 
-def dense_record(depth_mm: list[np.ndarray], frame_ids: np.ndarray) -> dict[str, np.ndarray]:
-    return {
-        "kind": np.array("dense"),
-        "depth_mm": np.stack(depth_mm),
-        "frame_ids": np.asarray(frame_ids, np.int64),
-    }
+def dense_export(depth_mm: list[np.ndarray], frame_ids: np.ndarray) -> DenseDepth:
+    """Depth images [T] x uint16 [H, W] of the clip's frames ``frame_ids`` [T]."""
+    return DenseDepth(np.stack(depth_mm), np.asarray(frame_ids, np.int64))
 
 
-def sparse_record(uv: list[np.ndarray], z: list[np.ndarray], frame_ids: np.ndarray) -> dict[str, np.ndarray]:
+def sparse_export(uv: list[np.ndarray], z: list[np.ndarray], frame_ids: np.ndarray) -> SparseDepth:
+    """Per frame of ``frame_ids`` [T], its points' pixels [M_t, 2] and depths [M_t]."""
     offsets = np.concatenate([[0], np.cumsum([len(v) for v in z])]).astype(np.int64)
-    return {
-        "kind": np.array("sparse"),
-        "uv": np.concatenate(uv).astype(np.float32).reshape(-1, 2),
-        "z": np.concatenate(z).astype(np.float32),
-        "frame_offsets": offsets,
-        "frame_ids": np.asarray(frame_ids, np.int64),
-    }
+    return SparseDepth(
+        np.concatenate(uv).astype(np.float32).reshape(-1, 2),
+        np.concatenate(z).astype(np.float32),
+        offsets,
+        np.asarray(frame_ids, np.int64),
+    )
 
 
-def encode_depth(record: dict[str, np.ndarray]) -> bytes:
-    return encode_npz(record, compress=True)
+def encode_depth(depth: DenseDepth | SparseDepth) -> bytes:
+    """The depth file's bytes: ``kind`` and the record's arrays, in the order above."""
+    if isinstance(depth, DenseDepth):
+        members = {"kind": np.array("dense"), "depth_mm": depth.depth_mm, "frame_ids": depth.frame_ids}
+    else:
+        members = {
+            "kind": np.array("sparse"),
+            "uv": depth.uv,
+            "z": depth.z,
+            "frame_offsets": depth.frame_offsets,
+            "frame_ids": depth.frame_ids,
+        }
+    return encode_npz(members, compress=True)

@@ -17,12 +17,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.core.clip import ClipRecord
+from pipeline.core.clip import ClipRecord, TrackStats
 from pipeline.core.errors import InputError
 from pipeline.core.geometry import invert_se3, project, transform_points, unproject
 from pipeline.core.sampling import rng_for
 from pipeline.core.visibility import in_view
-from pipeline.export.depth_export import dense_depth_mm, dense_record
+from pipeline.export.depth_export import dense_depth_mm, dense_export
 from pipeline.io.given_queries import given_query_frames
 from pipeline.pstudio.multiview_masks import multiview_mask_fraction
 from pipeline.pstudio.nearest import nearest_centres
@@ -237,13 +237,12 @@ def annotate_unit(unit: UnitInput, settings: PstudioConfig, choices: RunChoices)
         visibility=visible,
         queries_xyt=np.concatenate([query_xy, query_frames[:, None].astype(np.float64)], axis=1),
         frame_ids=frame_ids,
-        track_stats={
-            "mask_agreement": multiview_mask_fraction(unit, gaussians),
-            "attach_distance_m": distance,
-            "gaussian_index": gaussians.astype(np.int64),
-        },
+        track_stats=TrackStats(
+            multiview_mask_fraction(unit, gaussians),
+            {"attach_distance_m": distance, "gaussian_index": gaussians.astype(np.int64)},
+        ),
         target_tracks=settings.tracks_per_clip,
         given_queries=queries is not None,
-        depth_export=dense_record(depth_maps, frame_ids) if export_depth else None,
+        depth_export=dense_export(depth_maps, frame_ids) if export_depth else None,
     )
     return [clip]

@@ -328,7 +328,7 @@ def run(prepared: PreparedRun, started: float) -> int:
         output,
         resume=not prepared.overwrite,
         run_id=uuid.uuid4().hex,
-        expected=plan.expected if prepared.restricted else None,
+        expected=plan.expected if prepared.restricted_to is not None else None,
     )
     quiet = _ReportedByUs()
     logging.getLogger("apache_beam").addFilter(quiet)
@@ -336,9 +336,7 @@ def run(prepared: PreparedRun, started: float) -> int:
     try:
         result = run_pipeline(prepared, job, plan)
         metrics = beam_counters(result)
-        summary = finish_run(
-            job, plan, provenance(prepared, input_root, plan), prepared.release, prepared.restricted, metrics
-        )
+        summary = finish_run(job, plan, provenance(prepared, input_root, plan), prepared.release, metrics)
     except GaveUp:
         raise
     except Exception as error:  # noqa: BLE001 - Beam wraps a step's error; say the cause in one line

@@ -34,6 +34,7 @@ from pipeline.sources import UnitPlan
 
 if TYPE_CHECKING:
     from pipeline.runner.prepare import Provenance
+    from pipeline.settings.run_config import RunConfig
 
 
 @dataclasses.dataclass(frozen=True)
@@ -108,7 +109,7 @@ def summarize(outcomes: dict[str, UnitOutcome | None], failures: list[Failure]) 
     )
 
 
-def write_manifests(output: str, config, release: Release | None, restricted: bool) -> dict[str, int]:
+def write_manifests(output: str, config: RunConfig, release: Release | None) -> dict[str, int]:
     """The manifests over every source's clips in the output folder; entries per split."""
     clips = {
         name: [p.rsplit("/", 1)[-1] for p in list_files(f"{clip_folder(output, name)}/*.npz")]
@@ -116,7 +117,8 @@ def write_manifests(output: str, config, release: Release | None, restricted: bo
     }
     clips = {name: files for name, files in clips.items() if files}
     membership = release.clips if release is not None else None
-    minival, full_test = split_clips(clips, config.minival_per_source, config.seed, membership, restricted)
+    only_named = release is not None and release.restricts_run
+    minival, full_test = split_clips(clips, config.minival_per_source, config.seed, membership, only_named)
     for split, entries in (("minival", minival), ("full_test", full_test)):
         write_atomic(manifest_path(output, split), "".join(entry + "\n" for entry in entries).encode())
     return {"minival": len(minival), "full_test": len(full_test)}
@@ -127,13 +129,11 @@ def finish_run(
     plan: UnitPlan,
     provenance: Provenance,
     release: Release | None,
-    restricted: bool,
     metrics: dict[str, int] | str,
 ) -> RunSummary:
     """Write the failures, the release verdicts (a release run), the manifests and the run's provenance.
 
-    release: the release's clips (``--release``, or ``splits_file`` for the manifests alone).
-    restricted: the run was restricted to the release's clips (``--release``).
+    release: the release the run follows (``--release``, or ``splits_file`` for the manifests alone).
     metrics: the run's Beam counters, or why there are none.
     """
     source, output = job.source.name, job.output
@@ -144,7 +144,7 @@ def finish_run(
         "".join(json.dumps(f.to_json(), sort_keys=True) + "\n" for f in failures).encode(),
     )
     counts = None
-    if restricted and release is not None:
+    if release is not None and release.restricts_run:
         rows = verdicts(
             release.clips.get(source, {}),
             plan.absent,
@@ -155,7 +155,7 @@ def finish_run(
         )
         write_atomic(release_verdicts_path(output, source), verdict_lines(rows))
         counts = tally(rows)
-    manifests = write_manifests(output, job.config, release, restricted)
+    manifests = write_manifests(output, job.config, release)
     summary = dataclasses.replace(summarize(outcomes, failures), manifests=manifests, release=counts)
     written = dict(provenance.to_json(), summary=summary.to_json(), metrics=metrics)
     write_atomic(provenance_path(output, source), json.dumps(written, indent=2, sort_keys=True).encode())

@@ -54,10 +54,14 @@ class PreparedRun:
     input_root: str | None
     output: str
     release: Release | None
-    restricted: bool
     overwrite: bool
     beam_args: list[str]
     options: PipelineOptions
+
+    @property
+    def restricted_to(self) -> Release | None:
+        """The release the run is restricted to (``--release``), or None."""
+        return self.release if self.release is not None and self.release.restricts_run else None
 
 
 def runner_args(beam_args: list[str]) -> list[str]:
@@ -203,7 +207,9 @@ def settings(args: argparse.Namespace) -> tuple[RunConfig, Release | None]:
     )
     check_inputs(args.input, config, args.release)
     label = f"--release {args.release}" if args.release else f"--set splits_file={given_splits}"
-    return config, read_release(splits, label) if splits else None
+    if not splits:
+        return config, None
+    return config, dataclasses.replace(read_release(splits, label), restricts_run=bool(args.release))
 
 
 def prepare_run(args: argparse.Namespace, beam_args: list[str]) -> PreparedRun:
@@ -230,7 +236,6 @@ def prepare_run(args: argparse.Namespace, beam_args: list[str]) -> PreparedRun:
         input_root,
         output,
         release,
-        bool(args.release),
         args.overwrite,
         beam_args,
         options,
@@ -250,7 +255,8 @@ def plan_units(prepared: PreparedRun, input_root: str) -> UnitPlan:
     """The source's units (on a release run, those its clips need); CannotStart when unlistable. A
     run on the sample world was given no ``--input``: its reasons say ``the sample world`` where a
     source's listing says ``--input``."""
-    names = prepared.release.names(prepared.source.name) if prepared.restricted else None
+    release = prepared.restricted_to
+    names = release.names(prepared.source.name) if release is not None else None
     try:
         plan = prepared.source.list_units(input_root, prepared.config, names)
     except (InputError, OSError) as error:
@@ -327,7 +333,7 @@ def provenance(prepared: PreparedRun, input_root: str, plan: UnitPlan) -> Proven
         output=prepared.output,
         config=scrubbed(prepared.config.to_dict()),
         rules=prepared.rules.to_json(),
-        release=prepared.release.path if prepared.restricted else None,
+        release=prepared.restricted_to.path if prepared.restricted_to is not None else None,
         units=tuple(unit.name for unit in plan.units),
         beam_options=tuple(prepared.beam_args),
         environment={

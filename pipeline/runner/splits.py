@@ -31,10 +31,17 @@ SAMPLE_RELEASE = str(importlib.resources.files("pipeline.samples") / "sample_spl
 
 @dataclasses.dataclass(frozen=True)
 class Release:
-    """The clips a splits JSON names: source -> clip name (without ``.npz``) -> split."""
+    """The release a run follows, from prepare to finish.
+
+    path: its splits JSON.
+    clips: source -> clip name (without ``.npz``) -> split.
+    restricts_run: the run makes only these clips and gives each a verdict (``--release``); else
+      the file only sets the manifests' membership (``splits_file``).
+    """
 
     path: str
     clips: Mapping[str, Mapping[str, str]]
+    restricts_run: bool = False
 
     def names(self, source: str) -> frozenset[str]:
         return frozenset(self.clips.get(source, {}))

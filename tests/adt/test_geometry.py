@@ -258,10 +258,10 @@ def test_annotate_chunk_matches_the_card_world():
     assert clip.tracks_xyz.shape == (4, n, 3)
     np.testing.assert_array_equal(clip.fx_fy_cx_cy, [280.0, 280.0, 255.5, 256.5])
     t_q = clip.queries_xyt[:, 2].astype(int)
-    object_ids = clip.track_stats["object_id"]
+    object_ids = clip.track_stats.extra["object_id"]
     assert set(object_ids.tolist()) <= {1, 2}  # never the hand
     on_card = object_ids == 2
-    assert clip.track_stats["dynamic"].tolist() == on_card.tolist()
+    assert clip.track_stats.extra["dynamic"].tolist() == on_card.tolist()
     assert 0.3 < on_card.mean() < 0.7  # the dynamic share, 0.5 by default
     # Truth: wall points stay put; card points slide by STEP per frame along world x = stored y.
     for t in range(4):
@@ -282,6 +282,6 @@ def test_annotate_chunk_matches_the_card_world():
         covered = np.zeros(n, bool)
         covered[inside] = truth_frame.ids[rows[inside], cols[inside]] != object_ids[inside]
         assert (clip.visibility[t] == (inside & ~covered)).all()
-    agreement = clip.track_stats["mask_agreement"]
+    agreement = clip.track_stats.mask_agreement
     assert np.allclose(agreement, 1.0)  # visible points always sit on their own id here
     np.testing.assert_allclose(clip.extrinsics_w2c, np.repeat(CAM_ROT_FROM_CAM[None], 4, 0))

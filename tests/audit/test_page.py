@@ -100,7 +100,7 @@ def sweep_clips(out, source: str):
     record = run_provenance(str(out), source)
     release = release_of(None, record)
     splits = dict(release.clips[source]) if release is not None else None
-    clips = [c for c in load_statistics(str(out), source) if splits is None or c["clip"] in splits]
+    clips = [c for c in load_statistics(str(out), source) if splits is None or c.clip in splits]
     return clips, splits, run_config(record)
 
 
@@ -131,7 +131,7 @@ def test_folded_counts_equal_the_sweeps_at_every_slider_value(out, source):
         passed.add(expected["passed"])
     assert len(passed) > 20  # the grids do move the counts
     assert len(fgrid) == len(mgrid) == 101
-    assert len(tgrid) == max(len(c["stats"]["visible_frames"]) for c in clips)
+    assert len(tgrid) == max(c.stats.count for c in clips)
 
 
 @pytest.mark.parametrize("source", ["pstudio", "drivetrack"])

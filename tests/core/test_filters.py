@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from pipeline.core.clip import ClipRecord
+from pipeline.core.clip import ClipRecord, TrackStats
 from pipeline.drivetrack.masks import adaptive_closing_px, silhouette_mask
 from pipeline.drivetrack.settings import DriveTrackConfig
 from pipeline.filters.flicker import passes_flicker, visibility_flips
@@ -88,7 +88,7 @@ def _clip(visibility, mask_agreement, target):
         visibility=visibility,
         queries_xyt=np.zeros((num_tracks, 3)),
         frame_ids=np.arange(num_frames),
-        track_stats={"mask_agreement": mask_agreement, "visible_frames": visibility.sum(0)},
+        track_stats=TrackStats(mask_agreement),
         target_tracks=target,
     )
 

@@ -50,7 +50,7 @@ def test_tracks_follow_the_attached_material_point(pstudio_sample, clips):
     worst = 0.0
     for camera, _, kept, _, _ in clips:
         gaussians = attached_gaussian(studio, camera, kept)
-        np.testing.assert_array_equal(gaussians, kept.track_stats["gaussian_index"])
+        np.testing.assert_array_equal(gaussians, kept.track_stats.extra["gaussian_index"])
         assert studio.foreground[gaussians].all()
         expected = truth[:, gaussians] @ camera.w2c[:3, :3].T + camera.w2c[:3, 3]
         worst = max(worst, np.abs(kept.tracks_xyz - expected).max())
@@ -64,7 +64,7 @@ def test_queries_sit_on_the_visible_surface(clips):
         assert not check_arrays(clip_arrays(kept))
         # Attachments farther than pstudio.max_attach_distance_m (blended depth at silhouettes)
         # are refused; most unprojected query points lie within a splat width of their Gaussian.
-        distance = clip.track_stats["attach_distance_m"]
+        distance = clip.track_stats.extra["attach_distance_m"]
         assert distance.max() <= 0.03
         assert np.median(distance) < 0.015
         assert kept.num_tracks == 50
@@ -74,7 +74,7 @@ def test_visibility_agrees_with_ray_cast_truth(pstudio_sample, clips):
     _, studio = pstudio_sample
     agree = total = hidden = 0
     for camera, _, kept, _, _ in clips:
-        truth = studio.true_visibility(camera, kept.track_stats["gaussian_index"])
+        truth = studio.true_visibility(camera, kept.track_stats.extra["gaussian_index"])
         agree += int((truth == kept.visibility).sum())
         hidden += int((~truth).sum())
         total += truth.size
@@ -88,11 +88,11 @@ def test_mask_filter_drops_the_planted_floaters(pstudio_sample, clips):
     names = np.array(studio.part_names)[studio.part_of_gaussian]
     floaters_seen = 0
     for _, clip, kept, outcome, _ in clips:
-        on_floater = names[clip.track_stats["gaussian_index"]] == "floaters"
+        on_floater = names[clip.track_stats.extra["gaussian_index"]] == "floaters"
         floaters_seen += int(on_floater.sum())
         assert not outcome.verdicts["mask"][on_floater].any()
         assert outcome.verdicts["mask"][~on_floater].mean() > 0.97
-        assert (names[kept.track_stats["gaussian_index"]] != "floaters").all()
+        assert (names[kept.track_stats.extra["gaussian_index"]] != "floaters").all()
     assert floaters_seen > 0  # camera 8 sees the floaters over the box and samples them
 
 
@@ -160,5 +160,5 @@ def test_a_sequences_cameras_share_one_read_and_make_the_same_clips(clips, pstud
         for field in ("tracks_xyz", "visibility", "queries_xyt", "extrinsics_w2c"):
             np.testing.assert_array_equal(getattr(together, field), getattr(alone, field))
         np.testing.assert_array_equal(
-            together.track_stats["mask_agreement"], alone.track_stats["mask_agreement"]
+            together.track_stats.mask_agreement, alone.track_stats.mask_agreement
         )

@@ -21,7 +21,7 @@ import os
 import cv2
 import numpy as np
 
-from pipeline.core.clip import ClipRecord
+from pipeline.core.clip import ClipRecord, TrackStats
 from pipeline.core.errors import InputError
 from pipeline.settings.fields import ranged
 from pipeline.settings.run_config import RunConfig
@@ -92,7 +92,7 @@ def annotate(input_root: str, unit: SpecFile, config: RunConfig) -> list[ClipRec
             visibility=visible,
             queries_xyt=queries,
             frame_ids=np.arange(spec["frames"]),
-            track_stats={"mask_agreement": np.ones(tracks.shape[1])},
+            track_stats=TrackStats(np.ones(tracks.shape[1])),
             target_tracks=tracks.shape[1],
         )
     ]
