@@ -104,6 +104,7 @@ def annotate_local(
             if isinstance(opened, Exception):
                 yield _unit_error(opened, sequence, unit.name)
                 continue
+            result: UnitClips | Exception
             try:
                 result = chunk_clips(opened, chunk, settings, choices)
             except Exception as error:  # noqa: BLE001 - this chunk's failure only

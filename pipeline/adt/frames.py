@@ -39,7 +39,7 @@ class SequenceFrames:
         self.reader = reader
         self.rectifier = Rectifier(reader.calibration, settings.image_size, settings.focal)
 
-    def frame(self, timestamp: int) -> Frame:
+    def frame(self, timestamp: int) -> Frame[np.ndarray]:
         return Frame(
             depth_mm=self.rectifier.depth_mm(self.reader.depth_mm(timestamp)),
             ids=self.rectifier.ids(self.reader.ids(timestamp)),

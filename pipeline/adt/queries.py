@@ -11,7 +11,9 @@ from pipeline.adt.visibility import interior
 from pipeline.core.errors import InputError
 
 
-def query_pixel_pools(frame: Frame, runs: IdRuns, instances: Instances) -> tuple[np.ndarray, np.ndarray]:
+def query_pixel_pools(
+    frame: Frame[np.ndarray], runs: IdRuns, instances: Instances
+) -> tuple[np.ndarray, np.ndarray]:
     """Flat pixel indices that may hold a query: (on dynamic objects, on static objects).
 
     A query pixel has a surface (depth > 0), an object id (not 0, not the human) and lies

@@ -3,26 +3,34 @@
 from __future__ import annotations
 
 import dataclasses
+from typing import Generic, TypeVar
 
 import numpy as np
 
+# A frame's instance ids: the image as read, or its runs (``IdRuns``) in the frames pass 2 keeps.
+Ids = TypeVar("Ids", np.ndarray, "IdRuns")
+
 
 @dataclasses.dataclass
-class Frame:
+class Frame(Generic[Ids]):
     """One stored frame's geometry (S = image size).
 
     depth_mm: [S, S] float32 z-depth in millimetres (0 = no surface), as re-rendered.
-    ids: [S, S] uint64 instance ids (0 = none); ``IdRuns`` in the frames pass 2 keeps.
+    ids: [S, S] uint64 instance ids (0 = none), as an image or as ``IdRuns``.
     cam_from_world: [4, 4] world-to-stored-camera.
     world_from_object: object id -> [4, 4] pose (``transform_scene_object``).
     timestamp: the frame's RGB timestamp (ns), for messages.
     """
 
     depth_mm: np.ndarray
-    ids: np.ndarray | IdRuns
+    ids: Ids
     cam_from_world: np.ndarray
     world_from_object: dict[int, np.ndarray]
     timestamp: int
+
+    def with_runs(self, runs: IdRuns) -> Frame[IdRuns]:
+        """This frame with its ids as runs (``IdRuns.of(self.ids)``)."""
+        return Frame(self.depth_mm, runs, self.cam_from_world, self.world_from_object, self.timestamp)
 
     def depth_m(self) -> np.ndarray:
         """[S, S] float64 z-depth in metres (0 = no surface)."""

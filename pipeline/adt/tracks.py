@@ -91,7 +91,7 @@ class FirstPass:
 
     jpegs: list[bytes]
     extrinsics: list[np.ndarray]
-    kept: list[tuple[Frame, frozenset[int]]]
+    kept: list[tuple[Frame[IdRuns], frozenset[int]]]
     depth_maps: list[np.ndarray]
     queries: Queries
 
@@ -119,7 +119,7 @@ def frame_queries(
     chunk: Chunk,
     t: int,
     count: int,
-    frame: Frame,
+    frame: Frame[np.ndarray],
     runs: IdRuns,
     instances: Instances,
     plan: QueryPlan,
@@ -154,7 +154,7 @@ def object_poses(frame: Frame, ids: np.ndarray) -> np.ndarray:
 
 def first_pass(
     chunk: Chunk,
-    read_frame: Callable[[int], Frame],
+    read_frame: Callable[[int], Frame[np.ndarray]],
     read_jpeg: Callable[[int], bytes],
     instances_of: Callable[[np.ndarray], Instances],
     plan: QueryPlan,
@@ -175,7 +175,7 @@ def first_pass(
         present = runs.unique()
         instances = instances_of(present)
         check_object_poses(frame, present, instances, chunk.unit)
-        made.kept.append((dataclasses.replace(frame, ids=runs), instances.human))
+        made.kept.append((frame.with_runs(runs), instances.human))
         if export_depth:
             made.depth_maps.append(dense_depth_mm(frame.depth_m()))
         if not per_frame[t]:
@@ -200,7 +200,7 @@ def first_pass(
 
 
 def carry_tracks(
-    chunk: Chunk, kept: list[tuple[Frame, frozenset[int]]], queries: Queries, settings: AdtConfig
+    chunk: Chunk, kept: list[tuple[Frame[IdRuns], frozenset[int]]], queries: Queries, settings: AdtConfig
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Every track through every kept frame: points [T, N, 3], visibility [T, N], and whether each
     point lies on its own object's pixels [T, N]."""
@@ -225,7 +225,7 @@ def carry_tracks(
 
 def annotate_chunk(
     chunk: Chunk,
-    read_frame: Callable[[int], Frame],
+    read_frame: Callable[[int], Frame[np.ndarray]],
     read_jpeg: Callable[[int], bytes],
     instances_of: Callable[[np.ndarray], Instances],
     settings: AdtConfig,

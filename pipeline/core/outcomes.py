@@ -138,7 +138,12 @@ def _fields(kind: type, value: object) -> dict:
     """``value``'s entries for the fields of dataclass ``kind``, each of the declared type."""
     if not isinstance(value, dict):
         raise ValueError(f"a {kind.__name__} must be an object")
-    expected = {"str": str, "int": int, "float": (int, float), "Mapping[str, int]": dict}
+    expected: dict[str, type | tuple[type, ...]] = {
+        "str": str,
+        "int": int,
+        "float": (int, float),
+        "Mapping[str, int]": dict,
+    }
     fields = {}
     for field in dataclasses.fields(kind):
         item = value.get(field.name)

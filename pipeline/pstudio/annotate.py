@@ -76,6 +76,7 @@ def annotate_group(
         yield from [error] * len(units)
         return
     for camera in (unit.camera for unit in units):
+        result: UnitClips | Exception
         try:
             result = UnitClips(tuple(annotate_unit(camera_input(opened, camera), settings, choices)))
         except Exception as error:  # noqa: BLE001 - this camera's failure only

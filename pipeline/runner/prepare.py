@@ -9,6 +9,7 @@ import dataclasses
 import os
 import platform
 import time
+from collections.abc import Mapping
 
 import apache_beam as beam
 import numpy as np
@@ -263,11 +264,11 @@ def plan_units(prepared: PreparedRun, input_root: str) -> UnitPlan:
         raise CannotStart(str(error)) from None
     if prepared.input_root is not None:
         return plan
-    in_sample = {
-        name: {clip: reason.replace("--input", SAMPLE_WORLD) for clip, reason in reasons.items()}
-        for name, reasons in (("absent", plan.absent), ("not_made", plan.not_made))
-    }
-    return dataclasses.replace(plan, **in_sample)
+
+    def in_sample(reasons: Mapping[str, str]) -> dict[str, str]:
+        return {clip: reason.replace("--input", SAMPLE_WORLD) for clip, reason in reasons.items()}
+
+    return dataclasses.replace(plan, absent=in_sample(plan.absent), not_made=in_sample(plan.not_made))
 
 
 def concurrent_workers(options: PipelineOptions) -> int | None:

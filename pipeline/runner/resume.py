@@ -45,6 +45,8 @@ from pipeline.io.files import PARTIAL, is_abandoned, read_bytes, remove_quietly,
 from pipeline.settings.fields import settings_items
 
 if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
+
     from pipeline.settings.run_config import RunConfig
 
 
@@ -52,16 +54,18 @@ def sha256(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
-def clip_settings(config, source: str) -> dict:
+def clip_settings(config: DataclassInstance, source: str) -> dict[str, object]:
     """The settings that decide the bytes of ``source``'s clips: every setting of ``config`` but those
     marked ``not_in_clips`` and the sections named after other sources."""
     others = set(sources.names()) - {source}
-    marked = {field.name: field.metadata for field in dataclasses.fields(config)}
-    settings = {}
+    fields = dataclasses.fields(config)
+    marked: dict[str, Mapping[str, object]] = {field.name: field.metadata for field in fields}
+    settings: dict[str, object] = {}
     for name, value, _ in settings_items(config):
         if marked.get(name, {}).get("clip_bytes", True) is False or name in others:
             continue
-        settings[name] = clip_settings(value, source) if dataclasses.is_dataclass(value) else value
+        is_section = dataclasses.is_dataclass(value) and not isinstance(value, type)
+        settings[name] = clip_settings(value, source) if is_section else value
     return settings
 
 

@@ -209,7 +209,7 @@ def checkpoint(job: UnitJob, outcome: UnitOutcome, digests: Mapping[str, str]) -
 
 def filter_unit(job: UnitJob, annotated: Annotated) -> Filtered:
     """Each clip filtered: (kept clip, outcome), or a Failure when its filter stage fails."""
-    items = []
+    items: list[tuple[ClipRecord, FilterOutcome] | Failure] = []
     for clip in annotated.made.clips:
         try:
             items.append(filter_clip(job, clip))
