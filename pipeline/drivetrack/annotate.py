@@ -5,8 +5,9 @@ Pure computation on the reader's records; no Beam. The steps, a module each: ``c
 (vehicle and camera poses per frame, where a point appears in a frame, undistorted frames),
 ``objects.py`` (which vehicles, on which frames), ``lidar.py`` (the TOP lidar: depth samples, each
 object's points and normals), ``tracks.py`` (which points, their queries), ``visibility.py`` (in
-view, facing, not occluded), ``masks.py`` (object masks); this module runs them and assembles each
-clip.
+view, facing, not occluded), or with ``drivetrack.refined_visibility`` ``refined_visibility.py``
+(with ``footprints.py``, ``object_surface.py`` and ``surface_normals.py``), ``masks.py`` (object
+masks); this module runs them and assembles each clip.
 """
 
 from __future__ import annotations
@@ -30,10 +31,20 @@ from pipeline.drivetrack.camera_model import (
 )
 from pipeline.drivetrack.lidar import CameraPass, LidarEvidence, gather_lidar_cameras
 from pipeline.drivetrack.masks import object_masks
+from pipeline.drivetrack.object_surface import OwnSurface
 from pipeline.drivetrack.objects import ObjectRun, select_objects
 from pipeline.drivetrack.reader import SegmentReader
 from pipeline.drivetrack.records import UnitInput, clip_name
-from pipeline.drivetrack.tracks import choose_points, clip_queries, point_keys, point_pool, query_draws
+from pipeline.drivetrack.refined_visibility import refined_visibility
+from pipeline.drivetrack.surface_normals import fitted_normals
+from pipeline.drivetrack.tracks import (
+    PointPool,
+    choose_points,
+    clip_queries,
+    point_keys,
+    point_pool,
+    query_draws,
+)
 from pipeline.drivetrack.visibility import track_visibility
 from pipeline.export.depth_export import sparse_record
 from pipeline.filters.mask import agreement, on_mask
@@ -47,19 +58,44 @@ log = logging.getLogger(__name__)
 
 
 def object_visibility(
-    unit: UnitInput, run: ObjectRun, evidence: LidarEvidence, camera: UnitCamera, seen, normals, config
+    unit: UnitInput,
+    run: ObjectRun,
+    evidence: LidarEvidence,
+    camera: UnitCamera,
+    seen,
+    pool: PointPool,
+    chosen: np.ndarray,
+    config,
 ) -> np.ndarray:
-    """Visibility [T, N] of tracks seen as ``seen`` (one Projection per clip frame) whose box-frame
-    normals are ``normals`` [N, 3]: in view, facing the camera, not occluded in the lidar's depth."""
+    """Visibility [T, N] of the pool's points ``chosen`` [N] seen as ``seen`` (one Projection per clip
+    frame): in view, facing the camera, not occluded in the lidar's depth; or with
+    ``drivetrack.refined_visibility``, ``refined_visibility``'s decisions."""
     rules = config.drivetrack
     frames = range(run.start, run.stop)
     # Normals turn with the frame's pose (the camera turns by under a milliradian during a readout).
     cam_from_box = camera.cam_from_world[run.start : run.stop] @ run.world_from_box
+    tracks, pixels = np.stack([s.points for s in seen]), np.stack([s.pixels for s in seen])
+    in_view = np.stack([s.in_view for s in seen])
+    if rules.refined_visibility:
+        refined = evidence.refined
+        surface = refined.surfaces[run.object_id]
+        return refined_visibility(
+            tracks,
+            pixels,
+            in_view,
+            pool.points[chosen],
+            fitted_normals(pool.points, chosen, pool.views[chosen]),
+            cam_from_box,
+            OwnSurface([surface[t] for t in frames if t in surface]),
+            [refined.frame_occluders(t) for t in frames],
+            refined.labels[run.object_id],
+            rules.occlusion_margin,
+        )
     return track_visibility(
-        np.stack([s.points for s in seen]),
-        np.stack([s.pixels for s in seen]),
-        np.stack([s.in_view for s in seen]),
-        transform_directions_batch(cam_from_box, normals) if rules.facing_test else None,
+        tracks,
+        pixels,
+        in_view,
+        transform_directions_batch(cam_from_box, pool.normals[chosen]) if rules.facing_test else None,
         [evidence.depth_uv[t] for t in frames],
         [evidence.depth_z[t] for t in frames],
         [evidence.depth_tree(t) for t in frames],
@@ -117,9 +153,8 @@ def track_object(
     chosen = choose_points(pool.points, keys, given, run, camera, name, count)
     seen = camera.project_frames(frames, transform_points_batch(run.world_from_box, pool.points[chosen]))
     uv = np.stack([s.pixels for s in seen])
-    visibility = object_visibility(unit, run, evidence, camera, seen, pool.normals[chosen], config)
+    visibility = object_visibility(unit, run, evidence, camera, seen, pool, chosen, config)
     frame_ids = unit.frames.timestamps[run.start : run.stop]
-    depth = [evidence.depth_uv[t] for t in frames], [evidence.depth_z[t] for t in frames]
     return ClipRecord(
         source="drivetrack",
         name=name,
@@ -138,8 +173,15 @@ def track_object(
         },
         target_tracks=rules.tracks_per_clip,
         given_queries=given is not None,
-        depth_export=sparse_record(*depth, frame_ids) if config.export_depth else None,
+        depth_export=depth_export(evidence, frames, frame_ids) if config.export_depth else None,
         track_keys=keys[chosen],
+    )
+
+
+def depth_export(evidence: LidarEvidence, frames: range, frame_ids: np.ndarray):
+    """The clip's depth samples per frame (``export.depth_export.sparse_record``)."""
+    return sparse_record(
+        [evidence.depth_uv[t] for t in frames], [evidence.depth_z[t] for t in frames], frame_ids
     )
 
 
@@ -206,7 +248,10 @@ def annotate_cameras(
         index.append(i)
         skipped.append(why)
     try:
-        evidence = gather_lidar_cameras(passes, rules.box_shrink_m, rules.occlusion_margin)
+        depth = config.export_depth or not rules.refined_visibility  # the refined rules read none
+        evidence = gather_lidar_cameras(
+            passes, rules.box_shrink_m, rules.occlusion_margin, rules.refined_visibility, depth
+        )
     except Exception as error:  # noqa: BLE001 - the lidar is shared: every camera reading it fails
         evidence = [error] * len(passes)
     for i, item, frames, found, why in zip(index, passes, stored, evidence, skipped, strict=True):

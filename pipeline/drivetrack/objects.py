@@ -169,6 +169,20 @@ def box_corners_local(box: np.ndarray) -> np.ndarray:
     return _CORNER_SIGNS * (box[3:6] / 2.0)
 
 
+# An object's surface (refined visibility) reaches this far beyond its box on every side but the
+# bottom, which is raised by as much so that the ground it stands on stays out.
+SURFACE_GROW_M = 0.05
+
+
+def on_surface_box(points_local: np.ndarray, size: np.ndarray) -> np.ndarray:
+    """True for points [M, 3] in box coordinates on the object of a box of ``size`` [3]: inside the
+    box grown by ``SURFACE_GROW_M`` on every side but the bottom, which is raised by as much."""
+    half = np.asarray(size) / 2.0
+    lateral = np.all(np.abs(points_local[:, :2]) <= half[:2] + SURFACE_GROW_M, axis=1)
+    height = points_local[:, 2]
+    return lateral & (height <= half[2] + SURFACE_GROW_M) & (height >= SURFACE_GROW_M - half[2])
+
+
 def inside_box(points_local: np.ndarray, size: np.ndarray, shrink: float) -> np.ndarray:
     """True for points [M, 3] in box coordinates inside the box of ``size`` [3] shrunk by
     ``shrink`` metres in each dimension."""

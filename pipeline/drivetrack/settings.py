@@ -31,6 +31,10 @@ class DriveTrackConfig:
       (1 - margin) x its own depth (the lidar's own parallax cleanup uses twice the margin).
     facing_test: a track is also invisible where its surface (normal from the lidar points) faces
       away from the camera; ours, not the generator's: false reproduces its decisions.
+    refined_visibility: ours: visibility from the lidar footprints of the sweeps around each frame
+      (objects moved by their boxes), the object's own surface from all its sweeps and its normals
+      fitted on that surface (docs/sources/drivetrack.md); it replaces the depth test, the parallax
+      cleanup and facing_test. False keeps the generator's depth test.
     tracks_per_clip, oversample: tracks written per clip; candidates drawn = oversample x that.
     mask_min_agreement: keep a track when (visible frames on the object's mask) / (visible
       frames) >= this. 0.5 trims 1-3% of the sample world's candidates, the share the
@@ -56,6 +60,7 @@ class DriveTrackConfig:
     max_corner_distance_m: float = ranged(50.0, "(0, 10000]")
     occlusion_margin: float = ranged(0.05, "[0, 1)")
     facing_test: bool = True
+    refined_visibility: bool = False
     tracks_per_clip: int = ranged(256, "[1, 100000]")
     oversample: int = ranged(4, "[1, 10000]")
     mask_min_agreement: float = ranged(0.5, "[0, 1]")

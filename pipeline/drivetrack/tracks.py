@@ -28,12 +28,14 @@ from pipeline.io.given_queries import given_query_frames
 class PointPool:
     """An object's lidar points from the sweeps of its clip frames, in frame order: points [P, 3]
     and unit normals [P, 3] in the box frame, and what names each point: the timestamp [P] of its
-    sweep and its range-image pixel [P]."""
+    sweep and its range-image pixel [P]; with the refined visibility's evidence, views [P, 3]: the
+    unit direction (box frame) from each point to the lidar of its sweep."""
 
     points: np.ndarray
     normals: np.ndarray
     timestamps: np.ndarray
     pixels: np.ndarray
+    views: np.ndarray | None = None
 
 
 def point_pool(evidence: LidarEvidence, run: ObjectRun, timestamps: np.ndarray) -> PointPool | None:
@@ -43,11 +45,13 @@ def point_pool(evidence: LidarEvidence, run: ObjectRun, timestamps: np.ndarray) 
     frames = [t for t in range(run.start, run.stop) if len(points.get(t, ()))]
     if not frames:
         return None
+    refined = evidence.refined
     return PointPool(
         np.concatenate([points[t] for t in frames]),
         np.concatenate([evidence.body_normals[run.object_id][t] for t in frames]),
         np.concatenate([np.full(len(points[t]), timestamps[t], np.int64) for t in frames]),
         np.concatenate([evidence.body_pixels[run.object_id][t] for t in frames]),
+        None if refined is None else np.concatenate([refined.body_views[run.object_id][t] for t in frames]),
     )
 
 
