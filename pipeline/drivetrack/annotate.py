@@ -84,7 +84,7 @@ def object_visibility(
             pixels,
             in_view,
             pool.points[chosen],
-            fitted_normals(pool.points, chosen, pool.views[chosen]),
+            track_normals(pool, chosen),
             cam_from_box,
             OwnSurface([surface[t] for t in frames if t in surface]),
             [refined.frame_occluders(t) for t in frames],
@@ -102,6 +102,12 @@ def object_visibility(
         (unit.calibration.width, unit.calibration.height),
         rules.occlusion_margin,
     )
+
+
+def track_normals(pool: PointPool, chosen: np.ndarray) -> np.ndarray:
+    """Unit normals [N, 3] (box frame) of the pool's points ``chosen`` [N], fitted on all the pool's
+    points (``surface_normals``), each facing the lidar of its own sweep."""
+    return fitted_normals(pool.points, chosen, pool.views[chosen])
 
 
 def mask_agreement(

@@ -26,7 +26,7 @@ import numpy as np
 
 from pipeline.core.geometry import invert_se3, transform_points
 from pipeline.drivetrack.camera_model import UnitCamera
-from pipeline.drivetrack.objects import box_corners_local, box_poses, on_surface_box
+from pipeline.drivetrack.objects import SURFACE_GROW_M, box_corners_local, box_poses, on_surface_box
 
 # Where a footprint's plane is seen within this cosine of edge-on from its lidar, its half-vectors
 # stretch no further: ten times the beam spacing.
@@ -98,15 +98,18 @@ def sweep_footprints(sweep, index: np.ndarray, spacing: np.ndarray) -> SweepFoot
 @dataclasses.dataclass(frozen=True)
 class FrameFootprints:
     """Footprints seen in one camera frame: pixels [M, 2]; camera points [M, 3] and unit normals
-    [M, 3] (OpenCV axes); the pixel half-vectors along the azimuth and the inclination [M, 2] each;
-    the label of each return's object [M] (``BoxMotions``; -1: the unlabelled world) and the sweep it
-    comes from [M] (-1, 0, 1: the frame's neighbour before it, its own, the one after it)."""
+    [M, 3] (OpenCV axes); the pixel half-vectors along the azimuth and the inclination [M, 2] each,
+    and how far each footprint reaches along them [M, 4] (``BoxMotions.box_limits``: -azimuth,
+    +azimuth, -inclination, +inclination, in half-vectors); the label of each return's object [M]
+    (``BoxMotions``; -1: the unlabelled world) and the sweep it comes from [M] (-1, 0, 1: the frame's
+    neighbour before it, its own, the one after it)."""
 
     pixels: np.ndarray
     points: np.ndarray
     normals: np.ndarray
     along_azimuth: np.ndarray
     along_inclination: np.ndarray
+    limits: np.ndarray
     labels: np.ndarray
     sources: np.ndarray
 
@@ -162,6 +165,31 @@ class BoxMotions:
             labels[near[on_surface_box(local, box[3:6])]] = self._labels[row]
         return labels
 
+    def box_limits(
+        self, t: int, footprints: SweepFootprints, labels: np.ndarray, vehicle_from_world: np.ndarray
+    ) -> np.ndarray:
+        """[K, 4] how far (in half-vectors, at most 1) the footprints [K] of frame t's sweep reach
+        along -azimuth, +azimuth, -inclination and +inclination: a labelled object's footprint stops
+        at the border of its box (``objects.on_surface_box``: no surface of the object lies beyond),
+        the rest reach a whole half-vector. labels [K]: ``labels_at``'s."""
+        limits = np.ones((len(labels), 4))
+        for row in self._rows[t]:
+            members = np.flatnonzero(labels == self._labels[row])
+            if not len(members):
+                continue
+            box_from_world = self._box_from_vehicle[row] @ vehicle_from_world
+            rotation = box_from_world[:3, :3]
+            local = transform_points(box_from_world, footprints.points[members])
+            half = self._lidar[row, 3:6] / 2.0
+            upper = half + SURFACE_GROW_M
+            lower = -upper
+            lower[2] = SURFACE_GROW_M - half[2]
+            for axis, vectors in enumerate((footprints.along_azimuth, footprints.along_inclination)):
+                step = vectors[members] @ rotation.T
+                for sign in (-1.0, 1.0):
+                    limits[members, 2 * axis + (sign > 0)] = _room(local, sign * step, lower, upper)
+        return np.clip(limits, MIN_LIMIT, 1.0)
+
     def moves(self, source: int, target: int) -> dict[int, np.ndarray]:
         """label -> target_world_from_source_world [4, 4] of each object with a lidar box at frame
         ``source`` and a camera-synced box at frame ``target``."""
@@ -171,6 +199,20 @@ class BoxMotions:
             for row in self._rows[source]
             if self._labels[row] in placed
         }
+
+
+# A footprint reaches at least this share of its half-vectors, even from a box's border.
+MIN_LIMIT = 0.05
+
+
+def _room(points: np.ndarray, steps: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """[K] the largest share (up to 1) of steps [K, 3] that points [K, 3] can take and stay within
+    lower [3] <= p <= upper [3]."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        room = np.where(
+            steps > 0, (upper - points) / steps, np.where(steps < 0, (lower - points) / steps, np.inf)
+        )
+    return np.clip(room.min(axis=1), 0.0, 1.0)
 
 
 def moved(labels: np.ndarray, moves: dict[int, np.ndarray], points: np.ndarray, *vectors: np.ndarray):
@@ -268,13 +310,15 @@ def frame_footprints(
     t: int,
     source: int,
     world: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    limits: np.ndarray,
     labels: np.ndarray,
     regions: tuple[np.ndarray, np.ndarray],
 ) -> FrameFootprints:
     """Footprints of one sweep in camera frame t, from ``source`` (-1, 0, 1: the frame's neighbour
     before it, its own sweep, the one after): ``world`` = (points, normals, along_azimuth,
     along_inclination) [K, 3] each, already at frame t (``moved``; those ``serving_returns`` found
-    near a region), with labels [K]; kept where in view and inside ``regions`` (``object_regions``)."""
+    near a region), with their limits [K, 4] (``BoxMotions.box_limits``) and labels [K]; kept where in
+    view and inside ``regions`` (``object_regions``)."""
     points, normals, along_azimuth, along_inclination = world
     seen = camera.project(t, points)
     rotation = camera.cam_from_world[t, :3, :3]
@@ -283,14 +327,9 @@ def frame_footprints(
     local = seen.points[seen.in_view]
     half_u = pixel_vectors(fx, fy, local, along_azimuth[rows] @ rotation.T)
     half_v = pixel_vectors(fx, fy, local, along_inclination[rows] @ rotation.T)
-    reach = np.abs(half_u) + np.abs(half_v)
     pixels = seen.pixels[seen.in_view]
-    rectangles, depths = regions
-    low, high = pixels - reach, pixels + reach
-    wanted = np.zeros(len(rows), bool)
-    for (u0, v0, u1, v1), depth in zip(rectangles, depths, strict=True):
-        overlap = (high[:, 0] >= u0) & (low[:, 0] <= u1) & (high[:, 1] >= v0) & (low[:, 1] <= v1)
-        wanted |= overlap & (local[:, 2] < depth)
+    wanted = np.empty(len(rows), np.bool_)
+    _overlapping(pixels, np.abs(half_u) + np.abs(half_v), local[:, 2], *regions, wanted)
     keep = np.flatnonzero(wanted)
     return FrameFootprints(
         pixels[keep],
@@ -298,9 +337,27 @@ def frame_footprints(
         normals[rows[keep]] @ rotation.T,
         half_u[keep],
         half_v[keep],
+        limits[rows[keep]],
         labels[rows[keep]],
         np.full(len(keep), source, np.int8),
     )
+
+
+@numba.njit(cache=True, nogil=True)
+def _overlapping(pixels, reach, depth, rectangles, depths, wanted):
+    """wanted [K]: the rectangle of pixels [K, 2] +- reach [K, 2] overlaps a rectangle [R, 4] (u0,
+    v0, u1, v1) whose depth [R] is beyond the footprint's depth [K]."""
+    for k in range(len(pixels)):
+        wanted[k] = False
+        for i in range(len(depths)):
+            if depth[k] < depths[i] and pixels[k, 0] + reach[k, 0] >= rectangles[i, 0]:
+                if (
+                    pixels[k, 0] - reach[k, 0] <= rectangles[i, 2]
+                    and pixels[k, 1] + reach[k, 1] >= rectangles[i, 1]
+                ):
+                    if pixels[k, 1] - reach[k, 1] <= rectangles[i, 3]:
+                        wanted[k] = True
+                        break
 
 
 # The pinhole of the frame's pose misplaces a point, against the camera model, by at most the
@@ -315,22 +372,46 @@ def near_regions(
     may lie in ``regions`` of frame t: their pinhole pixels at the frame's pose, padded by what the
     lens and the rolling shutter can move them (the camera's speed and turn over the readout, at the
     point's depth) and by the footprint's size, overlap a region, nearer than its depth."""
-    local = transform_points(camera.cam_from_world[t], points)
-    depth = local[:, 2]
-    ahead = np.flatnonzero(depth > 0)
-    depth = depth[ahead]
-    fx, fy, cx, cy = camera.calibration.fx_fy_cx_cy
-    u = fx * local[ahead, 0] / depth + cx
-    v = fy * local[ahead, 1] / depth + cy
-    travel, turn = shutter_motion(camera, t)
-    pad = max(fx, fy) * ((travel + extent[ahead]) / depth + turn)
-    pad += LENS_BOUND_PX
     rectangles, depths = regions
-    near = np.zeros(len(ahead), bool)
-    for (u0, v0, u1, v1), far in zip(rectangles, depths, strict=True):
-        inside = (u + pad >= u0) & (u - pad <= u1) & (v + pad >= v0) & (v - pad <= v1)
-        near |= inside & (depth - travel < far)
-    return ahead[near]
+    if not len(points) or not len(depths):
+        return np.zeros(0, np.int64)
+    near = np.empty(len(points), np.bool_)
+    _near_regions(
+        np.ascontiguousarray(points, np.float64),
+        np.ascontiguousarray(extent, np.float64),
+        camera.cam_from_world[t],
+        camera.calibration.fx_fy_cx_cy,
+        *shutter_motion(camera, t),
+        LENS_BOUND_PX,
+        rectangles,
+        depths,
+        near,
+    )
+    return np.flatnonzero(near)
+
+
+@numba.njit(cache=True, nogil=True)
+def _near_regions(points, extent, cam_from_world, lens, travel, turn, lens_bound, rectangles, depths, near):
+    """near [K] (``near_regions``) of world points [K, 3] reaching extent [K] metres."""
+    fx, fy, cx, cy = lens[0], lens[1], lens[2], lens[3]
+    focal = max(fx, fy)
+    r = cam_from_world
+    for k in range(len(points)):
+        x, y, z = points[k, 0], points[k, 1], points[k, 2]
+        depth = r[2, 0] * x + r[2, 1] * y + r[2, 2] * z + r[2, 3]
+        near[k] = False
+        if depth <= 0:
+            continue
+        u = fx * (r[0, 0] * x + r[0, 1] * y + r[0, 2] * z + r[0, 3]) / depth + cx
+        v = fy * (r[1, 0] * x + r[1, 1] * y + r[1, 2] * z + r[1, 3]) / depth + cy
+        pad = focal * ((travel + extent[k]) / depth + turn) + lens_bound
+        for i in range(len(depths)):
+            if depth - travel >= depths[i]:
+                continue
+            if u + pad >= rectangles[i, 0] and u - pad <= rectangles[i, 2]:
+                if v + pad >= rectangles[i, 1] and v - pad <= rectangles[i, 3]:
+                    near[k] = True
+                    break
 
 
 def shutter_motion(camera: UnitCamera, t: int) -> tuple[float, float]:
@@ -382,6 +463,7 @@ def occluder_reach(
         footprints.normals,
         footprints.along_azimuth,
         footprints.along_inclination,
+        footprints.limits,
         footprints.labels,
         footprints.sources,
         own,
@@ -442,6 +524,7 @@ def _occluder_reach(
     f_normals,
     f_u,
     f_v,
+    f_limits,
     f_labels,
     f_sources,
     own,
@@ -470,8 +553,10 @@ def _occluder_reach(
             if determinant == 0.0:
                 continue
             du, dv = pixels[q, 0] - f_pixels[j, 0], pixels[q, 1] - f_pixels[j, 1]
-            along_u = abs(f_v[j, 1] * du - f_v[j, 0] * dv) / abs(determinant)
-            along_v = abs(f_u[j, 0] * dv - f_u[j, 1] * du) / abs(determinant)
+            along_u = (f_v[j, 1] * du - f_v[j, 0] * dv) / determinant
+            along_v = (f_u[j, 0] * dv - f_u[j, 1] * du) / determinant
+            along_u = along_u / f_limits[j, 1] if along_u >= 0 else -along_u / f_limits[j, 0]
+            along_v = along_v / f_limits[j, 3] if along_v >= 0 else -along_v / f_limits[j, 2]
             inside = max(along_u, along_v)
             source = f_sources[j] + 1
             if inside > scale or inside >= reach[q, source]:

@@ -452,6 +452,7 @@ def _refined_frame(
     wanted = np.unique(np.concatenate([np.flatnonzero(np.isin(labels, tracked)), *serving]))
     footprints = sweep_footprints(sweep, in_camera[wanted], spacing)
     wanted_labels = labels[wanted]
+    limits = motions.box_limits(t, footprints, wanted_labels, vehicle_from_world)
     for run in active:
         box_from_world = invert_se3(box_poses(run.lidar_boxes[t - run.start])) @ vehicle_from_world
         refined.body_views[run.object_id][t] = -sweep.beams(bodies[run.object_id]) @ box_from_world[:3, :3].T
@@ -467,10 +468,11 @@ def _refined_frame(
             footprints.along_azimuth[at],
             footprints.along_inclination[at],
         )
+        source, chosen = t - target, at[kept]
         seen = frame_footprints(
-            item.camera, target, t - target, tuple(world), wanted_labels[at[kept]], regions
+            item.camera, target, source, tuple(world), limits[chosen], wanted_labels[chosen], regions
         )
-        refined.footprints.setdefault(target, {})[t - target] = seen
+        refined.footprints.setdefault(target, {})[source] = seen
 
 
 def _surface(
