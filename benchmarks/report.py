@@ -61,7 +61,8 @@ class Runs:
     """What one source's benchmark ran: ``one``, the units with 1 worker (``one_wall`` seconds in
     all), each followed by its floor process (``floors``); ``many``, the same units with
     ``workers`` workers (``many_wall`` seconds; None: not run); ``pinned``: each process bound to a
-    CPU of its own."""
+    CPU of its own; ``variants``: name -> the first unit run with that variant's settings
+    (``UnitSetup.variants``)."""
 
     one: list[UnitRun]
     one_wall: float
@@ -70,6 +71,7 @@ class Runs:
     many_wall: float | None
     workers: int
     pinned: bool
+    variants: dict[str, UnitRun] = dataclasses.field(default_factory=dict)
 
 
 def report(setup: UnitSetup, runs: Runs) -> dict:
@@ -208,6 +210,7 @@ def print_figures(setup: UnitSetup, runs: Runs, f: dict) -> None:
     """Print ``figures``' ``f``: the unit, its floor, the scaling, the CPU-hours."""
     where = "one thread, bound to one CPU" if runs.pinned else "one thread"
     _print_unit(setup, runs.one, f, where)
+    _print_variants(setup, runs)
     _print_floor(setup, runs, f, where)
     if runs.many is not None:
         _print_scaling(runs, f)
@@ -253,6 +256,18 @@ def _print_unit(setup: UnitSetup, one: list[UnitRun], f: dict, where: str) -> No
     max_rss = f["peak_rss_gib"]
     verdict = f"   target <= {target} GiB: {'met' if max_rss <= target else 'MISSED'}" if target else ""
     print(f"  peak memory of the unit's process (max RSS, its VmHWM): {max_rss:.2f} GiB{verdict}")
+
+
+def _print_variants(setup: UnitSetup, runs: Runs) -> None:
+    """Each variant's unit work beside the first unit's (same input; at the size measured)."""
+    first = runs.one[0].result
+    for name, run in runs.variants.items():
+        work, cpu = run.result["work_s"], run.result["work_cpu_s"]
+        print(
+            f"  with {name} ({' '.join(setup.variants[name])}): unit work {work:8.2f} s wall, {cpu:8.2f} s "
+            f"CPU = {cpu / first['work_cpu_s']:.2f} x the unit's CPU ({first['work_cpu_s']:.2f} s; "
+            f"{work / first['work_s']:.2f} x in wall time); peak memory {run.max_rss / GIB:.2f} GiB"
+        )
 
 
 def _print_extrapolation(first: dict, f: dict) -> None:

@@ -110,7 +110,12 @@ def run_units(setup: UnitSetup, args: argparse.Namespace, scratch: str) -> Runs:
     beam_args = entry(setup.source).beam_run_args(setup.units)
     if args.beam and beam_args is not None and scaling:
         beam_scaling(setup, beam_args, args.workers, scratch)
-    return Runs(one, one_wall, floors, many, many_wall, args.workers, args.pin)
+    variants = {}
+    for number, (name, overrides) in enumerate(setup.variants.items()):
+        print(f"running the first unit once more with {name} ({' '.join(overrides)}) ...", flush=True)
+        spec = dict(_specs(setup, scratch, f"variant{number}")[0], overrides=[*setup.overrides, *overrides])
+        (variants[name],), _ = run_processes([spec], 1, scratch, args.pin)
+    return Runs(one, one_wall, floors, many, many_wall, args.workers, args.pin, variants)
 
 
 def paired_with_floors(specs: list[dict], scratch: str, pin: bool) -> tuple[list, float, list]:
