@@ -25,8 +25,8 @@ and parked cars, with a service road on each side where two cars keep pace, so t
 camera's unit yields several clips and each side camera's a few (the release's FRONT units
 average 6.3 clips, every unit 3.3: its side units 1.8).
 
-Refined visibility: the first unit runs once more with ``drivetrack.refined_visibility=true`` and
-its time is printed beside the unit's (``UnitSetup.variants``).
+Refined visibility: each 1-worker unit runs once more with ``drivetrack.refined_visibility=true``
+and its time is printed beside the unit's (``UnitSetup.variants``).
 
 Floor (``floor``): the columns the units read of every component file of the segment, streamed
 with pyarrow 8 rows at a time as the reader does; the group cameras' JPEGs decoded to BGR

@@ -28,9 +28,9 @@ class UnitSetup:
       default size: shorter inputs than the release's).
     full_units: units of the whole benchmark for the CPU-hours line, with ``full_units_note``.
     size: "quick", "default" or "full" (ADT: its excerpt whatever the size).
-    variants: name -> settings added to ``overrides``: the first unit is run once more with each,
-      one process on one worker after the scaling runs, and its time printed beside the unit's (not
-      in the table).
+    variants: name -> settings added to ``overrides``: each unit of the 1-worker runs is run once
+      more with each, one process right after its floor's, and their time printed beside the
+      unit's (not in the table).
     """
 
     source: str

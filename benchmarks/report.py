@@ -61,8 +61,8 @@ class Runs:
     """What one source's benchmark ran: ``one``, the units with 1 worker (``one_wall`` seconds in
     all), each followed by its floor process (``floors``); ``many``, the same units with
     ``workers`` workers (``many_wall`` seconds; None: not run); ``pinned``: each process bound to a
-    CPU of its own; ``variants``: name -> the first unit run with that variant's settings
-    (``UnitSetup.variants``)."""
+    CPU of its own; ``variants``: name -> the units run with that variant's settings
+    (``UnitSetup.variants``), each right after its unit's floor."""
 
     one: list[UnitRun]
     one_wall: float
@@ -71,7 +71,7 @@ class Runs:
     many_wall: float | None
     workers: int
     pinned: bool
-    variants: dict[str, UnitRun] = dataclasses.field(default_factory=dict)
+    variants: dict[str, list[UnitRun]] = dataclasses.field(default_factory=dict)
 
 
 def report(setup: UnitSetup, runs: Runs) -> dict:
@@ -259,14 +259,21 @@ def _print_unit(setup: UnitSetup, one: list[UnitRun], f: dict, where: str) -> No
 
 
 def _print_variants(setup: UnitSetup, runs: Runs) -> None:
-    """Each variant's unit work beside the first unit's (same input; at the size measured)."""
-    first = runs.one[0].result
-    for name, run in runs.variants.items():
-        work, cpu = run.result["work_s"], run.result["work_cpu_s"]
+    """Each variant's unit work beside the unit's: means of the 1-worker runs, and the ratio of each
+    variant run's CPU time to its own unit run's (run close together: the same state of a shared
+    machine)."""
+    for name, variant_runs in runs.variants.items():
+        work = fmean(run.result["work_s"] for run in variant_runs)
+        cpu = fmean(run.result["work_cpu_s"] for run in variant_runs)
+        pairs = [
+            variant.result["work_cpu_s"] / run.result["work_cpu_s"]
+            for variant, run in zip(variant_runs, runs.one, strict=True)
+        ]
         print(
             f"  with {name} ({' '.join(setup.variants[name])}): unit work {work:8.2f} s wall, {cpu:8.2f} s "
-            f"CPU = {cpu / first['work_cpu_s']:.2f} x the unit's CPU ({first['work_cpu_s']:.2f} s; "
-            f"{work / first['work_s']:.2f} x in wall time); peak memory {run.max_rss / GIB:.2f} GiB"
+            f"CPU = {fmean(pairs):.2f} x the unit's CPU (each run over its unit's: "
+            f"{', '.join(f'{ratio:.2f}' for ratio in pairs)}); peak memory "
+            f"{max(run.max_rss for run in variant_runs) / GIB:.2f} GiB"
         )
 
 
