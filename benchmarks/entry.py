@@ -37,6 +37,9 @@ class UnitSetup:
       default size: shorter inputs than the release's).
     full_units: units of the whole benchmark for the CPU-hours line, with ``full_units_note``.
     size: "quick", "default" or "full" (ADT: its excerpt whatever the size).
+    variants: name -> settings added to ``overrides``: each unit of the 1-worker runs is run once
+      more with each, one process right after its floor's, and their time printed beside the
+      unit's (not in the table).
     """
 
     source: str
@@ -51,6 +54,7 @@ class UnitSetup:
     size: str = "excerpt"
     notes: list[str] = dataclasses.field(default_factory=list)
     extra: dict = dataclasses.field(default_factory=dict)  # passed to the worker in its spec
+    variants: dict[str, list[str]] = dataclasses.field(default_factory=dict)
 
 
 def entry_name(source: str) -> str:

@@ -61,7 +61,8 @@ class Runs:
     """What one source's benchmark ran: ``one``, the units with 1 worker (``one_wall`` seconds in
     all), each followed by its floor process (``floors``); ``many``, the same units with
     ``workers`` workers (``many_wall`` seconds; None: not run); ``pinned``: each process bound to a
-    CPU of its own."""
+    CPU of its own; ``variants``: name -> the units run with that variant's settings
+    (``UnitSetup.variants``), each right after its unit's floor."""
 
     one: list[UnitRun]
     one_wall: float
@@ -70,6 +71,7 @@ class Runs:
     many_wall: float | None
     workers: int
     pinned: bool
+    variants: dict[str, list[UnitRun]] = dataclasses.field(default_factory=dict)
 
 
 def report(setup: UnitSetup, runs: Runs) -> dict:
@@ -208,6 +210,7 @@ def print_figures(setup: UnitSetup, runs: Runs, f: dict) -> None:
     """Print ``figures``' ``f``: the unit, its floor, the scaling, the CPU-hours."""
     where = "one thread, bound to one CPU" if runs.pinned else "one thread"
     _print_unit(setup, runs.one, f, where)
+    _print_variants(setup, runs)
     _print_floor(setup, runs, f, where)
     if runs.many is not None:
         _print_scaling(runs, f)
@@ -253,6 +256,25 @@ def _print_unit(setup: UnitSetup, one: list[UnitRun], f: dict, where: str) -> No
     max_rss = f["peak_rss_gib"]
     verdict = f"   target <= {target} GiB: {'met' if max_rss <= target else 'MISSED'}" if target else ""
     print(f"  peak memory of the unit's process (max RSS, its VmHWM): {max_rss:.2f} GiB{verdict}")
+
+
+def _print_variants(setup: UnitSetup, runs: Runs) -> None:
+    """Each variant's unit work beside the unit's: means of the 1-worker runs, and the ratio of each
+    variant run's CPU time to its own unit run's (run close together: the same state of a shared
+    machine)."""
+    for name, variant_runs in runs.variants.items():
+        work = fmean(run.result["work_s"] for run in variant_runs)
+        cpu = fmean(run.result["work_cpu_s"] for run in variant_runs)
+        pairs = [
+            variant.result["work_cpu_s"] / run.result["work_cpu_s"]
+            for variant, run in zip(variant_runs, runs.one, strict=True)
+        ]
+        print(
+            f"  with {name} ({' '.join(setup.variants[name])}): unit work {work:8.2f} s wall, {cpu:8.2f} s "
+            f"CPU = {fmean(pairs):.2f} x the unit's CPU (each run over its unit's: "
+            f"{', '.join(f'{ratio:.2f}' for ratio in pairs)}); peak memory "
+            f"{max(run.max_rss for run in variant_runs) / GIB:.2f} GiB"
+        )
 
 
 def _print_extrapolation(first: dict, f: dict) -> None:

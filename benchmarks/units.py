@@ -96,10 +96,16 @@ def run_units(setup: UnitSetup, args: argparse.Namespace, scratch: str) -> Runs:
     ``args.workers`` workers (and through Beam with ``args.beam``), outputs under ``scratch``."""
     print(
         f"running {len(setup.units)} unit(s), one fresh single-threaded process each, 1 worker, each "
-        "followed by its read+decode floor (one more such process) ...",
+        "followed by its read+decode floor (one more such process)"
+        + (" and by the unit with each variant" if setup.variants else "")
+        + " ...",
         flush=True,
     )
-    one, one_wall, floors = paired_with_floors(_specs(setup, scratch, "w1"), scratch, args.pin)
+    # name -> the unit's settings with the variant's
+    variants = {name: [*setup.overrides, *overrides] for name, overrides in setup.variants.items()}
+    one, one_wall, floors, variant_runs = paired_with_floors(
+        _specs(setup, scratch, "w1"), scratch, args.pin, variants
+    )
     many, many_wall = None, None
     scaling = args.workers > 1 and len(setup.units) > 1
     if scaling:
@@ -110,22 +116,30 @@ def run_units(setup: UnitSetup, args: argparse.Namespace, scratch: str) -> Runs:
     beam_args = entry(setup.source).beam_run_args(setup.units)
     if args.beam and beam_args is not None and scaling:
         beam_scaling(setup, beam_args, args.workers, scratch)
-    return Runs(one, one_wall, floors, many, many_wall, args.workers, args.pin)
+    return Runs(one, one_wall, floors, many, many_wall, args.workers, args.pin, variant_runs)
 
 
-def paired_with_floors(specs: list[dict], scratch: str, pin: bool) -> tuple[list, float, list]:
+def paired_with_floors(
+    specs: list[dict], scratch: str, pin: bool, variants: dict[str, list[str]]
+) -> tuple[list, float, list, dict[str, list]]:
     """The 1-worker runs, each unit's process followed at once by a process measuring its read+decode
     floor (``mode="floor"``), so that the two figures of each pair meet the same state of a shared
-    machine (the unit first: files not yet in the page cache slow the unit, not its floor):
-    (unit runs, their wall time in all, floor runs)."""
+    machine (the unit first: files not yet in the page cache slow the unit, not its floor), then by
+    one process per variant (name -> the settings it runs the unit with): (unit runs, their wall time
+    in all, floor runs, variant name -> its runs, one per unit)."""
     runs, floors, wall = [], [], 0.0
+    variant_runs: dict[str, list] = {name: [] for name in variants}
     for spec in specs:
         (run,), seconds = run_processes([spec], 1, scratch, pin)
         (floor,), _ = run_processes([dict(spec, mode="floor")], 1, scratch, pin)
         runs.append(run)
         floors.append(floor)
         wall += seconds
-    return runs, wall, floors
+        for number, (name, overrides) in enumerate(variants.items()):
+            variant_spec = dict(spec, overrides=overrides, output=f"{spec['output']}_variant{number}")
+            (variant,), _ = run_processes([variant_spec], 1, scratch, pin)
+            variant_runs[name].append(variant)
+    return runs, wall, floors, variant_runs
 
 
 def beam_scaling(setup: UnitSetup, run_args: list[str], workers: int, scratch: str) -> None:

@@ -32,25 +32,30 @@ from pipeline.samples.dynamic3dgs_files import write_sequence
 from pipeline.samples.studio_world import StudioWorld
 from pipeline.samples.waymo_world import write_split
 from pipeline.samples.write_once import write_once
+from tests.support import stress_worlds
 from tests.support.cli import REPO, run_pipeline
+from tests.support.stress_worlds import write_stress_split
 
 SAMPLE_CACHE = os.environ.get("TAPVID3D_SAMPLE_CACHE") or os.path.join(REPO, ".cache", "samples")
 CACHE_LAYOUT = "1"  # bump when what the fixtures below keep in a cache folder changes
 
 
-def sample_version() -> str:
-    """12 hex digits of sha256 over the generators' source, the libraries' versions and the layout."""
+def sample_version(sources: tuple[str, ...] = ()) -> str:
+    """12 hex digits of sha256 over the generators' source (and ``sources``, more files a sample's
+    writer reads), the libraries' versions and the layout."""
     digest = hashlib.sha256(f"layout {CACHE_LAYOUT}\0".encode())
-    for path in sorted(pathlib.Path(pipeline.samples.__file__).parent.glob("*.py")):
+    generators = sorted(pathlib.Path(pipeline.samples.__file__).parent.glob("*.py"))
+    for path in generators + [pathlib.Path(source) for source in sources]:
         digest.update(path.name.encode() + b"\0" + path.read_bytes() + b"\0")
     for module in (np, cv2, open3d, pyarrow, scipy, trimesh):
         digest.update(f"{module.__name__} {module.__version__}\0".encode())
     return digest.hexdigest()[:12]
 
 
-def cached_sample(name: str, write) -> str:
-    """``<cache>/<name>-<version>``, made by ``write(staging)`` unless a complete one is there."""
-    version = sample_version()
+def cached_sample(name: str, write, sources: tuple[str, ...] = ()) -> str:
+    """``<cache>/<name>-<version>``, made by ``write(staging)`` unless a complete one is there;
+    ``sources``: files besides the generators whose content the sample depends on."""
+    version = sample_version(sources)
     folder = os.path.join(SAMPLE_CACHE, f"{name}-{version}")
     if os.path.exists(os.path.join(folder, f".complete-v{version}")):
         return folder
@@ -89,6 +94,21 @@ def sample_split(world):
     folder = cached_sample("waymo", write)
     points = np.load(os.path.join(folder, "points.npy"))
     return os.path.join(folder, "split"), {"points": list(points)}
+
+
+@pytest.fixture(scope="session")
+def stress_split():
+    """``split(name)``: the split folder of a world of ``tests/support/stress_worlds.py`` (one segment,
+    ``stress_worlds.SEGMENT``), written once into the shared cache on first use (never write into
+    it)."""
+
+    def split(name: str) -> str:
+        def write(staging: str) -> None:
+            write_stress_split(os.path.join(staging, "split"), name)
+
+        return os.path.join(cached_sample(f"waymo-stress-{name}", write, (stress_worlds.__file__,)), "split")
+
+    return split
 
 
 @pytest.fixture

@@ -32,6 +32,14 @@ def failure_cause(error: str) -> str:
 
 
 @dataclasses.dataclass(frozen=True)
+class NotMade:
+    """Why a source makes no clip of an object or view it considered (one sentence, for
+    ``UnitClips.not_made``)."""
+
+    reason: str
+
+
+@dataclasses.dataclass(frozen=True)
 class UnitClips:
     """What annotating one unit made.
 

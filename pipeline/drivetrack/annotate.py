@@ -4,9 +4,11 @@ vehicle assigned to each camera; per unit its clips (``UnitClips``) or the excep
 Pure computation on the reader's records; no Beam. The steps, a module each: ``camera_model.py``
 (vehicle and camera poses per frame, where a point appears in a frame, undistorted frames),
 ``objects.py`` (which vehicles, on which frames), ``lidar.py`` (the TOP lidar: depth samples, each
-object's points and normals), ``tracks.py`` (which points, their queries), ``visibility.py`` (in
-view, facing, not occluded), ``masks.py`` (object masks); this module runs them and assembles each
-clip.
+object's points and normals), ``tracks.py`` (one object's candidate clip: ``queries.py`` which
+points and their queries, ``visibility.py`` in view, facing, not occluded, or with
+``drivetrack.refined_visibility`` ``refined_visibility.py`` with ``footprints.py``,
+``object_surface.py`` and ``surface_normals.py``, ``masks.py`` object masks); this module reads a
+segment's units, selects their objects, gathers the lidar once and runs ``tracks.py`` per object.
 """
 
 from __future__ import annotations
@@ -17,10 +19,8 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from pipeline.core.clip import ClipRecord, TrackStats
-from pipeline.core.geometry import transform_directions_batch, transform_points_batch
 from pipeline.core.images import check_jpeg
-from pipeline.core.outcomes import UnitClips
+from pipeline.core.outcomes import NotMade, UnitClips
 from pipeline.drivetrack.camera_model import (
     UnitCamera,
     camera_from_world,
@@ -29,18 +29,13 @@ from pipeline.drivetrack.camera_model import (
     undistortion_maps,
 )
 from pipeline.drivetrack.lidar import CameraPass, LidarEvidence, gather_lidar_cameras
-from pipeline.drivetrack.masks import object_masks
-from pipeline.drivetrack.objects import ObjectRun, select_objects
+from pipeline.drivetrack.objects import select_objects
 from pipeline.drivetrack.reader import SegmentReader
-from pipeline.drivetrack.records import UnitInput, clip_name
+from pipeline.drivetrack.records import CameraFrames, UnitInput, clip_name
 from pipeline.drivetrack.settings import DriveTrackConfig
-from pipeline.drivetrack.tracks import choose_points, clip_queries, point_keys, point_pool, query_draws
+from pipeline.drivetrack.tracks import track_object
 from pipeline.drivetrack.units import SegmentCamera
-from pipeline.drivetrack.visibility import track_visibility
-from pipeline.export.depth_export import sparse_export
-from pipeline.filters.mask import agreement, on_mask
-from pipeline.io.given_queries import given_queries
-from pipeline.sources import Wanted
+from pipeline.sources import RunChoices, Wanted
 
 if TYPE_CHECKING:
     from pipeline.settings.run_config import RunConfig
@@ -48,110 +43,16 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 
-def object_visibility(
-    unit: UnitInput, run: ObjectRun, evidence: LidarEvidence, camera: UnitCamera, seen, normals, config
-) -> np.ndarray:
-    """Visibility [T, N] of tracks seen as ``seen`` (one Projection per clip frame) whose box-frame
-    normals are ``normals`` [N, 3]: in view, facing the camera, not occluded in the lidar's depth."""
-    rules = config.section(DriveTrackConfig)
-    frames = range(run.start, run.stop)
-    # Normals turn with the frame's pose (the camera turns by under a milliradian during a readout).
-    cam_from_box = camera.cam_from_world[run.start : run.stop] @ run.world_from_box
-    return track_visibility(
-        np.stack([s.points for s in seen]),
-        np.stack([s.pixels for s in seen]),
-        np.stack([s.in_view for s in seen]),
-        transform_directions_batch(cam_from_box, normals) if rules.facing_test else None,
-        [evidence.depth_uv[t] for t in frames],
-        [evidence.depth_z[t] for t in frames],
-        [evidence.depth_tree(t) for t in frames],
-        (unit.calibration.width, unit.calibration.height),
-        rules.occlusion_margin,
-    )
-
-
-def mask_agreement(
-    unit: UnitInput,
-    run: ObjectRun,
-    name: str,
-    evidence,
-    camera: UnitCamera,
-    uv: np.ndarray,
-    visibility,
-    config,
-) -> np.ndarray:
-    """Per track [N], the share of its visible frames on the object's mask (NaN without a mask)."""
-    masks, has_mask = object_masks(unit, run, name, evidence, camera, config)
-    on_object = np.stack(
-        [
-            on_mask(mask, uv[i]) if mask is not None else np.zeros(uv.shape[1], bool)
-            for i, mask in enumerate(masks)
-        ]
-    )
-    return agreement(on_object, visibility, has_mask)
-
-
-def track_object(
-    unit: UnitInput,
-    run: ObjectRun,
-    evidence: LidarEvidence,
-    camera: UnitCamera,
-    stored_jpegs: dict[int, bytes],
-    config: RunConfig,
-) -> ClipRecord | str:
-    """Candidate tracks on one vehicle, with visibility, queries and filter statistics; or why there
-    are none: its box holds no lidar point, or ``--queries-from`` holds no clip of its name.
-
-    stored_jpegs: the stored frame per unit frame index, for the run's frames.
-    """
-    name = clip_name(unit.segment, unit.camera, run.object_id)
-    rules = config.section(DriveTrackConfig)
-    pool = point_pool(evidence, run, unit.frames.timestamps)
-    if pool is None:
-        log.info("%s: object %s has no lidar points in its box; no clip", unit.name, run.object_id)
-        return f"object {run.object_id}'s box holds no lidar point on its frames"
-    keys = point_keys(config.seed, name, pool.timestamps, pool.pixels)
-    frames = range(run.start, run.stop)
-    given = given_queries(config.queries_from, "drivetrack", name, config.http)
-    if config.queries_from and given is None:
-        return "--queries-from holds no clip of this name"  # it re-annotates only the clips it holds
-    count = rules.oversample * rules.tracks_per_clip
-    chosen = choose_points(pool.points, keys, given, run, camera, name, count)
-    seen = camera.project_frames(frames, transform_points_batch(run.world_from_box, pool.points[chosen]))
-    uv = np.stack([s.pixels for s in seen])
-    visibility = object_visibility(unit, run, evidence, camera, seen, pool.normals[chosen], config)
-    frame_ids = unit.frames.timestamps[run.start : run.stop]
-    depth = [evidence.depth_uv[t] for t in frames], [evidence.depth_z[t] for t in frames]
-    return ClipRecord(
-        source="drivetrack",
-        name=name,
-        unit=unit.name,
-        images_jpeg=[stored_jpegs[t] for t in frames],
-        fx_fy_cx_cy=unit.calibration.fx_fy_cx_cy.copy(),
-        image_size=(unit.calibration.width, unit.calibration.height),
-        extrinsics_w2c=camera.cam_from_world[run.start : run.stop].copy(),
-        tracks_xyz=np.stack([s.points for s in seen]),
-        visibility=visibility,
-        queries_xyt=clip_queries(uv, visibility, given, query_draws(keys[chosen])),
-        frame_ids=frame_ids.copy(),
-        track_stats=TrackStats(mask_agreement(unit, run, name, evidence, camera, uv, visibility, config)),
-        target_tracks=rules.tracks_per_clip,
-        given_queries=given is not None,
-        depth_export=sparse_export(*depth, frame_ids) if config.export_depth else None,
-        track_keys=keys[chosen],
-    )
-
-
 def stored_frames(unit: UnitInput, frames: list[int], undistorted: bool) -> dict[int, bytes]:
     """The JPEG written for each of ``frames`` (unit frame indices), checked: Waymo's, or undistorted
     (``undistorts``)."""
     calibration = unit.calibration
     maps = undistortion_maps(calibration) if undistorted else None
-    stored = {}
+    stored: dict[int, bytes] = {}
     for t in frames:
         what = f"camera_image/{unit.segment} camera {unit.camera} frame {unit.frames.timestamps[t]}"
         jpeg = unit.frames.jpegs[t]
-        if undistorted:  # one colour decode both checks the frame and feeds the undistortion
+        if maps is not None:  # one colour decode both checks the frame and feeds the undistortion
             image = check_jpeg(jpeg, calibration.width, calibration.height, what, cv2.IMREAD_COLOR)
             stored[t] = undistort_image(image, maps)
         else:
@@ -174,7 +75,7 @@ def undistorts(unit: UnitInput, undistort_frames: bool) -> bool:
 
 
 def annotate_cameras(
-    units: list[UnitInput], config: RunConfig, wanted: list[Wanted] | None = None
+    units: list[UnitInput], rules: DriveTrackConfig, choices: RunChoices, wanted: list[Wanted] | None = None
 ) -> list[UnitClips | Exception]:
     """The candidate clips of cameras of one segment (in object-id order), or per camera the
     exception that failed it. The TOP lidar is decoded and placed in the world once for all the
@@ -184,15 +85,14 @@ def annotate_cameras(
     wanted: per camera, the clip names to make (a release run's; the others' objects are not
       tracked, and each wanted name not made says why), or None for every vehicle.
     """
-    rules = config.section(DriveTrackConfig)
     wanted = wanted or [None] * len(units)
-    results: list[UnitClips | Exception | None] = [None] * len(units)
+    results: dict[int, UnitClips | Exception] = {}
     passes, stored, index, skipped = [], [], [], []
     for i, unit in enumerate(units):
         try:
             world_from_frame = frame_poses(unit)
             camera = unit_camera(unit)
-            runs, why = select_objects(unit, camera, world_from_frame, config, object_ids(unit, wanted[i]))
+            runs, why = select_objects(unit, camera, world_from_frame, rules, object_ids(unit, wanted[i]))
             why = {clip_name(unit.segment, unit.camera, object_id): text for object_id, text in why.items()}
             if not runs:
                 results[i] = UnitClips((), why)
@@ -205,33 +105,47 @@ def annotate_cameras(
         passes.append(item)
         index.append(i)
         skipped.append(why)
+    depth = choices.export_depth or not rules.refined_visibility  # the refined rules read none
+    evidence: list[LidarEvidence | Exception]
     try:
-        evidence = gather_lidar_cameras(
-            passes, rules.box_shrink_m, rules.occlusion_margin, rules.parallax_cleanup
+        evidence = list(
+            gather_lidar_cameras(
+                passes,
+                rules.box_shrink_m,
+                rules.occlusion_margin,
+                parallax_cleanup=rules.parallax_cleanup,
+                refined=rules.refined_visibility,
+                depth=depth,
+            )
         )
     except Exception as error:  # noqa: BLE001 - the lidar is shared: every camera reading it fails
-        evidence = [error] * len(passes)
+        evidence = [error for _ in passes]
     for i, item, frames, found, why in zip(index, passes, stored, evidence, skipped, strict=True):
         if isinstance(found, Exception):
             results[i] = found
             continue
         try:
-            results[i] = camera_clips(item, found, frames, config, why)
+            results[i] = camera_clips(item, found, frames, rules, choices, why)
         except Exception as error:  # noqa: BLE001
             results[i] = error
-    return results
+    return [results[i] for i in range(len(units))]
 
 
 def camera_clips(
-    item: CameraPass, evidence: LidarEvidence, frames: dict[int, bytes], config: RunConfig, why: dict
+    item: CameraPass,
+    evidence: LidarEvidence,
+    frames: dict[int, bytes],
+    rules: DriveTrackConfig,
+    choices: RunChoices,
+    why: dict[str, str],
 ) -> UnitClips:
     """One camera's clips, one per object run; ``why`` (clip name -> reason) gains the objects that
     made none."""
     clips, not_made = [], dict(why)
     for run in item.runs:
-        made = track_object(item.unit, run, evidence, item.camera, frames, config)
-        if isinstance(made, str):
-            not_made[clip_name(item.unit.segment, item.unit.camera, run.object_id)] = made
+        made = track_object(item.unit, run, evidence, item.camera, frames, rules, choices)
+        if isinstance(made, NotMade):
+            not_made[clip_name(item.unit.segment, item.unit.camera, run.object_id)] = made.reason
         else:
             clips.append(made)
     return UnitClips(tuple(clips), not_made)
@@ -252,17 +166,15 @@ def load_units(input_root: str, segment: str, cameras: list[int]) -> list[UnitIn
     reader = SegmentReader(input_root, segment)
     try:
         reader.check_components()
-        shared = {
-            "lidar_calibration": reader.lidar_calibration(),
-            "world_from_vehicle": reader.vehicle_poses(),
-            "boxes": reader.box_labels(),
-        }
+        lidar_calibration = reader.lidar_calibration()
+        poses, boxes = reader.vehicle_poses(), reader.box_labels()
     except Exception as error:  # noqa: BLE001 - becomes each unit's failure
-        return [error] * len(cameras)
+        return [error for _ in cameras]
+    every_frames: list[CameraFrames | Exception]
     try:
-        every_frames = reader.cameras_frames(cameras)  # camera_image read once
+        every_frames = list(reader.cameras_frames(cameras))  # camera_image read once
     except Exception as error:  # noqa: BLE001 - each camera's failure, after its calibration's
-        every_frames = [error] * len(cameras)
+        every_frames = [error for _ in cameras]
     loaded: list[UnitInput | Exception] = []
     for camera, frames in zip(cameras, every_frames, strict=True):
         try:
@@ -275,7 +187,7 @@ def load_units(input_root: str, segment: str, cameras: list[int]) -> list[UnitIn
             continue
         loaded.append(
             UnitInput(
-                segment, camera, calibration, frames=frames, lidar_frames=reader.top_lidar_frames, **shared
+                segment, camera, calibration, lidar_calibration, frames, poses, boxes, reader.top_lidar_frames
             )
         )
     return loaded
@@ -293,5 +205,6 @@ def annotate_group(
     wanted = wanted or [None] * len(units)
     readable = [item for item in loaded if not isinstance(item, Exception)]
     readable_wanted = [w for item, w in zip(loaded, wanted, strict=True) if not isinstance(item, Exception)]
-    annotated = iter(annotate_cameras(readable, config, readable_wanted))
+    rules, choices = config.section(DriveTrackConfig), RunChoices.of(config, "drivetrack")
+    annotated = iter(annotate_cameras(readable, rules, choices, readable_wanted))
     return [item if isinstance(item, Exception) else next(annotated) for item in loaded]

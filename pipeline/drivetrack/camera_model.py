@@ -46,8 +46,7 @@ import numpy as np
 
 from pipeline.core.errors import InputError
 from pipeline.core.geometry import CV_FROM_FLU, invert_se3, rigid_transform_problem, transform_points
-from pipeline.drivetrack.reader import CameraCalibration, CameraFrames
-from pipeline.drivetrack.records import UnitInput
+from pipeline.drivetrack.records import CameraCalibration, CameraFrames, UnitInput
 
 GLOBAL_SHUTTER = 5
 # Readout direction -> (pixel axis read along: 0 columns, 1 rows; counted from the far edge).
@@ -237,7 +236,9 @@ class UnitCamera:
         """Where world points [N, 3] appear in frame t of the unit."""
         return self.project_frames([t], [world])[0]
 
-    def project_frames(self, frames: Sequence[int], world: Sequence[np.ndarray]) -> list[Projection]:
+    def project_frames(
+        self, frames: Sequence[int], world: Sequence[np.ndarray] | np.ndarray
+    ) -> list[Projection]:
         """Where world points appear in several frames of the unit: world[i] [N_i, 3] (a list, or
         [T, N, 3]) in frame frames[i]. One Projection per frame, the same as ``project`` gives it:
         the frames' points are solved together, each with its own frame's arithmetic."""
@@ -248,11 +249,12 @@ class UnitCamera:
         )
         counts = np.array([len(w) for w in world])
         bounds = np.concatenate([[0], np.cumsum(counts)])
-        rolling = [i for i, t in enumerate(frames) if self.readouts[t] is not None]
+        readouts = [self.readouts[t] for t in frames]
+        rolling = [i for i, readout in enumerate(readouts) if readout is not None]
         if rolling:
             rows = np.concatenate([np.arange(bounds[i], bounds[i + 1]) for i in rolling])
             frame = np.repeat(np.arange(len(rolling)), counts[rolling])
-            local[rows] = self._seen([self.readouts[frames[i]] for i in rolling], frame, local[rows])
+            local[rows] = self._seen([r for r in readouts if r is not None], frame, local[rows])
         whole = self._stored(local)
         arrays = (whole.points, whole.pixels, whole.sensor, whole.in_view)
         parts = (np.split(array, bounds[1:-1]) for array in arrays)

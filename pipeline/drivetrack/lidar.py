@@ -1,7 +1,8 @@
 """The TOP lidar: Waymo range images to 3D points and surface normals (the dataset's own convention),
 and what the lidar says about a unit's clips, read in one pass over the frames they need (shared by
 the cameras of a segment annotated together): per camera frame, the depth samples the occlusion
-test reads and each object's points.
+test reads and each object's points; for the refined visibility, each object's surface and the
+footprints of the sweeps around each frame (``RefinedEvidence``).
 
 Normals come from each pixel's neighbours on the same beam (columns) and in the same column (rows),
 fixed by the scan, not by which other points exist, so a normal never depends on a point cloud's
@@ -19,9 +20,22 @@ import numpy as np
 from pipeline.core.errors import InputError
 from pipeline.core.geometry import invert_se3, rotation_from_roll_pitch_yaw, transform_points
 from pipeline.drivetrack.camera_model import UnitCamera
+from pipeline.drivetrack.footprints import (
+    BoxMotions,
+    FrameFootprints,
+    FrameOccluders,
+    SweepFootprints,
+    frame_footprints,
+    likely_reach,
+    moved,
+    object_regions,
+    row_spacings,
+    serving_returns,
+    sweep_footprints,
+)
+from pipeline.drivetrack.object_surface import consistent_triangles, surface_triangles
 from pipeline.drivetrack.objects import ObjectRun, box_poses, inside_box
-from pipeline.drivetrack.reader import LidarCalibration
-from pipeline.drivetrack.records import UnitInput
+from pipeline.drivetrack.records import LidarCalibration, UnitInput
 from pipeline.drivetrack.visibility import CellGrid, camera_occluded_lidar, depth_tree
 
 
@@ -94,6 +108,13 @@ class TopSweep:
     def normals(self, index: np.ndarray) -> np.ndarray:
         """Unit world-frame normals [K, 3], facing the lidar, of the kept points ``index`` [K]."""
         local = range_image_normals(self.grid, self.ranges, np.flatnonzero(self.kept)[index])
+        rotations = self.pose_rotations[self.pose_of_point[index]]
+        return np.einsum("kij,kj->ki", rotations @ self.lidar_rotation, local)
+
+    def beams(self, index: np.ndarray) -> np.ndarray:
+        """Unit world-frame directions [K, 3] from the lidar to the kept points ``index`` [K]."""
+        pixels = np.flatnonzero(self.kept)[index]
+        local = self.grid.reshape(-1, 3)[pixels] / self.ranges.ravel()[pixels, None]
         rotations = self.pose_rotations[self.pose_of_point[index]]
         return np.einsum("kij,kj->ki", rotations @ self.lidar_rotation, local)
 
@@ -228,6 +249,7 @@ class LidarEvidence:
     body_normals: dict[str, dict[int, np.ndarray]]
     body_pixels: dict[str, dict[int, np.ndarray]]
     depth_trees: dict[int, CellGrid | None] = dataclasses.field(default_factory=dict)
+    refined: RefinedEvidence | None = None
 
     def depth_tree(self, t: int) -> CellGrid | None:
         """The lookup of frame t's depth pixels (``depth.depth_tree``), built at the first clip that
@@ -235,6 +257,30 @@ class LidarEvidence:
         if t not in self.depth_trees:
             self.depth_trees[t] = depth_tree(self.depth_uv[t])
         return self.depth_trees[t]
+
+
+@dataclasses.dataclass
+class RefinedEvidence:
+    """What the refined visibility reads of a camera's sweeps (``refined_visibility``).
+
+    body_views[object][t]: [K, 3] unit directions (box frame) from each body point to the lidar of
+    its sweep (the side of the surface the sweep saw); surfaces[object][t]: the object's surface in
+    that sweep, (points [K, 3] box frame, triangles [M, 3]) (``object_surface``); footprints[t]:
+    source (-1, 0, 1) -> the footprints of the sweep of frame t + source seen in camera frame t
+    (``footprints.frame_footprints``); labels: object id -> its footprints' label."""
+
+    body_views: dict[str, dict[int, np.ndarray]]
+    surfaces: dict[str, dict[int, tuple[np.ndarray, np.ndarray]]]
+    footprints: dict[int, dict[int, FrameFootprints]]
+    labels: dict[str, int]
+    occluders: dict[int, FrameOccluders] = dataclasses.field(default_factory=dict)
+
+    def frame_occluders(self, t: int) -> FrameOccluders:
+        """Frame t's footprints joined and binned (``footprints.FrameOccluders``), built at the first
+        clip that reads them."""
+        if t not in self.occluders:
+            self.occluders[t] = FrameOccluders(self.footprints[t])
+        return self.occluders[t]
 
 
 def depth_samples(
@@ -284,27 +330,45 @@ class CameraPass:
 
 
 def gather_lidar_cameras(
-    passes: list[CameraPass], shrink: float, occlusion_margin: float, parallax_cleanup: bool = True
+    passes: list[CameraPass],
+    shrink: float,
+    occlusion_margin: float,
+    *,
+    parallax_cleanup: bool = True,
+    refined: bool = False,
+    depth: bool = True,
 ) -> list[LidarEvidence]:
     """One pass over the TOP lidar frames any of one segment's cameras needs, each frame decoded and
-    placed in the world once for all of them: each camera's depth samples (``depth_samples``) and
-    in-box points."""
+    placed in the world once for all of them: each camera's in-box points, its depth samples
+    (``depth_samples``) unless ``depth`` is false (the refined visibility reads none), and with
+    ``refined`` what the refined visibility reads (``RefinedEvidence``)."""
     users: dict[int, list[tuple[int, int]]] = {}  # lidar timestamp -> [(pass index, camera frame)]
     for i, item in enumerate(passes):
         for t in item.needed:
             users.setdefault(int(item.unit.frames.timestamps[t]), []).append((i, t))
     evidence = [
-        LidarEvidence({}, {}, *({run.object_id: {} for run in item.runs} for _ in range(3)))
-        for item in passes
+        LidarEvidence({}, {}, _per_object(item), _per_object(item), _per_object(item)) for item in passes
     ]
     if not passes:
         return evidence
+    refined_parts: list[tuple[RefinedEvidence, BoxMotions]] = []  # per pass, with ``refined``
+    for item, found in zip(passes, evidence, strict=True):
+        if refined:
+            moving = BoxMotions(item.unit, item.world_from_frame)
+            labels = {run.object_id: moving.label(run.object_id) for run in item.runs}
+            surfaces: dict[str, dict[int, tuple[np.ndarray, np.ndarray]]]
+            surfaces = {run.object_id: {} for run in item.runs}
+            found.refined = RefinedEvidence(_per_object(item), surfaces, {}, labels)
+            refined_parts.append((found.refined, moving))
     first = passes[0].unit
     stamps = sorted(users)
     for stamp, lidar in zip(stamps, first.lidar_frames(stamps), strict=True):
         what = f"lidar/{first.segment} TOP frame {lidar.timestamp}"
         sweep = top_lidar_world_points(lidar.range_image, lidar.pixel_pose, first.lidar_calibration, what)
         in_vehicle: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}  # the cameras' poses agree
+        if refined:
+            inclinations = beam_inclinations(first.lidar_calibration, lidar.range_image.shape[0], what)
+            spacing = row_spacings(inclinations)
         for i, t in users[stamp]:
             pose = passes[i].world_from_frame[t]
             key = pose.tobytes()
@@ -312,8 +376,18 @@ def gather_lidar_cameras(
                 vehicle_from_world = invert_se3(pose)
                 in_vehicle[key] = vehicle_from_world, transform_points(vehicle_from_world, sweep.points)
             frame = (t, lidar.camera_projection, sweep, in_vehicle[key])
-            _camera_frame(passes[i], evidence[i], *frame, shrink, occlusion_margin, parallax_cleanup)
+            depth_rule = (occlusion_margin, parallax_cleanup, depth)
+            in_camera, bodies = _camera_frame(passes[i], evidence[i], *frame, shrink, *depth_rule)
+            if refined:
+                found_refined, moving = refined_parts[i]
+                seen = (in_camera, bodies, in_vehicle[key])
+                _refined_frame(passes[i], found_refined, moving, t, sweep, spacing, *seen)
     return evidence
+
+
+def _per_object(item: CameraPass) -> dict[str, dict[int, np.ndarray]]:
+    """An empty per-object, per-frame table for the objects of ``item``."""
+    return {run.object_id: {} for run in item.runs}
 
 
 def _camera_frame(
@@ -326,18 +400,23 @@ def _camera_frame(
     shrink: float,
     occlusion_margin: float,
     parallax_cleanup: bool,
-) -> None:
-    """Camera frame t's share of a sweep: its depth samples and its objects' points, into ``evidence``.
+    depth: bool,
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Camera frame t's share of a sweep: its objects' points and, with ``depth``, its depth samples,
+    into ``evidence``. Returns the kept points the lidar projects into this camera [K] and each
+    object's body points [K'] (kept-point indices).
 
     projection: [H, W, 6] the sweep's lidar_camera_projection (camera name, u, v, twice);
     in_vehicle: vehicle_from_world [4, 4] at the frame and the sweep's points [M, 3] in that frame."""
     world, camera = sweep.points, item.unit.camera
     in_camera = ((projection[..., 0] == camera) | (projection[..., 3] == camera))[sweep.kept]
-    evidence.depth_uv[t], evidence.depth_z[t] = depth_samples(
-        world[in_camera], item.camera, t, occlusion_margin, parallax_cleanup
-    )
+    if depth:
+        evidence.depth_uv[t], evidence.depth_z[t] = depth_samples(
+            world[in_camera], item.camera, t, occlusion_margin, parallax_cleanup
+        )
     vehicle_from_world, vehicle = in_vehicle
     pixels = np.flatnonzero(sweep.kept)
+    bodies = {}
     for run in item.runs:
         if run.start <= t < run.stop:
             inside, points, box_from_vehicle = box_points(vehicle, run.lidar_boxes[t - run.start], shrink)
@@ -345,6 +424,87 @@ def _camera_frame(
             evidence.body_points[run.object_id][t] = points
             evidence.body_normals[run.object_id][t] = sweep.normals(inside) @ box_from_world.T
             evidence.body_pixels[run.object_id][t] = pixels[inside]
+            bodies[run.object_id] = inside
+    return np.flatnonzero(in_camera), bodies
+
+
+def _refined_frame(
+    item: CameraPass,
+    refined: RefinedEvidence,
+    motions: BoxMotions,
+    t: int,
+    sweep: TopSweep,
+    spacing: np.ndarray,
+    in_camera: np.ndarray,
+    bodies: dict[str, np.ndarray],
+    in_vehicle: tuple[np.ndarray, np.ndarray],
+) -> None:
+    """What the refined visibility reads of camera frame t's sweep, into ``refined``: its objects'
+    body views and surfaces, and its footprints in the camera frames t - 1, t and t + 1 it serves.
+
+    spacing: [H] the rows' angular spacing; in_camera: [K] the kept points the lidar projects into
+    this camera; bodies: object -> its body points (kept-point indices); in_vehicle: as
+    ``_camera_frame``'s."""
+    vehicle_from_world, vehicle = in_vehicle
+    labels = motions.labels_at(t, vehicle[in_camera])
+    active = [run for run in item.runs if run.start <= t < run.stop]
+    needed = set(item.needed)
+    targets = []  # (frame, its moves, its regions)
+    for target in (t - 1, t, t + 1):
+        if target in needed:
+            boxes = [
+                (run.world_from_box[target - run.start], run.lidar_boxes[target - run.start])
+                for run in item.runs
+                if run.start <= target < run.stop
+            ]
+            targets.append((target, motions.moves(t, target), object_regions(item.camera, target, boxes)))
+    reach = likely_reach(sweep, in_camera, spacing)
+    serving = serving_returns(item.camera, sweep.points[in_camera], labels, reach, targets)
+    tracked = [refined.labels[run.object_id] for run in active]
+    # Footprints for the returns on the objects tracked now (their surfaces) or serving some frame.
+    wanted = np.unique(np.concatenate([np.flatnonzero(np.isin(labels, tracked)), *serving]))
+    footprints = sweep_footprints(sweep, in_camera[wanted], spacing)
+    wanted_labels = labels[wanted]
+    limits = motions.box_limits(t, footprints, wanted_labels, vehicle_from_world)
+    for run in active:
+        box_from_world = invert_se3(box_poses(run.lidar_boxes[t - run.start])) @ vehicle_from_world
+        refined.body_views[run.object_id][t] = -sweep.beams(bodies[run.object_id]) @ box_from_world[:3, :3].T
+        on_object = np.flatnonzero(wanted_labels == refined.labels[run.object_id])
+        refined.surfaces[run.object_id][t] = _surface(sweep, footprints, on_object, box_from_world, spacing)
+    for (target, moves, regions), rows in zip(targets, serving, strict=True):
+        at = np.searchsorted(wanted, rows)  # the target's returns among those with footprints
+        kept, *world = moved(
+            wanted_labels[at],
+            moves,
+            footprints.points[at],
+            footprints.normals[at],
+            footprints.along_azimuth[at],
+            footprints.along_inclination[at],
+        )
+        source, chosen = t - target, at[kept]
+        seen = frame_footprints(
+            item.camera, target, source, tuple(world), limits[chosen], wanted_labels[chosen], regions
+        )
+        refined.footprints.setdefault(target, {})[source] = seen
+
+
+def _surface(
+    sweep: TopSweep,
+    footprints: SweepFootprints,
+    on_object: np.ndarray,
+    box_from_world: np.ndarray,
+    spacing: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """An object's surface in one sweep (``object_surface``): the returns ``on_object`` (rows of
+    ``footprints``, the camera's returns) in the box frame [K, 3] (box_from_world [4, 4]) and their
+    triangles [M, 3]. spacing: [H] the rows' angular spacing."""
+    points = transform_points(box_from_world, footprints.points[on_object])
+    if len(on_object) < 3:
+        return points, np.zeros((0, 3), np.int64)
+    pixels = np.flatnonzero(sweep.kept)[footprints.index[on_object]]
+    triangles = surface_triangles(pixels, sweep.ranges, spacing)
+    normals = footprints.normals[on_object] @ box_from_world[:3, :3].T
+    return points, consistent_triangles(points, normals, triangles)
 
 
 def gather_lidar(
@@ -354,9 +514,18 @@ def gather_lidar(
     world_from_frame: np.ndarray,
     shrink: float,
     occlusion_margin: float,
+    *,
+    parallax_cleanup: bool = True,
+    refined: bool = False,
+    depth: bool = True,
 ) -> LidarEvidence:
     """``gather_lidar_cameras`` for one camera. world_from_frame: [T, 4, 4] (``camera_model.frame_poses``)."""
     (evidence,) = gather_lidar_cameras(
-        [CameraPass(unit, runs, camera, world_from_frame)], shrink, occlusion_margin
+        [CameraPass(unit, runs, camera, world_from_frame)],
+        shrink,
+        occlusion_margin,
+        parallax_cleanup=parallax_cleanup,
+        refined=refined,
+        depth=depth,
     )
     return evidence

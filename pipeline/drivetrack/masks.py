@@ -4,8 +4,6 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import cv2
 import numpy as np
 from apache_beam.io.filesystems import FileSystems
@@ -19,9 +17,6 @@ from pipeline.drivetrack.objects import ObjectRun
 from pipeline.drivetrack.records import UnitInput
 from pipeline.drivetrack.settings import DriveTrackConfig
 from pipeline.io.files import read_input
-
-if TYPE_CHECKING:
-    from pipeline.settings.run_config import RunConfig
 
 MAX_CLOSING_PX = 63
 
@@ -78,7 +73,7 @@ def object_masks(
     clip_name: str,
     evidence: LidarEvidence,
     camera: UnitCamera,
-    config: RunConfig,
+    rules: DriveTrackConfig,
 ) -> tuple[list[np.ndarray | None], np.ndarray]:
     """Object mask per clip frame ([H, W] bool, or None where there is none) and [T] has-mask
     flags: ``<masks_dir>/<clip name>/<frame id>.png`` when ``drivetrack.masks_dir`` is set, else
@@ -86,8 +81,8 @@ def object_masks(
     frame (placed by the run's boxes)."""
     calibration = unit.calibration
     frames = range(run.start, run.stop)
-    if config.section(DriveTrackConfig).masks_dir:
-        folder = f"{config.section(DriveTrackConfig).masks_dir.rstrip('/')}/{clip_name}"
+    if rules.masks_dir:
+        folder = f"{rules.masks_dir.rstrip('/')}/{clip_name}"
         masks = [
             read_mask_png(f"{folder}/{unit.frames.timestamps[t]}.png", calibration.width, calibration.height)
             for t in frames
@@ -96,7 +91,7 @@ def object_masks(
         bodies = [evidence.body_points[run.object_id].get(t, np.zeros((0, 3))) for t in frames]
         world = [transform_points(run.world_from_box[i], body) for i, body in enumerate(bodies)]
         uvs = [seen.pixels[seen.in_view] for seen in camera.project_frames(frames, world)]
-        closing = config.section(DriveTrackConfig).mask_closing_px
+        closing = rules.mask_closing_px
         masks = [
             silhouette_mask(uv, calibration.width, calibration.height, closing) if len(uv) else None
             for uv in uvs

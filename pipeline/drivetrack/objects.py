@@ -6,18 +6,15 @@ from __future__ import annotations
 
 import dataclasses
 from collections import Counter
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from pipeline.core.errors import InputError
 from pipeline.core.geometry import rotation_z, se3_from_rotation_translation, transform_points
+from pipeline.core.outcomes import NotMade
 from pipeline.drivetrack.camera_model import Projection, UnitCamera
 from pipeline.drivetrack.records import UnitInput
 from pipeline.drivetrack.settings import DriveTrackConfig
-
-if TYPE_CHECKING:
-    from pipeline.settings.run_config import RunConfig
 
 
 @dataclasses.dataclass(frozen=True)
@@ -87,7 +84,7 @@ def select_objects(
     unit: UnitInput,
     camera: UnitCamera,
     world_from_frame: np.ndarray,
-    config: RunConfig,
+    rules: DriveTrackConfig,
     wanted: frozenset[str] | None = None,
 ) -> tuple[list[ObjectRun], dict[str, str]]:
     """Vehicles assigned to this camera whose box projects on enough contiguous frames, each on its
@@ -105,30 +102,30 @@ def select_objects(
     }
     runs = []
     for object_id in sorted(known if wanted is None else known & wanted):
-        made = object_run(unit, camera, world_from_frame, object_id, config)
-        if isinstance(made, str):
-            skipped[object_id] = made
+        made = object_run(unit, camera, world_from_frame, object_id, rules)
+        if isinstance(made, NotMade):
+            skipped[object_id] = made.reason
         else:
             runs.append(made)
     return runs, skipped
 
 
 def object_run(
-    unit: UnitInput, camera: UnitCamera, world_from_frame: np.ndarray, object_id: str, config: RunConfig
-) -> ObjectRun | str:
+    unit: UnitInput, camera: UnitCamera, world_from_frame: np.ndarray, object_id: str, rules: DriveTrackConfig
+) -> ObjectRun | NotMade:
     """The clip run of one object of the segment, or why it makes none on this unit's camera."""
-    rules, boxes = config.section(DriveTrackConfig), unit.boxes
+    boxes = unit.boxes
     rows = np.nonzero(boxes.object_ids == object_id)[0]
     kind = int(boxes.types[rows[0]])
     if kind not in rules.object_types:
         types = ",".join(str(t) for t in rules.object_types)
-        return (
+        return NotMade(
             f"object {object_id} is of type {kind} ({OBJECT_TYPES.get(kind, 'unknown')}), not in "
             f"drivetrack.object_types={types}"
         )
     assigned = assigned_camera(boxes.most_visible_camera[rows])
     if assigned != unit.camera:
-        return (
+        return NotMade(
             f"object {object_id} belongs to camera {assigned} (the one that sees it most), not {unit.camera}"
         )
     synced, lidar = boxes_per_frame(unit, object_id, rows)
@@ -137,18 +134,18 @@ def object_run(
     world_from_box[labelled] = world_from_frame[labelled] @ box_poses(synced[labelled])
     in_view_flags = np.zeros(len(synced), bool)
     nearest = np.full(len(synced), np.inf)
-    for t in np.nonzero(labelled)[0]:
+    for t in np.flatnonzero(labelled).tolist():
         corners = camera.project(t, transform_points(world_from_box[t], box_corners_local(synced[t])))
         in_view_flags[t] = box_in_view(corners, unit.calibration.width, unit.calibration.height)
         nearest[t] = np.linalg.norm(corners.points, axis=1).min()
     start, stop = longest_run(in_view_flags)
     if stop - start < rules.min_contiguous_frames:
-        return (
+        return NotMade(
             f"object {object_id}'s box is in view on at most {stop - start} contiguous frame(s), fewer "
             f"than drivetrack.min_contiguous_frames={rules.min_contiguous_frames}"
         )
     if nearest[start:stop].min() > rules.max_corner_distance_m:
-        return (
+        return NotMade(
             f"object {object_id}'s box comes no nearer than {nearest[start:stop].min():.1f} m, beyond "
             f"drivetrack.max_corner_distance_m={rules.max_corner_distance_m:g}"
         )
@@ -168,6 +165,20 @@ def box_poses(boxes: np.ndarray) -> np.ndarray:
 def box_corners_local(box: np.ndarray) -> np.ndarray:
     """The 8 corners [8, 3] of a box [7] in its own frame."""
     return _CORNER_SIGNS * (box[3:6] / 2.0)
+
+
+# An object's surface (refined visibility) reaches this far beyond its box on every side but the
+# bottom, which is raised by as much so that the ground it stands on stays out.
+SURFACE_GROW_M = 0.05
+
+
+def on_surface_box(points_local: np.ndarray, size: np.ndarray) -> np.ndarray:
+    """True for points [M, 3] in box coordinates on the object of a box of ``size`` [3]: inside the
+    box grown by ``SURFACE_GROW_M`` on every side but the bottom, which is raised by as much."""
+    half = np.asarray(size) / 2.0
+    lateral = np.all(np.abs(points_local[:, :2]) <= half[:2] + SURFACE_GROW_M, axis=1)
+    height = points_local[:, 2]
+    return lateral & (height <= half[2] + SURFACE_GROW_M) & (height >= SURFACE_GROW_M - half[2])
 
 
 def inside_box(points_local: np.ndarray, size: np.ndarray, shrink: float) -> np.ndarray:

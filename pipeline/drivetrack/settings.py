@@ -35,6 +35,10 @@ class DriveTrackConfig:
     parallax_cleanup: before the depth lookup, drop the lidar points a nearer lidar point hides
       from the camera (one of their 8 nearest projected neighbours, within twice the median point
       spacing, nearer by more than twice occlusion_margin); ours, not the generator's.
+    refined_visibility: ours: visibility from the lidar footprints of the sweeps around each frame
+      (objects moved by their boxes), the object's own surface from all its sweeps and its normals
+      fitted on that surface (docs/sources/drivetrack.md); it replaces the depth test, the parallax
+      cleanup and facing_test. False keeps the depth test (the generator's, with the two above).
     tracks_per_clip, oversample: tracks written per clip; candidates drawn = oversample x that.
     mask_min_agreement: keep a track when (visible frames on the object's mask) / (visible
       frames) >= this. 0.5 trims 1-3% of the sample world's candidates, the share the
@@ -61,6 +65,7 @@ class DriveTrackConfig:
     occlusion_margin: float = ranged(0.05, "[0, 1)")
     facing_test: bool = flag(True, release=False)
     parallax_cleanup: bool = flag(True, release=False)
+    refined_visibility: bool = flag(True, release=False)
     tracks_per_clip: int = ranged(256, "[1, 100000]")
     oversample: int = ranged(4, "[1, 10000]", release=NOT_KNOWN)
     mask_min_agreement: float = ranged(0.5, "[0, 1]", release=NOT_KNOWN)

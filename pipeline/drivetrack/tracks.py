@@ -1,151 +1,170 @@
-"""Which of an object's lidar points a DriveTrack clip tracks (in the box frame, so a point is carried
-to every frame by its camera-synced box), and their queries.
-
-Each lidar point of a clip has its own pseudo-random key from (run seed, clip name, frame
-timestamp, range-image pixel), so whether a point is drawn, and its query frame, never depend on
-which other points exist nor on their order: one point more or less in an object's box changes the
-draw by at most that point. The queries are the given ones (``--queries-from``) matched to the
-object's lidar points, or where each track appears in the stored frame at a frame drawn among its
-visible frames."""
+"""One DriveTrack object's candidate clip: its lidar points chosen and queried (``queries.py``),
+carried to every clip frame by the object's camera-synced box, their visibility (``visibility.py``,
+or with ``drivetrack.refined_visibility`` ``refined_visibility.py``), mask agreement (``masks.py``
+through ``filters.mask.agreement``), the ``ClipRecord``. Pure computation on one camera's evidence
+(``lidar.LidarEvidence``); ``annotate.py`` runs it for every object of a camera."""
 
 from __future__ import annotations
 
-import dataclasses
-import hashlib
+import logging
 
 import numpy as np
-from scipy.spatial import cKDTree
 
-from pipeline.core.errors import InputError
-from pipeline.core.geometry import transform_points
-from pipeline.drivetrack.camera_model import UnitCamera
+from pipeline.core.clip import ClipRecord, SparseDepth, TrackStats
+from pipeline.core.geometry import transform_directions_batch, transform_points_batch
+from pipeline.core.outcomes import NotMade
+from pipeline.drivetrack.camera_model import Projection, UnitCamera
 from pipeline.drivetrack.lidar import LidarEvidence
+from pipeline.drivetrack.masks import object_masks
+from pipeline.drivetrack.object_surface import OwnSurface
 from pipeline.drivetrack.objects import ObjectRun
-from pipeline.io.given_queries import given_query_frames
+from pipeline.drivetrack.queries import (
+    PointPool,
+    choose_points,
+    clip_queries,
+    point_keys,
+    point_pool,
+    query_draws,
+)
+from pipeline.drivetrack.records import UnitInput, clip_name
+from pipeline.drivetrack.refined_visibility import refined_visibility
+from pipeline.drivetrack.settings import DriveTrackConfig
+from pipeline.drivetrack.surface_normals import fitted_normals
+from pipeline.drivetrack.visibility import track_visibility
+from pipeline.export.depth_export import sparse_export
+from pipeline.filters.mask import agreement, on_mask
+from pipeline.sources import RunChoices
+
+log = logging.getLogger(__name__)
 
 
-@dataclasses.dataclass(frozen=True)
-class PointPool:
-    """An object's lidar points from the sweeps of its clip frames, in frame order: points [P, 3]
-    and unit normals [P, 3] in the box frame, and what names each point: the timestamp [P] of its
-    sweep and its range-image pixel [P]."""
-
-    points: np.ndarray
-    normals: np.ndarray
-    timestamps: np.ndarray
-    pixels: np.ndarray
-
-
-def point_pool(evidence: LidarEvidence, run: ObjectRun, timestamps: np.ndarray) -> PointPool | None:
-    """The object's pool from ``evidence`` (camera frame timestamps [T] name the sweeps); None when
-    no sweep has a point in its box."""
-    points = evidence.body_points[run.object_id]
-    frames = [t for t in range(run.start, run.stop) if len(points.get(t, ()))]
-    if not frames:
-        return None
-    return PointPool(
-        np.concatenate([points[t] for t in frames]),
-        np.concatenate([evidence.body_normals[run.object_id][t] for t in frames]),
-        np.concatenate([np.full(len(points[t]), timestamps[t], np.int64) for t in frames]),
-        np.concatenate([evidence.body_pixels[run.object_id][t] for t in frames]),
-    )
-
-
-def choose_points(
-    pool: np.ndarray,
-    keys: np.ndarray,
-    given: np.ndarray | None,
+def object_visibility(
+    unit: UnitInput,
     run: ObjectRun,
+    evidence: LidarEvidence,
     camera: UnitCamera,
-    clip: str,
-    count: int,
+    seen: list[Projection],
+    pool: PointPool,
+    chosen: np.ndarray,
+    rules: DriveTrackConfig,
 ) -> np.ndarray:
-    """Indices into the pool [P, 3] of the points to track: the points the given queries [N, 3]
-    fall on (``match_given_queries``), or else the ``count`` (at most P) points of lowest key [P]
-    (``point_keys``), sorted."""
-    if given is not None:
-        return match_given_queries(pool, given, run, camera, clip)
-    return lowest_keys(keys, count)
-
-
-_QUERY_SALT = np.uint64(0x5157_4552_5946_524D)
-
-
-def _mix(values: np.ndarray) -> np.ndarray:
-    """splitmix64's finaliser on uint64 [...], wrapping arithmetic: a bijection that spreads bits."""
-    values = (values ^ (values >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-    values = (values ^ (values >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-    return values ^ (values >> np.uint64(31))
-
-
-def point_keys(seed: int, clip: str, timestamps: np.ndarray, pixels: np.ndarray) -> np.ndarray:
-    """uint64 keys [P] of points named by their frame timestamps [P] and range-image pixels [P]."""
-    digest = hashlib.sha256(f"{seed}:{clip}".encode()).digest()
-    base = np.full(len(pixels), int.from_bytes(digest[:8], "little"), np.uint64)
-    stamps = np.asarray(timestamps, np.int64).view(np.uint64)
-    return _mix(_mix(base ^ _mix(stamps)) ^ np.asarray(pixels, np.int64).view(np.uint64))
-
-
-def lowest_keys(keys: np.ndarray, count: int) -> np.ndarray:
-    """Sorted indices of the ``count`` (at most all) smallest keys [P]."""
-    return np.sort(np.argsort(keys, kind="stable")[:count])
-
-
-def query_draws(keys: np.ndarray) -> np.ndarray:
-    """A uniform draw in [0, 1) [N] per point key [N], independent of the key's rank."""
-    return (_mix(keys ^ _QUERY_SALT) >> np.uint64(11)).astype(np.float64) * 2.0**-53
-
-
-def match_given_queries(
-    pool: np.ndarray, queries: np.ndarray, run: ObjectRun, camera: UnitCamera, clip: str
-) -> np.ndarray:
-    """Index into the object's lidar points [P, 3] (box frame) of each given query [N, 3]: the point
-    that appears nearest (x, y) at the query's frame; every query must lie within half a pixel of
-    its point, as the release's queries are such points. Where a point appears is its pinhole pixel
-    (ours, the schema's) or, when that leaves a query farther, its sensor pixel (where Waymo's frames
-    show it): which of the two the release's queries are is not known, so a clip's queries are
-    matched by whichever puts every one within half a pixel."""
-    frames = given_query_frames(queries, run.stop - run.start, clip)
-    pinhole, sensor = (np.empty(len(queries), np.int64) for _ in range(2))
-    misses = {"pinhole": np.empty(len(queries)), "sensor": np.empty(len(queries))}
-    for t in np.unique(frames):
-        rows = np.nonzero(frames == t)[0]
-        seen = camera.project(run.start + t, transform_points(run.world_from_box[t], pool))
-        shown = np.nonzero(seen.in_view)[0]
-        if not len(shown):
-            raise InputError(f"{clip}: no lidar point of the object is in view at frame {t}")
-        for chosen, kind, pixels in ((pinhole, "pinhole", seen.pixels), (sensor, "sensor", seen.sensor)):
-            distance, nearest = cKDTree(pixels[shown]).query(queries[rows, :2])
-            chosen[rows], misses[kind][rows] = shown[nearest], distance
-    for chosen, kind in ((pinhole, "pinhole"), (sensor, "sensor")):
-        if misses[kind].max() <= 0.5:
-            return chosen
-    k = int(np.argmax(misses["pinhole"]))
-    x, y, t = queries[k]
-    raise InputError(
-        f"{clip}: given query {k} at ({x:.1f}, {y:.1f}, t={int(t)}) is {misses['pinhole'][k]:.2f} px "
-        "from the nearest lidar point of the object"
+    """Visibility [T, N] of the pool's points ``chosen`` [N] seen as ``seen`` (one Projection per clip
+    frame): in view, facing the camera, not occluded in the lidar's depth; or with
+    ``drivetrack.refined_visibility``, ``refined_visibility``'s decisions."""
+    frames = range(run.start, run.stop)
+    # Normals turn with the frame's pose (the camera turns by under a milliradian during a readout).
+    cam_from_box = camera.cam_from_world[run.start : run.stop] @ run.world_from_box
+    tracks, pixels = np.stack([s.points for s in seen]), np.stack([s.pixels for s in seen])
+    in_view = np.stack([s.in_view for s in seen])
+    if rules.refined_visibility:
+        refined = evidence.refined
+        assert refined is not None, "gather_lidar_cameras(refined=True) gathers the refined evidence"
+        surface = refined.surfaces[run.object_id]
+        return refined_visibility(
+            tracks,
+            pixels,
+            in_view,
+            pool.points[chosen],
+            track_normals(pool, chosen),
+            cam_from_box,
+            OwnSurface([surface[t] for t in frames if t in surface]),
+            [refined.frame_occluders(t) for t in frames],
+            refined.labels[run.object_id],
+            rules.occlusion_margin,
+        )
+    return track_visibility(
+        tracks,
+        pixels,
+        in_view,
+        transform_directions_batch(cam_from_box, pool.normals[chosen]) if rules.facing_test else None,
+        [evidence.depth_uv[t] for t in frames],
+        [evidence.depth_z[t] for t in frames],
+        [evidence.depth_tree(t) for t in frames],
+        (unit.calibration.width, unit.calibration.height),
+        rules.occlusion_margin,
     )
 
 
-def query_frames(visibility: np.ndarray, draws: np.ndarray) -> np.ndarray:
-    """Query frame [N] int64 per track: the visible frame [T, N] of rank floor(draw x count) among
-    the track's visible frames, for uniform draws [N] in [0, 1); -1 for a track never visible."""
-    counts = visibility.sum(axis=0)
-    rank = np.minimum((draws * counts).astype(np.int64), np.maximum(counts - 1, 0))
-    frames = np.argmax(np.cumsum(visibility, axis=0) > rank[None, :], axis=0).astype(np.int64)
-    frames[counts == 0] = -1
-    return frames
+def track_normals(pool: PointPool, chosen: np.ndarray) -> np.ndarray:
+    """Unit normals [N, 3] (box frame) of the pool's points ``chosen`` [N], fitted on all the pool's
+    points (``surface_normals``), each facing the lidar of its own sweep."""
+    assert pool.views is not None, "the refined evidence holds each point's view"
+    return fitted_normals(pool.points, chosen, pool.views[chosen])
 
 
-def clip_queries(
-    uv: np.ndarray, visibility: np.ndarray, given: np.ndarray | None, draws: np.ndarray
+def mask_agreement(
+    unit: UnitInput,
+    run: ObjectRun,
+    name: str,
+    evidence: LidarEvidence,
+    camera: UnitCamera,
+    uv: np.ndarray,
+    visibility: np.ndarray,
+    rules: DriveTrackConfig,
 ) -> np.ndarray:
-    """Queries [N, 3] (x, y, t): where each track appears in the stored frame (uv [T, N, 2]) at the
-    given queries' [N, 3] frames, or else at a frame drawn among its visible frames [T, N] by its
-    own uniform draw [N] (``query_draws``); NaN for a track never visible."""
-    frames = query_frames(visibility, draws) if given is None else given[:, 2].astype(np.int64)
-    xy = uv[np.maximum(frames, 0), np.arange(uv.shape[1])]
-    queries = np.concatenate([xy, frames[:, None].astype(np.float64)], axis=1)
-    queries[frames < 0] = np.nan
-    return queries
+    """Per track [N], the share of its visible frames [T, N] on the object's mask (NaN without a
+    mask); uv [T, N, 2] the tracks' pixels in the stored frames."""
+    masks, has_mask = object_masks(unit, run, name, evidence, camera, rules)
+    on_object = np.stack(
+        [
+            on_mask(mask, uv[i]) if mask is not None else np.zeros(uv.shape[1], bool)
+            for i, mask in enumerate(masks)
+        ]
+    )
+    return agreement(on_object, visibility, has_mask)
+
+
+def track_object(
+    unit: UnitInput,
+    run: ObjectRun,
+    evidence: LidarEvidence,
+    camera: UnitCamera,
+    stored_jpegs: dict[int, bytes],
+    rules: DriveTrackConfig,
+    choices: RunChoices,
+) -> ClipRecord | NotMade:
+    """Candidate tracks on one vehicle, with visibility, queries and filter statistics; or why there
+    are none: its box holds no lidar point, or ``--queries-from`` holds no clip of its name.
+
+    stored_jpegs: the stored frame per unit frame index, for the run's frames.
+    """
+    name = clip_name(unit.segment, unit.camera, run.object_id)
+    pool = point_pool(evidence, run, unit.frames.timestamps)
+    if pool is None:
+        log.info("%s: object %s has no lidar points in its box; no clip", unit.name, run.object_id)
+        return NotMade(f"object {run.object_id}'s box holds no lidar point on its frames")
+    keys = point_keys(choices.seed, name, pool.timestamps, pool.pixels)
+    frames = range(run.start, run.stop)
+    given = choices.given.of(name)
+    if choices.given.active and given is None:
+        return NotMade("--queries-from holds no clip of this name")  # only the clips it holds are redone
+    count = rules.oversample * rules.tracks_per_clip
+    chosen = choose_points(pool.points, keys, given, run, camera, name, count)
+    seen = camera.project_frames(frames, transform_points_batch(run.world_from_box, pool.points[chosen]))
+    uv = np.stack([s.pixels for s in seen])
+    visibility = object_visibility(unit, run, evidence, camera, seen, pool, chosen, rules)
+    frame_ids = unit.frames.timestamps[run.start : run.stop]
+    return ClipRecord(
+        source="drivetrack",
+        name=name,
+        unit=unit.name,
+        images_jpeg=[stored_jpegs[t] for t in frames],
+        fx_fy_cx_cy=unit.calibration.fx_fy_cx_cy.copy(),
+        image_size=(unit.calibration.width, unit.calibration.height),
+        extrinsics_w2c=camera.cam_from_world[run.start : run.stop].copy(),
+        tracks_xyz=np.stack([s.points for s in seen]),
+        visibility=visibility,
+        queries_xyt=clip_queries(uv, visibility, given, query_draws(keys[chosen])),
+        frame_ids=frame_ids.copy(),
+        track_stats=TrackStats(mask_agreement(unit, run, name, evidence, camera, uv, visibility, rules)),
+        target_tracks=rules.tracks_per_clip,
+        given_queries=given is not None,
+        depth_export=depth_export(evidence, frames, frame_ids) if choices.export_depth else None,
+        track_keys=keys[chosen],
+    )
+
+
+def depth_export(evidence: LidarEvidence, frames: range, frame_ids: np.ndarray) -> SparseDepth:
+    """The clip's depth samples per frame (``export.depth_export.sparse_export``)."""
+    uv, z = [evidence.depth_uv[t] for t in frames], [evidence.depth_z[t] for t in frames]
+    return sparse_export(uv, z, frame_ids)

@@ -110,8 +110,9 @@ def nearest_depth_max4(
     if len(query_uv) == 0:
         return np.zeros(0)
     cols, rows = _four_neighbours(query_uv, width, height)
-    tree = depth_tree(lidar_uv) if tree is None else tree
-    index = tree.nearest(np.stack([cols.ravel(), rows.ravel()], axis=1))
+    grid = depth_tree(lidar_uv) if tree is None else tree
+    assert grid is not None, "lidar_depth is not empty"
+    index = grid.nearest(np.stack([cols.ravel(), rows.ravel()], axis=1))
     return lidar_depth[index].reshape(-1, 4).max(axis=1)
 
 

@@ -1,7 +1,7 @@
 """The toy source's benchmark entry (``tests/support/toy_bench.py``, named by ``Source(bench=...)``):
 with the toy registered as a plug-in (``TAPVID3D_SOURCES``), ``python -m benchmarks toy`` finds the
 entry through the registry and benchmarks it like a built-in source's (worker and floor processes
-included), with no change to ``benchmarks/``."""
+included, and its variant's line), with no change to ``benchmarks/``."""
 
 from __future__ import annotations
 
@@ -36,6 +36,9 @@ def test_the_toy_is_benchmarked_through_its_own_entry(tmp_path):
     assert summary[1].split()[:2] == ["source", "ms/frame"]
     assert summary[2].startswith("toy ") and "<=50 n/a" in summary[2] and summary[3].startswith("all ")
     assert f"table written to {path}" in done.stdout
+    variant = next(line for line in done.stdout.splitlines() if line.startswith("  with another seed"))
+    assert variant.startswith("  with another seed (seed=7): unit work")
+    assert "x the unit's CPU (each run" in variant
     data = json.loads(path.read_text())
     toy, every = data["rows"]
     assert (toy["source"], toy["measured_frames"], toy["tracks_written"]) == ("toy", 12, 3)

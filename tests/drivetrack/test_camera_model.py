@@ -13,7 +13,7 @@ import pytest
 from pipeline.drivetrack import columns as C
 from pipeline.drivetrack.annotate import unit_camera
 from pipeline.drivetrack.camera_model import JPEG_QUALITY, UnitCamera, undistort_image, undistortion_maps
-from pipeline.drivetrack.reader import CameraCalibration, CameraFrames
+from pipeline.drivetrack.records import CameraCalibration, CameraFrames
 from pipeline.export.invariants import check_arrays, quality_findings
 from pipeline.export.npz_writer import clip_arrays
 from pipeline.samples.waymo_world import POSE_DELAY_S, SEGMENT, frame_time

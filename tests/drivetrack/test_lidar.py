@@ -10,7 +10,8 @@ from pipeline.drivetrack.lidar import (
     sensor_points,
     top_lidar_world_points,
 )
-from pipeline.drivetrack.reader import LidarCalibration, SegmentReader
+from pipeline.drivetrack.reader import SegmentReader
+from pipeline.drivetrack.records import LidarCalibration
 from pipeline.samples.waymo_world import SEGMENT, frame_time, lidar_to_vehicle, timestamp, world_from_camera
 
 

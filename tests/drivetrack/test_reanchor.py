@@ -7,7 +7,8 @@ of a threshold.
 Default settings: candidates are drawn by per-point keys (``point_keys`` in
 ``pipeline/drivetrack/tracks.py``) and the filter stage keeps the survivors with the lowest keys
 (``pipeline/filters/select.py``), so a filter verdict within rounding of its threshold changes that
-track only, never the rest of the clip.
+track only, never the rest of the clip: where a clip has more survivors than it writes, such a track
+leaving or joining the survivors swaps it with the one of the next key (two tracks unmatched).
 """
 
 import os
@@ -75,6 +76,6 @@ def test_same_clips_tracks_queries_and_visibility(clips):
         f"{flips} of {pairs} visibility "
         f"decisions flipped, {other_query_frames} query frames changed without a flip"
     )
-    assert unmatched <= 0.01 * tracks
+    assert unmatched <= 0.02 * tracks
     assert flips <= 1e-3 * pairs
     assert other_query_frames == 0

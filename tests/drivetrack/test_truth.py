@@ -8,12 +8,14 @@ from pipeline.drivetrack import annotate as A
 from pipeline.drivetrack.camera_model import frame_poses
 from pipeline.drivetrack.lidar import gather_lidar
 from pipeline.drivetrack.objects import select_objects
+from pipeline.drivetrack.queries import match_given_queries, point_pool
 from pipeline.drivetrack.settings import DriveTrackConfig
-from pipeline.drivetrack.tracks import match_given_queries, point_pool
+from pipeline.drivetrack.tracks import track_object
 from pipeline.filters.select import apply_filters, decide
 from pipeline.samples.waymo_world import SEGMENT
 from pipeline.settings.fields import with_overrides
 from pipeline.settings.run_config import RunConfig
+from pipeline.sources import RunChoices
 from tests.support.units import drivetrack_clips, drivetrack_input
 from tests.support.waymo_truth import true_tracks, world_points
 
@@ -114,9 +116,8 @@ def test_given_queries_at_pinhole_or_sensor_pixels_match_the_same_points(sample_
     points; moved a pixel further, they are refused."""
     unit = drivetrack_input(sample_split[0], SEGMENT, 1)
     camera, world_from_frame = A.unit_camera(unit), frame_poses(unit)
-    (run,) = [
-        r for r in select_objects(unit, camera, world_from_frame, RunConfig())[0] if "lead" in r.object_id
-    ]
+    runs, _ = select_objects(unit, camera, world_from_frame, DriveTrackConfig())
+    (run,) = [r for r in runs if "lead" in r.object_id]
     evidence = gather_lidar(unit, [run], camera, world_from_frame, 0.1, 0.05)
     pool = point_pool(evidence, run, unit.frames.timestamps).points
     clip = next(clip for clip in clips[1] if "lead" in clip.name)
@@ -138,10 +139,11 @@ def test_mask_filter_drops_planted_off_object_tracks(sample_split, world):
     unit = drivetrack_input(sample_split[0], SEGMENT, 1)
     world_from_frame = frame_poses(unit)
     camera = A.unit_camera(unit)
+    rules = config.section(DriveTrackConfig)
     run = next(
-        r for r in select_objects(unit, camera, world_from_frame, config)[0] if r.object_id.startswith("lead")
+        r for r in select_objects(unit, camera, world_from_frame, rules)[0] if r.object_id.startswith("lead")
     )
-    evidence = gather_lidar(unit, [run], camera, world_from_frame, 0.1, 0.05)
+    evidence = gather_lidar(unit, [run], camera, world_from_frame, 0.1, 0.05, refined=True)
     # Plant ground points 2 m beside the car, as a mislabelled box would capture them.
     planted = np.array([[x, 2.9, -0.86] for x in np.linspace(-2.0, 2.0, 12)])
     frame = run.start + 5
@@ -151,8 +153,10 @@ def test_mask_filter_drops_planted_off_object_tracks(sample_split, world):
     normals[frame] = np.concatenate([normals[frame], np.tile([0.0, 0.0, 1.0], (12, 1))])
     pixels = evidence.body_pixels[run.object_id]
     pixels[frame] = np.concatenate([pixels[frame], -1 - np.arange(12)])  # names no range-image pixel
+    views = evidence.refined.body_views[run.object_id]  # seen from above, as the lidar sees the ground
+    views[frame] = np.concatenate([views[frame], np.tile([0.0, 0.0, 1.0], (12, 1))])
     stored = A.stored_frames(unit, list(range(run.start, run.stop)), A.undistorts(unit, True))
-    clip = A.track_object(unit, run, evidence, camera, stored, config)
+    clip = track_object(unit, run, evidence, camera, stored, rules, RunChoices.of(config, "drivetrack"))
     box_from_world = np.linalg.inv(run.world_from_box[0])
     body = (
         world_points(world, 1, run.start, clip.tracks_xyz[0]) @ box_from_world[:3, :3].T
@@ -160,7 +164,7 @@ def test_mask_filter_drops_planted_off_object_tracks(sample_split, world):
     )
     is_planted = np.linalg.norm(body[:, None] - planted[None], axis=2).min(axis=1) < 1e-6
     assert is_planted.sum() == 12
-    verdicts, _ = decide(clip, config, config.section(DriveTrackConfig).mask_min_agreement)
+    verdicts, _ = decide(clip, config, rules.mask_min_agreement)
     visible = clip.visibility[:, is_planted].any(axis=0)
     assert visible.sum() >= 6, "planted points should be visible (ground beside the car)"
     assert not verdicts["mask"][is_planted & clip.visibility.any(axis=0)].any()

@@ -1,7 +1,7 @@
 """The toy source's benchmark entry (``tests/support/toy_source.py`` names it with
 ``Source(bench=...)``), found by ``python -m benchmarks toy`` through the registry like a built-in
-source's. Unit: the toy's sample unit (3 points over 12 frames), annotated, filtered and written; its
-floor, reading the unit's JSON.
+source's. Unit: the toy's sample unit (3 points over 12 frames), annotated, filtered and written, and
+once more with another seed (a variant); its floor, reading the unit's JSON.
 
 The pipeline's modules are imported inside the functions, so that a floor process imports only
 what its floor reads.
@@ -38,6 +38,7 @@ def prepare(workdir: str, size: str) -> UnitSetup:
         full_units=1,
         full_units_note="the sample's one unit",
         size=size,
+        variants={"another seed": ["seed=7"]},
     )
 
 

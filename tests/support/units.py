@@ -8,10 +8,12 @@ from pipeline.adt.units import SequenceChunk
 from pipeline.core.clip import ClipRecord
 from pipeline.drivetrack.annotate import annotate_cameras, load_units
 from pipeline.drivetrack.records import UnitInput as DriveTrackInput
+from pipeline.drivetrack.settings import DriveTrackConfig
 from pipeline.pstudio.annotate import camera_input, load_sequence
 from pipeline.pstudio.records import UnitInput as StudioInput
 from pipeline.pstudio.settings import PstudioConfig
 from pipeline.settings.run_config import RunConfig
+from pipeline.sources import RunChoices
 
 
 def _ok(result):
@@ -27,7 +29,8 @@ def drivetrack_input(input_root: str, segment: str, camera: int) -> DriveTrackIn
 
 def drivetrack_clips(unit: DriveTrackInput, config: RunConfig) -> list[ClipRecord]:
     """The candidate clips of one DriveTrack unit (raises its failure)."""
-    return list(_ok(annotate_cameras([unit], config)[0]).clips)
+    choices = RunChoices.of(config, "drivetrack")
+    return list(_ok(annotate_cameras([unit], config.section(DriveTrackConfig), choices)[0]).clips)
 
 
 def pstudio_input(input_root: str, sequence: str, camera: int, config: RunConfig) -> StudioInput:

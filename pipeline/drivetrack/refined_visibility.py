@@ -1,0 +1,71 @@
+"""Refined visibility of a DriveTrack clip (``drivetrack.refined_visibility``): a track point is
+visible in a frame when it is in view, its surface faces the camera, its own object does not hide it
+and no other surface covers it.
+
+- Facing: the normal fitted on the object's points of every sweep of the clip
+  (``surface_normals``), not one sweep's range-image neighbours.
+- Its own object: the camera's ray to the point crosses the object's surface seen in the sweeps of
+  both halves of the clip (``object_surface.OwnSurface``) in front of the point.
+- Other surfaces: the footprints of the sweeps of the frame and of its neighbours, objects moved to
+  the frame by their boxes (``footprints``), cover the point nearer than it, weighed sweep by sweep
+  (the frame's own counting double) and by how deep inside them the point lies. A surface that
+  really passes in front of the point, even for one frame, covers it in the moved footprints of all
+  three sweeps; one that only one sweep's sampling puts over the point's pixel is outvoted.
+
+Nearer than the point means, for other surfaces, by the occlusion margin (a share of its depth), for
+its own object by OWN_CLEARANCE_M; and always by SURFACE_TOLERANCE_M measured across the point's own
+surface, which along a ray grazing that surface is far more: a surface seen edge-on is not hidden by
+its own neighbourhood.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.drivetrack.footprints import FrameOccluders, occluded_by_others, occluder_reach
+from pipeline.drivetrack.object_surface import OwnSurface
+
+OWN_CLEARANCE_M = 0.1
+SURFACE_TOLERANCE_M = 0.03
+# Below this cosine between a point's normal and its ray, the clearance across its surface counts as
+# at this cosine.
+MIN_RAY_COSINE = 0.05
+
+
+def refined_visibility(
+    tracks: np.ndarray,
+    pixels: np.ndarray,
+    in_view: np.ndarray,
+    box_points: np.ndarray,
+    box_normals: np.ndarray,
+    cam_from_box: np.ndarray,
+    surface: OwnSurface,
+    occluders: list[FrameOccluders],
+    own_label: int,
+    occlusion_margin: float,
+) -> np.ndarray:
+    """Visibility [T, N] bool of track points seen at tracks [T, N, 3] (camera frame, as seen) and
+    pixels [T, N, 2], in view where ``in_view`` [T, N] (``camera_model.Projection``).
+
+    box_points, box_normals: [N, 3] each, the points and their fitted normals in the box frame;
+    cam_from_box: [T, 4, 4]; surface: the object's own surface; occluders: per frame, the
+    footprints of the sweeps around it (``footprints.FrameOccluders``); own_label: the object's
+    label among them; occlusion_margin: the share of a point's depth another surface must
+    be nearer by."""
+    visibility = np.zeros(in_view.shape, bool)
+    for i, frame_occluders in enumerate(occluders):
+        rotation = cam_from_box[i, :3, :3]
+        points = tracks[i]
+        distance = np.linalg.norm(points, axis=1)
+        cosine = -np.einsum("ni,ni->n", box_normals @ rotation.T, points) / distance
+        candidates = np.flatnonzero(in_view[i] & (cosine > 0))
+        if not len(candidates):
+            continue
+        seen = points[candidates]
+        across = SURFACE_TOLERANCE_M / np.maximum(cosine[candidates], MIN_RAY_COSINE)
+        hidden = surface.hides(box_points[candidates], seen @ rotation, np.maximum(OWN_CLEARANCE_M, across))
+        depth = seen[:, 2]
+        limits = depth - np.maximum(occlusion_margin * depth, across * depth / distance[candidates])
+        reach = occluder_reach(frame_occluders, pixels[i, candidates], seen, limits, own_label)
+        visibility[i, candidates] = ~hidden & ~occluded_by_others(reach, frame_occluders.sources)
+    return visibility

@@ -1,0 +1,74 @@
+"""Track points' surface normals fitted on the object's accumulated lidar points (refined visibility).
+
+A range-image normal comes from one sweep's two neighbours, and beside a crease those lie on two
+faces. Here every point of the object's clip, from all its sweeps in the box frame, votes: among the
+planes through a track point and two of its NEIGHBOURS nearest points, the one that holds the most
+of them within PLANE_TOLERANCE_M wins, and the normal is refitted (principal axes) on that plane's
+points. It faces the lidar of the track point's own sweep, which saw that side of the surface.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+from scipy.spatial import cKDTree
+
+NEIGHBOURS = 24
+PLANE_TOLERANCE_M = 0.005
+# Two neighbours span a candidate plane only when they are this far from collinear with the point
+# (the sine of the angle between them, seen from the point).
+MIN_SPAN_SINE = 0.3
+
+
+def fitted_normals(points: np.ndarray, tracked: np.ndarray, towards_lidar: np.ndarray) -> np.ndarray:
+    """Unit normals [N, 3] at the tracked points [N] (indices into the object's points [P, 3], box
+    frame), each facing ``towards_lidar`` [N, 3] (from the point towards the lidar of its sweep)."""
+    count = min(NEIGHBOURS, len(points))
+    _, neighbours = cKDTree(points).query(points[tracked], k=count)
+    neighbours = np.asarray(neighbours, np.int64).reshape(len(tracked), count)
+    normals = np.empty((len(tracked), 3))
+    _fit(points, points[tracked], neighbours, towards_lidar, PLANE_TOLERANCE_M, MIN_SPAN_SINE, normals)
+    return normals
+
+
+@numba.njit(cache=True, nogil=True)
+def _fit(points, query, neighbours, towards, tolerance, min_sine, normals):
+    """normals [N, 3] (``fitted_normals``) for query points [N, 3] and their neighbours [N, k]."""
+    count = neighbours.shape[1]
+    offsets = np.empty((count, 3))
+    for q in range(len(query)):
+        for k in range(count):
+            for c in range(3):
+                offsets[k, c] = points[neighbours[q, k], c] - query[q, c]
+        length = np.sqrt(towards[q, 0] ** 2 + towards[q, 1] ** 2 + towards[q, 2] ** 2)
+        best = towards[q] / length
+        best_count, best_spread = -1, np.inf
+        for i in range(count):
+            ax, ay, az = offsets[i, 0], offsets[i, 1], offsets[i, 2]
+            length_a = np.sqrt(ax * ax + ay * ay + az * az)
+            for j in range(i + 1, count):
+                bx, by, bz = offsets[j, 0], offsets[j, 1], offsets[j, 2]
+                length_b = np.sqrt(bx * bx + by * by + bz * bz)
+                nx, ny, nz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+                length = np.sqrt(nx * nx + ny * ny + nz * nz)
+                if length == 0.0 or length < min_sine * length_a * length_b:
+                    continue
+                nx, ny, nz = nx / length, ny / length, nz / length
+                members, spread = 0, 0.0
+                for k in range(count):
+                    distance = nx * offsets[k, 0] + ny * offsets[k, 1] + nz * offsets[k, 2]
+                    if abs(distance) < tolerance:
+                        members += 1
+                        spread += distance * distance
+                if members > best_count or (members == best_count and spread < best_spread):
+                    best_count, best_spread = members, spread
+                    best = np.array([nx, ny, nz])
+        normal = best
+        on_plane = np.abs(offsets @ best) < tolerance
+        if on_plane.sum() >= 3:  # refit on the plane's points and the query point itself
+            plane = np.vstack((np.zeros((1, 3)), offsets[on_plane]))
+            centred = plane - plane.sum(axis=0) / len(plane)
+            normal = np.linalg.eigh(centred.T @ centred)[1][:, 0].copy()
+        if normal[0] * towards[q, 0] + normal[1] * towards[q, 1] + normal[2] * towards[q, 2] < 0:
+            normal = -normal
+        normals[q] = normal
