@@ -13,7 +13,7 @@ export ADT_EXCERPT
 # its verdicts show clips written, not produced and input absent, each with its reason.
 SAMPLE_RELEASE := pipeline/samples/sample_splits.json
 
-.PHONY: setup demo test bench bench-full
+.PHONY: setup demo test typecheck bench bench-full
 
 setup: $(VENV)/.installed
 
@@ -41,10 +41,15 @@ demo: setup
 	$(PY) -m pipeline.validate $(OUT)
 	$(PY) -m pipeline.audit release $(OUT)
 
+# typecheck: mypy over pipeline/ alone (configured in pyproject.toml; make test runs it too).
+typecheck: setup
+	$(PY) -m mypy
+
 # The suite on every core (at most 4 worker processes), one test file per worker so a file's
 # module-scoped runs happen once; `$(PY) -m pytest tests/<file>` runs one file in this process.
 test: setup
 	$(PY) -m ruff check pipeline tests benchmarks
+	$(PY) -m mypy
 	$(PY) -m pytest -q -n auto --maxprocesses=4 --dist loadfile
 
 # bench: a few minutes (inputs as large per frame as the release's, fewer frames; units extrapolated),

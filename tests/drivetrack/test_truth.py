@@ -76,13 +76,17 @@ def test_visibility_agrees_with_ray_cast_truth(clips, world):
     assert candidate_agree / candidate_total >= 0.95
 
 
-@pytest.fixture(scope="module")
-def agreement_without(sample_split, world):
-    """Candidate visibility agreement with the truth over the sample's clips with one of the refined
-    rules' visibility parts turned off (setting -> agreement)."""
+DEPTH_TEST = "drivetrack.refined_visibility=false"  # the depth test, which the two parts amend
+PARTS = ("drivetrack.facing_test=false", "drivetrack.parallax_cleanup=false")
 
-    def agreement(setting: str) -> float:
-        config = with_overrides(RunConfig(), [setting])
+
+@pytest.fixture(scope="module")
+def depth_test_agreement(sample_split, world):
+    """Candidate visibility agreement with the truth over the sample's clips under the depth test,
+    with both of its parts of ours (``None``) or with one of them turned off (setting -> agreement)."""
+
+    def agreement(setting: str | None) -> float:
+        config = with_overrides(RunConfig(), [DEPTH_TEST] + ([setting] if setting else []))
         agree = total = 0
         for camera in (1, 3):
             for clip in drivetrack_clips(drivetrack_input(sample_split[0], SEGMENT, camera), config):
@@ -90,24 +94,17 @@ def agreement_without(sample_split, world):
                 agree, total = agree + (visible == clip.visibility).sum(), total + visible.size
         return agree / total
 
-    return {setting: agreement(setting) for setting in PARTS}
-
-
-PARTS = ("drivetrack.facing_test=false", "drivetrack.parallax_cleanup=false")
+    return {setting: agreement(setting) for setting in (None, *PARTS)}
 
 
 @pytest.mark.parametrize("setting", PARTS)
-def test_each_refined_visibility_part_raises_the_agreement(clips, world, agreement_without, setting):
+def test_each_depth_test_part_raises_the_agreement(depth_test_agreement, setting):
     """The facing test (far sides of cars beyond the depth margin) and the parallax cleanup (lidar
     points seen over an occluder's edge) are ours, not the generator's: each one, turned off, loses
     over half a point of agreement with the truth."""
-    agree = total = 0
-    for camera, camera_clips in clips.items():
-        for clip in camera_clips:
-            visible = true_tracks(world, clip, camera)[3]
-            agree, total = agree + (visible == clip.visibility).sum(), total + visible.size
-    print(f"agreement {agree / total:.4f}; with {setting}: {agreement_without[setting]:.4f}")
-    assert agree / total - agreement_without[setting] > 0.005
+    full, without = depth_test_agreement[None], depth_test_agreement[setting]
+    print(f"agreement {full:.4f}; with {setting}: {without:.4f}")
+    assert full - without > 0.005
 
 
 def test_given_queries_at_pinhole_or_sensor_pixels_match_the_same_points(sample_split, world, clips):

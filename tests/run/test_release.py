@@ -192,7 +192,8 @@ def test_a_release_run_names_its_rules_first_and_records_them(release_run, refer
     first = runs["drivetrack"].stdout.splitlines()[0]
     assert first == (
         "rules: release (the original generators' choices; docs/release.md): drivetrack.facing_test=false, "
-        "drivetrack.parallax_cleanup=false, drivetrack.undistort_frames=false (refined: true, true, true)"
+        "drivetrack.parallax_cleanup=false, drivetrack.refined_visibility=false, "
+        "drivetrack.undistort_frames=false (refined: true, true, true, true)"
     )
     assert reference_run.result("drivetrack").stdout.startswith("rules: refined (ours, measured better;")
     record = json.load(open(os.path.join(out, "run_drivetrack.json")))
@@ -201,6 +202,7 @@ def test_a_release_run_names_its_rules_first_and_records_them(release_run, refer
     assert record["rules"]["sets"] == {
         "drivetrack.facing_test": False,
         "drivetrack.parallax_cleanup": False,
+        "drivetrack.refined_visibility": False,
         "drivetrack.undistort_frames": False,
     }
     assert "drivetrack.oversample" in record["rules"]["not_known"]
