@@ -27,17 +27,20 @@ import scipy
 import trimesh
 
 import pipeline.samples
+from pipeline.samples import dynamic3dgs_files, waymo_world
 from pipeline.samples.driving_world import DrivingWorld
 from pipeline.samples.dynamic3dgs_files import write_sequence
 from pipeline.samples.studio_world import StudioWorld
 from pipeline.samples.waymo_world import write_split
 from pipeline.samples.write_once import write_once
-from tests.support import stress_worlds
-from tests.support.cli import REPO, run_pipeline
+from tests.support import golden, stress_worlds
+from tests.support.cli import REPO, run_in_process, run_pipeline
 from tests.support.stress_worlds import write_stress_split
 
 SAMPLE_CACHE = os.environ.get("TAPVID3D_SAMPLE_CACHE") or os.path.join(REPO, ".cache", "samples")
 CACHE_LAYOUT = "1"  # bump when what the fixtures below keep in a cache folder changes
+# The version a run without --input marks its written sample world with, per source.
+SAMPLE_VERSIONS = {"drivetrack": waymo_world.SAMPLE_VERSION, "pstudio": dynamic3dgs_files.SAMPLE_VERSION}
 
 
 def sample_version(sources: tuple[str, ...] = ()) -> str:
@@ -167,3 +170,32 @@ class ReferenceRuns:
 @pytest.fixture(scope="session")
 def reference_run(tmp_path_factory, sample_split, pstudio_sample) -> ReferenceRuns:
     return ReferenceRuns(tmp_path_factory, {"drivetrack": sample_split[0], "pstudio": pstudio_sample[0]})
+
+
+class SampleReleaseRuns:
+    """``runs(source)``: the ``subprocess.CompletedProcess`` of that source's release run of the samples'
+    splits file, the command ``make demo`` runs (``golden.release_args``), made on first use in this
+    process, every source into the one folder ``runs.out``. DriveTrack and Panoptic Studio are given
+    no ``--input``: their cached sample worlds are linked into the folder as a run without ``--input``
+    leaves them (a plain run writes them there once). ADT reads the excerpt (skip first when absent).
+    Never write into the folder: copy it."""
+
+    def __init__(self, out: pathlib.Path, samples: dict[str, str]):
+        self.out, self._samples = out, samples
+        self._made: dict[str, object] = {}
+
+    def __call__(self, source: str):
+        if source not in self._made:
+            if source in self._samples:
+                folder = os.path.join(self.out, "sample_input", source)
+                link_tree(self._samples[source], folder)
+                open(os.path.join(folder, f".complete-v{SAMPLE_VERSIONS[source]}"), "w").close()
+            args = golden.concrete(golden.release_args(source), str(self.out))
+            self._made[source] = run_in_process(source, *args[2:])  # after --source <source>
+        return self._made[source]
+
+
+@pytest.fixture(scope="session")
+def sample_release_runs(tmp_path_factory, sample_split, pstudio_sample) -> SampleReleaseRuns:
+    samples = {"drivetrack": sample_split[0], "pstudio": pstudio_sample[0]}
+    return SampleReleaseRuns(tmp_path_factory.mktemp("sample_release"), samples)

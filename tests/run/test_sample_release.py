@@ -15,13 +15,10 @@ import pytest
 
 from pipeline.audit.__main__ import main as audit_main
 from pipeline.runner.splits import SAMPLE_RELEASE, read_release
-from pipeline.samples.waymo_world import SAMPLE_VERSION
-from tests.conftest import link_tree
 from tests.support.adt_excerpt import SAMPLE, needs_excerpt
 from tests.support.cli import REPO, clip_bytes, run_in_process
 
 SEGMENT = "sample0000000000000001_0_000_4_000"
-DEMO_ADT = ("--set", "adt.chunk_frames=2", "--set", "adt.min_frames=2", "--set", "adt.max_gt_offset_ms=40")
 # clip -> (status, reason) of every sample release clip a run on the samples cannot make.
 NOT_WRITTEN = {
     f"tapvid3d_{SEGMENT}_1_parked_right_DDDDDDDDDDDDDDDDDD": (
@@ -45,16 +42,12 @@ NOT_WRITTEN = {
 
 
 @pytest.fixture(scope="module")
-def sample_release(sample_split, tmp_path_factory):
+def sample_release(sample_release_runs):
     """One folder: the DriveTrack sample release run without --input, and ADT's on the excerpt."""
-    out = tmp_path_factory.mktemp("sample_release")
-    link_tree(sample_split[0], str(out / "sample_input" / "drivetrack"))
-    (out / "sample_input" / "drivetrack" / f".complete-v{SAMPLE_VERSION}").touch()
-    runs = {"drivetrack": run_in_process("drivetrack", "--output", str(out), "--release", SAMPLE_RELEASE)}
+    runs = {"drivetrack": sample_release_runs("drivetrack")}
     if SAMPLE.is_dir():
-        given = ("--input", str(SAMPLE), *DEMO_ADT)
-        runs["adt"] = run_in_process("adt", "--output", str(out), "--release", SAMPLE_RELEASE, *given)
-    return out, runs
+        runs["adt"] = sample_release_runs("adt")
+    return sample_release_runs.out, runs
 
 
 def verdicts(out, source: str) -> dict[str, dict]:
