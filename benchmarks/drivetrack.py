@@ -25,8 +25,9 @@ and parked cars, with a service road on each side where two cars keep pace, so t
 camera's unit yields several clips and each side camera's a few (the release's FRONT units
 average 6.3 clips, every unit 3.3: its side units 1.8).
 
-Refined visibility: each 1-worker unit runs once more with ``drivetrack.refined_visibility=true``
-and its time is printed beside the unit's (``UnitSetup.variants``).
+Rules: the units run under the release's rules (``rules=release``: what regenerating the release
+costs); each 1-worker unit runs once more under the refined rules (``rules=refined``, a plain run's,
+with the refined visibility) and its time is printed beside the unit's (``UnitSetup.variants``).
 
 Floor (``floor``): the columns the units read of every component file of the segment, streamed
 with pyarrow 8 rows at a time as the reader does; the group cameras' JPEGs decoded to BGR
@@ -127,7 +128,7 @@ def prepare(workdir: str, size: str) -> UnitSetup:
         source="drivetrack",
         input_root=folder,
         units=[[[SEGMENT, camera] for camera in range(1, CAMERAS + 1)]],
-        overrides=[],
+        overrides=["rules=release"],
         frames=CAMERAS * sizes["frames"],
         description=_description(folder, sizes, written),
         full_units=SEGMENTS,
@@ -137,7 +138,7 @@ def prepare(workdir: str, size: str) -> UnitSetup:
         ),
         size=size,
         extrapolate_frames=CAMERAS * FULL["frames"] if size == "default" else None,
-        variants={"the refined visibility": ["drivetrack.refined_visibility=true"]},
+        variants={"the refined rules": ["rules=refined"]},
         notes=[
             f"measured on a {sizes['frames']}-frame segment with the full segment's sensors and image "
             f"sizes; the {FULL['frames']}-frame segment is {CAMERAS} x {FULL['frames']} camera frames x "

@@ -109,10 +109,12 @@ def unit_work(spec: dict, entry) -> dict:
     entry's ``measure_fixed_cost``) and those paid inside the runs (``FIXED_IN_WORK``)."""
     from pipeline import sources
     from pipeline.runner.stages import UnitJob, run_group
-    from pipeline.settings.fields import with_overrides
+    from pipeline.settings.fields import with_overrides, with_rules
     from pipeline.settings.run_config import RunConfig
 
-    config = with_overrides(RunConfig(), spec["overrides"])
+    # As a run does: the rule set named (a plain run's by default) sets its defaults, --set wins.
+    rules = with_overrides(RunConfig(), spec["overrides"]).rules
+    config = with_overrides(with_rules(RunConfig(), rules), spec["overrides"])
     source = sources.get(spec["source"])
     group = unit_group(spec["unit"], entry)
     fixed = entry.measure_fixed_cost(spec, config)

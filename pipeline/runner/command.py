@@ -122,12 +122,12 @@ def configure_logging(verbose: bool) -> None:
     quiet_worker_logs()
 
 
-def beam_counters(result) -> dict[str, int] | str:
-    """The run's Beam counters (``graph.COUNTERS``), or why there are none."""
+def beam_counters(result) -> dict[str, int] | None:
+    """The run's Beam counters (``graph.COUNTERS``), or None when the runner reports none."""
     try:
         found = result.metrics().query(MetricsFilter().with_namespace(graph.METRICS_NAMESPACE))["counters"]
     except (NotImplementedError, AttributeError, KeyError):
-        return "not reported by this runner"
+        return None
     totals = {name: 0 for name in graph.COUNTERS}
     for item in found:
         value = item.committed if item.committed is not None else item.attempted
@@ -177,11 +177,11 @@ def _run_graph(prepared: PreparedRun, job: UnitJob, plan: UnitPlan):
     return result
 
 
-def print_summary(summary: RunSummary, metrics, output: str, source: str) -> None:
+def print_summary(summary: RunSummary, metrics: dict[str, int] | None, output: str, source: str) -> None:
     """The closing lines: what this run did (its Beam counters, when the runner reports them), then
     the totals over every unit (finished-earlier ones included), the manifests, where things are."""
     dropped = ", ".join(f"{name} {summary.dropped_by_filter[name]}" for name in FILTER_ORDER)
-    if isinstance(metrics, dict):
+    if metrics is not None:
         print(
             f"\nthis run (Beam counters): {metrics['units_read']} unit(s) read, "
             f"{metrics['units_resumed']} skipped as finished, {metrics['units_failed']} failed; "

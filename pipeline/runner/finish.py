@@ -129,12 +129,12 @@ def finish_run(
     plan: UnitPlan,
     provenance: Provenance,
     release: Release | None,
-    metrics: dict[str, int] | str,
+    metrics: dict[str, int] | None,
 ) -> RunSummary:
     """Write the failures, the release verdicts (a release run), the manifests and the run's provenance.
 
     release: the release the run follows (``--release``, or ``splits_file`` for the manifests alone).
-    metrics: the run's Beam counters, or why there are none.
+    metrics: the run's Beam counters, None when the runner reports none (recorded as saying so).
     """
     source, output = job.source.name, job.output
     outcomes = unit_outcomes(job, [unit.name for unit in plan.units])
@@ -157,6 +157,7 @@ def finish_run(
         counts = tally(rows)
     manifests = write_manifests(output, job.config, release)
     summary = dataclasses.replace(summarize(outcomes, failures), manifests=manifests, release=counts)
-    written = dict(provenance.to_json(), summary=summary.to_json(), metrics=metrics)
+    recorded = "not reported by this runner" if metrics is None else metrics
+    written = dict(provenance.to_json(), summary=summary.to_json(), metrics=recorded)
     write_atomic(provenance_path(output, source), json.dumps(written, indent=2, sort_keys=True).encode())
     return summary
