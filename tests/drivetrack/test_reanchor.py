@@ -5,7 +5,7 @@ within 3 mm, queries within a fraction of a pixel, and visibility but for decisi
 of a threshold.
 
 Default settings: candidates are drawn by per-point keys (``point_keys`` in
-``pipeline/drivetrack/tracks.py``) and the filter stage keeps the survivors with the lowest keys
+``pipeline/drivetrack/queries.py``) and the filter stage keeps the survivors with the lowest keys
 (``pipeline/filters/select.py``), so a filter verdict within rounding of its threshold changes that
 track only, never the rest of the clip: where a clip has more survivors than it writes, such a track
 leaving or joining the survivors swaps it with the one of the next key (two tracks unmatched).
