@@ -107,11 +107,11 @@ def synthetic_release(runs: list[str], splits_json: str, folder: str, seed: int 
             os.link(clip_file, clip_path(folder, source, clip))
         result = evaluate(load_statistics(folder, source), sources.get(source), RunConfig(), dict(named))
         summary = {
-            "candidate_tracks": result["candidates"],
-            "dropped_by_filter": result["dropped"],
-            "tracks_passing_filters": result["passed"],
-            "clips_below_target": result["clips_below_target"],
-            "clips_written": result["clips_written"],
+            "candidate_tracks": result.candidates,
+            "dropped_by_filter": dict(result.dropped),
+            "tracks_passing_filters": result.passed,
+            "clips_below_target": result.clips_below_target,
+            "clips_written": result.clips_written,
         }
         record = {"config": RunConfig().to_dict(), "release": splits_json, "summary": summary}
         with open(provenance_path(folder, source), "w") as handle:

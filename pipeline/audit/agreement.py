@@ -30,11 +30,6 @@ class Agreement:
         """Every query frame and visibility the published one, the tracks within ``tolerance_mm``."""
         return self.query_frames_equal == 1.0 and self.visibility == 1.0 and self.p95_mm <= tolerance_mm
 
-    def to_json(self, tolerance_mm: float = AGREE_MM) -> dict:
-        values = dataclasses.asdict(self)
-        fields = {key: None if math.isnan(value) else value for key, value in values.items()}
-        return fields | {"agrees": self.agrees(tolerance_mm), "tolerance_mm": tolerance_mm}
-
 
 def agreement(ref: dict[str, np.ndarray], new: dict[str, np.ndarray]) -> Agreement:
     """The agreement of clip ``new`` with the published ``ref`` (members by their release names: both

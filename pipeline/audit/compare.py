@@ -43,16 +43,20 @@ written.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
+import enum
 import json
 import math
 import os
 import re
 import sys
+from collections.abc import Mapping
+from typing import Any, ClassVar, TypeAlias
 
 import numpy as np
 
 from pipeline import sources as registry
-from pipeline.audit.agreement import AGREE_MM, agreement
+from pipeline.audit.agreement import AGREE_MM, Agreement, agreement
 from pipeline.audit.metrics import (
     SCALINGS,
     eval_intrinsics,
@@ -60,7 +64,7 @@ from pipeline.audit.metrics import (
     query_frame_indices,
     tapvid3d_metrics,
 )
-from pipeline.audit.verdict_rows import add_agreement, release_clip_keys
+from pipeline.audit.verdict_rows import ClipAgreement, add_agreement, release_clip_keys
 from pipeline.commandline import StrictParser
 from pipeline.io.clip_reader import (
     DEFAULT_LIMITS,
@@ -81,12 +85,190 @@ PREDICTION_KEYS = ("tracks_XYZ", "visibility")
 TAPNET_KEYS = (*(f"{key}_{scaling}" for scaling in SCALINGS for key in ("aj", "apd")), "oa")
 SUMMARY_KEYS = (*TAPNET_KEYS, "median_error_m")
 AGREEMENT_KEYS = ("query_frames_equal", "visibility", "median_mm", "p95_mm")
+COUNT_KEYS = ("clips", "zero", "ref_errors", "not_in_ref", "agree", "fetched_bytes")
 CLIP_ENTRY = re.compile(r"[^/\s]+/[^/\s]+\.npz")
 MAX_LIST_BYTES = 16 << 20
 
 
 class ClipError(Exception):
     """A clip that cannot be read or scored, with the reason."""
+
+
+class Status(enum.Enum):
+    """What became of a benchmark clip; the value names it in the report."""
+
+    SCORED = "scored"
+    ZERO = "zero"
+    REF_ERROR = "ref_error"
+    NOT_IN_REF = "not_in_ref"
+
+
+@dataclasses.dataclass(frozen=True)
+class Scores:
+    """A clip's tapnet metrics, or their means: 3D-AJ and APD under each rescaling (``aj``, ``apd``:
+    scaling of ``SCALINGS`` -> value) and OA; and the median 3D error in metres (not a tapnet metric;
+    NaN where none was measured). ``note`` says when per-trajectory counted 0."""
+
+    aj: Mapping[str, float]
+    apd: Mapping[str, float]
+    oa: float
+    median_error_m: float
+    note: str = ""
+
+    def tapnet(self) -> dict[str, float]:
+        """``TAPNET_KEYS`` -> value."""
+        values: dict[str, float] = {}
+        for scaling in SCALINGS:
+            values |= {f"aj_{scaling}": self.aj[scaling], f"apd_{scaling}": self.apd[scaling]}
+        return values | {"oa": self.oa}
+
+
+# A clip counted as tapnet's ``evaluate_model.py`` counts one it cannot score: every metric 0.
+ZERO_SCORES = Scores(dict.fromkeys(SCALINGS, 0.0), dict.fromkeys(SCALINGS, 0.0), 0.0, math.nan)
+
+
+def _named(source: str, clip: str, frames: int, tracks: int, fetched_bytes: int | None) -> dict[str, Any]:
+    """The first fields of a row whose REF clip was read."""
+    return {"source": source, "clip": clip, "frames": frames, "tracks": tracks} | _fetched(fetched_bytes)
+
+
+def _fetched(fetched_bytes: int | None) -> dict[str, int]:
+    return {} if fetched_bytes is None else {"fetched_bytes": fetched_bytes}
+
+
+@dataclasses.dataclass(frozen=True)
+class RefUnread:
+    """A benchmark clip left out of the means: REF cannot be read (``REF_ERROR``) or holds no such clip
+    (``NOT_IN_REF``: HTTP 404); ``error`` says why, ``fetched_bytes`` counts the bytes received over
+    HTTP (None for a REF that is not)."""
+
+    source: str
+    clip: str
+    status: Status
+    error: str
+    fetched_bytes: int | None = None
+
+    def as_row(self) -> dict[str, Any]:
+        """The clip's row of the report."""
+        row = {"source": self.source, "clip": self.clip, "status": self.status.value, "error": self.error}
+        return row | _fetched(self.fetched_bytes)
+
+
+@dataclasses.dataclass(frozen=True)
+class Zero:
+    """A benchmark clip whose prediction is missing, unreadable, refused or of another shape: counted
+    with every metric 0 (``ZERO_SCORES``); ``error`` says why. ``frames``, ``tracks``: REF's T and N."""
+
+    source: str
+    clip: str
+    frames: int
+    tracks: int
+    error: str
+    fetched_bytes: int | None = None
+    status: ClassVar[Status] = Status.ZERO
+    scores: ClassVar[Scores] = ZERO_SCORES
+
+    def as_row(self) -> dict[str, Any]:
+        """The clip's row of the report."""
+        named = _named(self.source, self.clip, self.frames, self.tracks, self.fetched_bytes)
+        scores = self.scores.tapnet() | {"median_error_m": self.scores.median_error_m}
+        return named | {"status": self.status.value, "error": self.error} | scores
+
+
+@dataclasses.dataclass(frozen=True)
+class Scored:
+    """A prediction scored against REF: its scores, its agreement with REF and whether that is full
+    (within the report's agree_mm); ``camera_note`` says when REF's frame size or intrinsics came
+    from NEW's clip. ``frames``, ``tracks``: REF's T and N."""
+
+    source: str
+    clip: str
+    frames: int
+    tracks: int
+    scores: Scores
+    agreement: Agreement
+    agrees: bool
+    camera_note: str = ""
+    fetched_bytes: int | None = None
+    status: ClassVar[Status] = Status.SCORED
+
+    @property
+    def note(self) -> str:
+        """The scores' note and the camera's, either, or none."""
+        return "; ".join(text for text in (self.scores.note, self.camera_note) if text)
+
+    def as_row(self) -> dict[str, Any]:
+        """The clip's row of the report: the metrics per rescaling (OA after the median's, the scores'
+        note after per-trajectory's), the median error, the agreement, ``agrees``, then a camera note
+        alone."""
+        row = _named(self.source, self.clip, self.frames, self.tracks, self.fetched_bytes)
+        row["status"] = self.status.value
+        for scaling in SCALINGS:
+            row |= {f"aj_{scaling}": self.scores.aj[scaling], f"apd_{scaling}": self.scores.apd[scaling]}
+            if scaling == "median":
+                row["oa"] = self.scores.oa
+            if scaling == "per_trajectory" and self.scores.note:
+                row["note"] = self.note
+        row["median_error_m"] = self.scores.median_error_m
+        row |= {key: getattr(self.agreement, key) for key in AGREEMENT_KEYS}
+        row["agrees"] = self.agrees
+        return row | ({"note": self.note} if self.camera_note and not self.scores.note else {})
+
+
+ClipRow: TypeAlias = RefUnread | Zero | Scored
+
+
+@dataclasses.dataclass(frozen=True)
+class SourceMeans:
+    """One source's line of the report, or ``all``'s: the clips counted by tapnet (scored and zero),
+    those zero, those left out (ref_errors, not_in_ref), those that agree fully, the bytes fetched over
+    HTTP, and the means of the counted clips' scores."""
+
+    source: str
+    clips: int
+    zero: int
+    ref_errors: int
+    not_in_ref: int
+    agree: int
+    fetched_bytes: int
+    means: Scores
+
+    def as_row(self) -> dict[str, Any]:
+        """The source's row of the report."""
+        counts = {key: getattr(self, key) for key in COUNT_KEYS}
+        return {
+            "source": self.source,
+            **counts,
+            **self.means.tapnet(),
+            "median_error_m": self.means.median_error_m,
+        }
+
+
+@dataclasses.dataclass(frozen=True)
+class CompareReport:
+    """NEW_DIR's clips against REF's: REF as shown, NEW_DIR, agree_mm, a row per benchmark clip (in
+    the benchmark's order), a ``SourceMeans`` per source then ``all``'s, and NEW's clips not in the
+    benchmark."""
+
+    ref: str
+    new: str
+    agree_mm: float
+    clips: list[ClipRow]
+    sources: list[SourceMeans]
+    only_in_new: list[str]
+
+    def to_json(self) -> dict[str, Any]:
+        """The report as ``PREFIX.json`` holds it (strict JSON: NaN as None)."""
+        return json_ready(
+            {
+                "ref": self.ref,
+                "new": self.new,
+                "agree_mm": self.agree_mm,
+                "clips": [row.as_row() for row in self.clips],
+                "sources": [row.as_row() for row in self.sources],
+                "only_in_new": self.only_in_new,
+            }
+        )
 
 
 def clip_keys(root: str) -> dict[str, str]:
@@ -188,9 +370,9 @@ def read_prediction(
     return arrays, size
 
 
-def compare_clip(ref: dict[str, np.ndarray], new: dict[str, np.ndarray], height: int, width: int) -> dict:
-    """Metrics of NEW's tracks [T, N, 3] / visibility [T, N] against REF's (REF's queries and
-    intrinsics); ClipError when the shapes differ. ``note`` says when per-trajectory scored 0."""
+def compare_clip(ref: dict[str, np.ndarray], new: dict[str, np.ndarray], height: int, width: int) -> Scores:
+    """Scores of NEW's tracks [T, N, 3] / visibility [T, N] against REF's (REF's queries and
+    intrinsics); ClipError when the shapes differ."""
     gt_tracks, pred_tracks = ref["tracks_XYZ"], new["tracks_XYZ"]
     gt_visible, pred_visible = ref["visibility"].astype(bool), new["visibility"].astype(bool)
     if gt_tracks.shape != pred_tracks.shape or gt_visible.shape != pred_visible.shape:
@@ -204,26 +386,21 @@ def compare_clip(ref: dict[str, np.ndarray], new: dict[str, np.ndarray], height:
         query_frame_indices(queries[:, 2], num_frames) if queries.shape == (num_tracks, 3) else None
     )
     intrinsics = eval_intrinsics(ref["fx_fy_cx_cy"], height, width)
-    row = {}
+    aj: dict[str, float] = {}
+    apd: dict[str, float] = {}
+    oa, note = math.nan, ""
     for scaling in SCALINGS:
         if scaling == "per_trajectory" and query_frames is None:
-            row |= {"aj_per_trajectory": 0.0, "apd_per_trajectory": 0.0}
-            row["note"] = "REF query frames are not frame indices: per_trajectory counted as 0"
+            aj[scaling] = apd[scaling] = 0.0
+            note = "REF query frames are not frame indices: per_trajectory counted as 0"
             continue
         scores = tapvid3d_metrics(
             gt_tracks, gt_visible, pred_tracks, pred_visible, intrinsics, query_frames, scaling
         )
-        row[f"aj_{scaling}"] = scores["average_jaccard"]
-        row[f"apd_{scaling}"] = scores["average_pts_within"]
+        aj[scaling], apd[scaling] = scores["average_jaccard"], scores["average_pts_within"]
         if scaling == "median":
-            row["oa"] = scores["occlusion_accuracy"]
-    row["median_error_m"] = median_error(gt_tracks, gt_visible, pred_tracks)
-    return row
-
-
-def zero_row(error: str) -> dict:
-    """A clip counted as tapnet's ``evaluate_model.py`` counts one it cannot score: every metric 0."""
-    return {"status": "zero", "error": error, **dict.fromkeys(TAPNET_KEYS, 0.0), "median_error_m": math.nan}
+            oa = scores["occlusion_accuracy"]
+    return Scores(aj, apd, oa, median_error(gt_tracks, gt_visible, pred_tracks), note)
 
 
 def score_pair(
@@ -233,44 +410,47 @@ def score_pair(
     limits: ReadLimits = DEFAULT_LIMITS,
     client: HttpClient | None = None,
     agree_mm: float = AGREE_MM,
-) -> dict:
-    """One per-clip row: status ``scored`` with the metrics and the agreement (``agrees``: fully,
-    within ``agree_mm``), ``zero`` (the
-    prediction is missing, unreadable or of another shape: every tapnet metric 0), ``ref_error`` (REF
-    unreadable) or ``not_in_ref`` (REF holds no such clip: HTTP 404); over HTTP, the bytes fetched."""
+) -> ClipRow:
+    """One benchmark clip's row: ``Scored`` (``agrees``: fully, within ``agree_mm``), ``Zero`` (the
+    prediction is missing, unreadable or of another shape) or ``RefUnread`` (REF unreadable, or
+    holding no such clip: HTTP 404); over HTTP, with the bytes fetched."""
     source, clip = key.split("/")
-    row: dict = {"source": source, "clip": clip}
-    fetched = client.fetched if client is not None else 0
+    before = client.fetched if client is not None else 0
+
+    def fetched() -> int | None:
+        return client.fetched - before if client is not None else None
+
     try:
         if ref_path is None:
             raise ClipError("not in REF")
         ref, size = read_reference(ref_path, limits, client)
     except HttpError as error:
-        status = "not_in_ref" if error.kind == "not_found" else "ref_error"
-        return row | {"status": status, "error": f"{error.url}: {error}"} | _fetched(client, fetched)
+        status = Status.NOT_IN_REF if error.kind == "not_found" else Status.REF_ERROR
+        return RefUnread(source, clip, status, f"{error.url}: {error}", fetched())
     except ClipError as error:
-        return row | {"status": "ref_error", "error": str(error)} | _fetched(client, fetched)
+        return RefUnread(source, clip, Status.REF_ERROR, str(error), fetched())
     num_frames, num_tracks = ref["visibility"].shape
-    row |= {"frames": num_frames, "tracks": num_tracks, **_fetched(client, fetched)}
+    fetched_bytes = fetched()
     if new_path is None:
-        return row | zero_row("no prediction file")
+        return Zero(source, clip, num_frames, num_tracks, "no prediction file", fetched_bytes)
     try:
         new, new_size = read_prediction(new_path, num_frames, num_tracks, limits)
         ref, size, note = _with_camera(ref, size, new, new_size)
-        scored = compare_clip(ref, new, *size)
+        scores = compare_clip(ref, new, *size)
     except ClipError as error:
-        return row | zero_row(str(error))
+        return Zero(source, clip, num_frames, num_tracks, str(error), fetched_bytes)
     measured = agreement(ref, new)
-    row |= {"status": "scored", **scored, **{key: getattr(measured, key) for key in AGREEMENT_KEYS}}
-    row["agrees"] = measured.agrees(agree_mm)
-    return row | ({"note": f"{scored['note']}; {note}" if "note" in scored else note} if note else {})
+    return Scored(
+        source, clip, num_frames, num_tracks, scores, measured, measured.agrees(agree_mm), note, fetched_bytes
+    )
 
 
-def _fetched(client: HttpClient | None, before: int) -> dict:
-    return {"fetched_bytes": client.fetched - before} if client is not None else {}
-
-
-def _with_camera(ref: dict, size, new: dict, new_size) -> tuple[dict, tuple[int, int], str]:
+def _with_camera(
+    ref: dict[str, np.ndarray],
+    size: tuple[int, int] | None,
+    new: dict[str, np.ndarray],
+    new_size: tuple[int, int] | None,
+) -> tuple[dict[str, np.ndarray], tuple[int, int], str]:
     """REF with intrinsics, its frame size, and a note when either came from NEW's clip (the
     release's ADT and Panoptic Studio files hold annotations only); ClipError when neither has them."""
     taken = []
@@ -293,43 +473,47 @@ def plain_mean(values: list[float]) -> float:
     return float(np.mean(values)) if values else math.nan
 
 
-def mean_row(rows: list[dict], source: str) -> dict:
+def mean_scores(counted: list[Scores], measured: list[Scores]) -> Scores:
+    """Each tapnet metric's plain mean over ``counted``, the median error's over ``measured``."""
+    return Scores(
+        {scaling: plain_mean([scores.aj[scaling] for scores in counted]) for scaling in SCALINGS},
+        {scaling: plain_mean([scores.apd[scaling] for scores in counted]) for scaling in SCALINGS},
+        plain_mean([scores.oa for scores in counted]),
+        plain_mean([scores.median_error_m for scores in measured]),
+    )
+
+
+def mean_row(rows: list[ClipRow], source: str) -> SourceMeans:
     """Means over the clips of ``rows`` counted by tapnet (scored and zero); the median error over
     the scored ones."""
-    counted = [row for row in rows if row["status"] not in ("ref_error", "not_in_ref")]
-    scored = [row for row in counted if row["status"] == "scored"]
-    summary = {"source": source, "clips": len(counted), "zero": len(counted) - len(scored)}
-    summary["ref_errors"] = sum(row["status"] == "ref_error" for row in rows)
-    summary["not_in_ref"] = sum(row["status"] == "not_in_ref" for row in rows)
-    summary["agree"] = sum(bool(row.get("agrees")) for row in scored)
-    summary["fetched_bytes"] = sum(row.get("fetched_bytes", 0) for row in rows)
-    for key in TAPNET_KEYS:
-        summary[key] = plain_mean([row[key] for row in counted])
-    summary["median_error_m"] = plain_mean([row["median_error_m"] for row in scored])
-    return summary
+    counted = [row for row in rows if not isinstance(row, RefUnread)]
+    scored = [row for row in counted if isinstance(row, Scored)]
+    return SourceMeans(
+        source,
+        clips=len(counted),
+        zero=len(counted) - len(scored),
+        ref_errors=sum(row.status is Status.REF_ERROR for row in rows),
+        not_in_ref=sum(row.status is Status.NOT_IN_REF for row in rows),
+        agree=sum(row.agrees for row in scored),
+        fetched_bytes=sum(row.fetched_bytes or 0 for row in rows),
+        means=mean_scores([row.scores for row in counted], [row.scores for row in scored]),
+    )
 
 
-def summarise(rows: list[dict]) -> list[dict]:
+def summarise(rows: list[ClipRow]) -> list[SourceMeans]:
     """One row per source (the registry's order, tapnet's for the built-in sources; then others
     sorted), then ``all``: the mean of the source means (as tapnet's ``main``) over the sources with a
     counted clip."""
-    present = {row["source"] for row in rows}
+    present = {row.source for row in rows}
     order = registry.names()
     sources = [s for s in order if s in present] + sorted(present - set(order))
-    per_source = [mean_row([row for row in rows if row["source"] == source], source) for source in sources]
-    overall = {
-        "source": "all",
-        **{
-            key: sum(r[key] for r in per_source)
-            for key in ("clips", "zero", "ref_errors", "not_in_ref", "agree", "fetched_bytes")
-        },
-    }
-    for key in TAPNET_KEYS:
-        overall[key] = plain_mean([r[key] for r in per_source if r["clips"]])
-    overall["median_error_m"] = plain_mean(
-        [r["median_error_m"] for r in per_source if r["clips"] > r["zero"]]
+    per_source = [mean_row([row for row in rows if row.source == source], source) for source in sources]
+    counts = {key: sum(getattr(row, key) for row in per_source) for key in COUNT_KEYS}
+    means = mean_scores(
+        [row.means for row in per_source if row.clips],
+        [row.means for row in per_source if row.clips > row.zero],
     )
-    return [*per_source, overall]
+    return [*per_source, SourceMeans("all", **counts, means=means)]
 
 
 def json_ready(value):
@@ -345,12 +529,12 @@ def _cell(value) -> str:
     return f"{value:.4f}" if isinstance(value, float) else str(value)
 
 
-def markdown(report: dict) -> str:
+def markdown(report: CompareReport) -> str:
     """The report as markdown: per-source table, per-clip table, clips only in NEW."""
     header = " | ".join(SUMMARY_KEYS)
     agree = " | ".join(AGREEMENT_KEYS)
     lines = [
-        f"# TAPVid-3D metrics of `{report['new']}` against `{report['ref']}`",
+        f"# TAPVid-3D metrics of `{report.new}` against `{report.ref}`",
         "",
         "aj/apd = 3D-AJ/APD under median, per-trajectory and no rescaling; oa = occlusion accuracy "
         "(= visibility agreement); means over clips as tapnet's evaluate_model.py, a clip whose "
@@ -358,30 +542,30 @@ def markdown(report: dict) -> str:
         "median 3D error over REF-visible points (not a tapnet metric; scored clips only). Agreement "
         f"per clip: query_frames_equal and visibility are shares of equal query frames and visibility "
         f"values, median_mm and p95_mm the track distance; agree: clips with all of them equal and "
-        f"p95_mm <= {report['agree_mm']:g} mm. fetched_bytes: bytes received over HTTP.",
+        f"p95_mm <= {report.agree_mm:g} mm. fetched_bytes: bytes received over HTTP.",
         "",
         f"| source | clips | zero | ref_errors | not_in_ref | agree | fetched_bytes | {header} |",
         "|" + "---|" * (7 + len(SUMMARY_KEYS)),
     ]
-    for row in report["sources"]:
-        counts = ("clips", "zero", "ref_errors", "not_in_ref", "agree", "fetched_bytes")
-        cells = [row["source"], *(row[key] for key in counts), *(row[key] for key in SUMMARY_KEYS)]
+    for means in report.sources:
+        row = means.as_row()
+        cells = [row["source"], *(row[key] for key in COUNT_KEYS), *(row[key] for key in SUMMARY_KEYS)]
         lines.append("| " + " | ".join(_cell(c) for c in cells) + " |")
     lines += [
         "",
         f"| source | clip | status | frames | tracks | fetched_bytes | {header} | {agree} | agrees | error |",
     ]
     lines.append("|" + "---|" * (9 + len(SUMMARY_KEYS) + len(AGREEMENT_KEYS)))
-    for row in report["clips"]:
+    for clip in report.clips:
+        row = clip.as_row()
         named = ("source", "clip", "status", "frames", "tracks", "fetched_bytes")
         cells = [row.get(key, "") for key in (*named, *SUMMARY_KEYS, *AGREEMENT_KEYS, "agrees")]
         why = row.get("error", row.get("note", ""))
         lines.append("| " + " | ".join(_cell(c) for c in [*cells, why]) + " |")
-    if report["only_in_new"]:
+    if report.only_in_new:
         lines += [
             "",
-            f"only_in_new (not scored): {len(report['only_in_new'])} clip(s): "
-            + ", ".join(report["only_in_new"]),
+            f"only_in_new (not scored): {len(report.only_in_new)} clip(s): " + ", ".join(report.only_in_new),
         ]
     return "\n".join(lines) + "\n"
 
@@ -409,8 +593,8 @@ def compare_dirs(
     clips: list[str] | None = None,
     agree_mm: float = AGREE_MM,
     client: HttpClient | None = None,
-) -> dict:
-    """The full report (JSON-ready) of NEW_DIR's clips against REF's (``benchmark_clips``, in their
+) -> CompareReport:
+    """The full report of NEW_DIR's clips against REF's (``benchmark_clips``, in their
     order: each mean sums its clips in that order, as tapnet sums a split's); REF over HTTP through
     ``client`` (one with the default policy when None)."""
     benchmark, ref = benchmark_clips(ref_dir, new_dir, clips)
@@ -418,14 +602,8 @@ def compare_dirs(
     if client is None and is_http(ref_dir):
         client = HttpClient(note=lambda text: print(text, file=sys.stderr))
     rows = [score_pair(key, ref.get(key), new.get(key), limits, client, agree_mm) for key in benchmark]
-    return {
-        "ref": shown(ref_dir),
-        "new": new_dir,
-        "agree_mm": agree_mm,
-        "clips": rows,
-        "sources": summarise(rows),
-        "only_in_new": sorted(new.keys() - set(benchmark)),
-    }
+    only_in_new = sorted(new.keys() - set(benchmark))
+    return CompareReport(shown(ref_dir), new_dir, agree_mm, rows, summarise(rows), only_in_new)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -475,41 +653,66 @@ def main(argv: list[str] | None = None) -> int:
     prefix = args.out or f"{new_dir}/compare"
     try:
         write_atomic(f"{prefix}.md", text.encode())
-        write_atomic(f"{prefix}.json", json.dumps(json_ready(report), indent=1, allow_nan=False).encode())
-        updated = add_agreement(new_dir, report["clips"], args.agree_mm)
+        write_atomic(f"{prefix}.json", json.dumps(report.to_json(), indent=1, allow_nan=False).encode())
+        agreements = {f"{row.source}/{row.clip}": agreement_entry(row, args.agree_mm) for row in report.clips}
+        updated = add_agreement(new_dir, agreements)
     except OSError as error:
         print(f"compare: cannot write the report {prefix}.md/.json: {error}", file=sys.stderr)
         return 2
     return _closing(report, args.ref_dir, updated)
 
 
-def _closing(report: dict, ref_dir: str, updated: list[str]) -> int:
+def agreement_entry(row: ClipRow, agree_mm: float) -> ClipAgreement:
+    """A verdict row's agreement from a clip's row: its status, the agreement and two of tapnet's
+    metrics when scored, else why not."""
+    if isinstance(row, Scored):
+        measured = row.agreement
+        return ClipAgreement(
+            row.status.value,
+            agree_mm,
+            query_frames_equal=_plain(measured.query_frames_equal),
+            visibility=_plain(measured.visibility),
+            median_mm=_plain(measured.median_mm),
+            p95_mm=_plain(measured.p95_mm),
+            agrees=row.agrees,
+            aj_median=_plain(row.scores.aj["median"]),
+            oa=_plain(row.scores.oa),
+        )
+    return ClipAgreement(row.status.value, agree_mm, row.error)
+
+
+def _plain(value: float) -> float | None:
+    """A JSON value: NaN as None."""
+    return None if math.isnan(value) else value
+
+
+def _closing(report: CompareReport, ref_dir: str, updated: list[str]) -> int:
     """The lines after the report (clips not scored, bytes fetched, verdicts updated); the status."""
-    rows = report["clips"]
+    rows = report.clips
     for row in rows:
-        where = f"{row['source']}/{row['clip']}"
-        if row["status"] == "zero":
-            print(f"not scored: {where}: {row['error']} (counted as 0)", file=sys.stderr)
-        elif row["status"] == "ref_error":
+        where = f"{row.source}/{row.clip}"
+        if isinstance(row, Zero):
+            print(f"not scored: {where}: {row.error} (counted as 0)", file=sys.stderr)
+        elif isinstance(row, RefUnread) and row.status is Status.REF_ERROR:
             print(
-                f"not scored: {where}: {row['error']} (REF unreadable: left out of the means; tapnet's "
+                f"not scored: {where}: {row.error} (REF unreadable: left out of the means; tapnet's "
                 "evaluator would stop here)",
                 file=sys.stderr,
             )
-        elif row["status"] == "not_in_ref":
-            print(f"not scored: {where}: not in REF ({row['error']}): left out of the means", file=sys.stderr)
-    total = report["sources"][-1]
+        elif isinstance(row, RefUnread):
+            print(f"not scored: {where}: not in REF ({row.error}): left out of the means", file=sys.stderr)
+    total = report.sources[-1]
     if is_http(ref_dir) and rows:
         print(
-            f"fetched {total['fetched_bytes']:,} bytes over HTTP for {len(rows)} clip(s), "
-            f"{total['fetched_bytes'] / len(rows):,.0f} a clip"
+            f"fetched {total.fetched_bytes:,} bytes over HTTP for {len(rows)} clip(s), "
+            f"{total.fetched_bytes / len(rows):,.0f} a clip"
         )
     if updated:
         print(f"agreement added to the verdicts in {', '.join(updated)}")
     if not rows:
         print(f"no REF clip to score in {shown(ref_dir)}", file=sys.stderr)
         return 1
-    if not any(row["status"] == "scored" for row in rows):
+    if not any(isinstance(row, Scored) for row in rows):
         print(f"none of the {len(rows)} prediction(s) could be scored", file=sys.stderr)
         return 1
     return 0

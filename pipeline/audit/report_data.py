@@ -17,13 +17,14 @@ with ``min_tracks`` and the clip's target as ``evaluate`` compares them.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
 
 from pipeline import sources
-from pipeline.audit.sweep import AuditTable, ClipCount, read_audit_table, run_provenance, totals
-from pipeline.audit.verdict_rows import read_verdicts
+from pipeline.audit.sweep import AuditTable, ClipCount, Totals, read_audit_table, run_provenance, totals
+from pipeline.audit.verdict_rows import VerdictRow, read_verdicts
 from pipeline.export.layout import audit_path
 from pipeline.filters.flicker import passes_flicker
 from pipeline.io.files import list_files
@@ -64,9 +65,24 @@ def read_clip_table(path: str) -> AuditTable:
     return read_audit_table(path, ())
 
 
-def fold_clip(table: AuditTable, flicker_grid: list[float], mask_grid: list[float]) -> dict:
-    """One clip's counts: candidates, never-visible tracks and the sparse (flicker bucket, mask bucket)
-    pairs [P] of the others, with their counts [P]."""
+@dataclasses.dataclass(frozen=True)
+class FoldedClip:
+    """One clip as the page recounts it: its frames, target track count, candidates and never-visible
+    tracks, and the sparse (flicker bucket, mask bucket) pairs of the others: ``flicker``, ``mask``
+    [P] int64 and their track counts ``count`` [P] int64."""
+
+    clip: str
+    num_frames: int
+    target_tracks: int
+    candidates: int
+    never_visible: int
+    flicker: np.ndarray
+    mask: np.ndarray
+    count: np.ndarray
+
+
+def fold_clip(table: AuditTable, flicker_grid: list[float], mask_grid: list[float]) -> FoldedClip:
+    """One clip's audit table folded over the slider grids."""
     stats = table.stats
     seen = np.asarray(stats.visible_frames) > 0
     flips = np.asarray(stats.visibility_flips)[seen]
@@ -74,16 +90,16 @@ def fold_clip(table: AuditTable, flicker_grid: list[float], mask_grid: list[floa
     flicker = flicker_buckets(flips, table.num_frames, flicker_grid)
     mask = mask_buckets(agreement, len(flips), mask_grid)
     pairs, counts = np.unique(flicker * (len(mask_grid) + 1) + mask, return_counts=True)
-    return {
-        "clip": table.clip,
-        "num_frames": table.num_frames,
-        "target_tracks": table.target_tracks,
-        "candidates": len(seen),
-        "never_visible": int((~seen).sum()),
-        "flicker": (pairs // (len(mask_grid) + 1)).astype(np.int64),
-        "mask": (pairs % (len(mask_grid) + 1)).astype(np.int64),
-        "count": counts.astype(np.int64),
-    }
+    return FoldedClip(
+        table.clip,
+        table.num_frames,
+        table.target_tracks,
+        len(seen),
+        int((~seen).sum()),
+        (pairs // (len(mask_grid) + 1)).astype(np.int64),
+        (pairs % (len(mask_grid) + 1)).astype(np.int64),
+        counts.astype(np.int64),
+    )
 
 
 def histogram_counts(table: AuditTable, flicker_grid: list[float], mask_grid: list[float]) -> dict:
@@ -119,7 +135,26 @@ def run_config(record: dict | None) -> RunConfig:
     return RunConfig() if record is None else config_from_dict(RunConfig, record["config"])
 
 
-def source_data(output: str, source: Source) -> dict | None:
+@dataclasses.dataclass(frozen=True)
+class SourceData:
+    """Everything the page shows of one source: the run's ``thresholds`` and the sliders' ``grids``
+    (config key -> value, values: flicker.max_fraction, <source>.mask_min_agreement, min_tracks),
+    its folded clips (sorted by name), the histograms of all candidates (``histogram_counts``'s, as
+    lists), the run's summary and release file (None without provenance), its release verdicts and
+    the release clips named per split (None on a run without a release)."""
+
+    name: str
+    thresholds: dict[str, float]
+    grids: dict[str, list[float]]
+    clips: list[FoldedClip]
+    histograms: dict[str, Any]
+    summary: dict[str, Any] | None
+    release_path: str | None
+    verdicts: list[VerdictRow] | None
+    named: dict[str, int] | None
+
+
+def source_data(output: str, source: Source) -> SourceData | None:
     """Everything the page shows of one source, None when ``output`` holds neither an audit table of
     it nor release verdicts (a release run that annotated no clip has verdicts alone: ``clips`` is
     then empty).
@@ -132,10 +167,10 @@ def source_data(output: str, source: Source) -> dict | None:
         return None
     record = run_provenance(output, source.name)
     config = run_config(record)
-    splits = None if verdicts is None else {row["clip"]: row["split"] for row in verdicts}
+    splits = None if verdicts is None else {row.verdict.clip: row.verdict.split for row in verdicts}
     flicker_grid = fraction_grid(config.flicker.max_fraction)
     mask_grid = fraction_grid(source.mask_min_agreement(config))
-    clips: list[dict] = []
+    clips: list[FoldedClip] = []
     histograms: dict[str, Any] = {}
     for path in sorted(paths):
         table = read_clip_table(path)
@@ -143,49 +178,50 @@ def source_data(output: str, source: Source) -> dict | None:
             continue
         clips.append(fold_clip(table, flicker_grid, mask_grid))
         histograms = add_histograms(histograms, histogram_counts(table, flicker_grid, mask_grid))
-    clips.sort(key=lambda clip: clip["clip"])
-    most = max([clip["candidates"] for clip in clips] + [config.min_tracks, 1])
-    return {
-        "name": source.name,
-        "thresholds": {
+    clips.sort(key=lambda clip: clip.clip)
+    most = max([clip.candidates for clip in clips] + [config.min_tracks, 1])
+    return SourceData(
+        source.name,
+        thresholds={
             "flicker.max_fraction": config.flicker.max_fraction,
             f"{source.name}.mask_min_agreement": source.mask_min_agreement(config),
             "min_tracks": config.min_tracks,
         },
-        "grids": {
+        grids={
             "flicker.max_fraction": flicker_grid,
             f"{source.name}.mask_min_agreement": mask_grid,
             "min_tracks": list(range(1, most + 1)),
         },
-        "clips": clips,
-        "histograms": {name: np.asarray(v).tolist() for name, v in histograms.items()},
-        "summary": None if record is None else record["summary"],
-        "release_path": None if record is None else record.get("release"),
-        "verdicts": verdicts,
-        "named": None if splits is None else {split: list(splits.values()).count(split) for split in SPLITS},
-    }
+        clips=clips,
+        histograms={name: np.asarray(v).tolist() for name, v in histograms.items()},
+        summary=None if record is None else record["summary"],
+        release_path=None if record is None else record.get("release"),
+        verdicts=verdicts,
+        named=None if splits is None else {split: list(splits.values()).count(split) for split in SPLITS},
+    )
 
 
-def counts_at(data: dict, flicker_index: int, mask_index: int, min_tracks: int) -> dict:
+def counts_at(data: SourceData, flicker_index: int, mask_index: int, min_tracks: int) -> Totals:
     """The totals ``evaluate`` reports (``sweep.totals``) at grid positions (``flicker_index``,
     ``mask_index``) and ``min_tracks``, from the folded clips alone (the page's own rule)."""
 
-    def folded(clip: dict) -> ClipCount:
-        flicker_ok = clip["flicker"] <= flicker_index
-        mask_ok = clip["mask"] > mask_index
+    def folded(clip: FoldedClip) -> ClipCount:
+        flicker_ok = clip.flicker <= flicker_index
+        mask_ok = clip.mask > mask_index
         dropped = {
-            "never_visible": clip["never_visible"],
-            "flicker": int(clip["count"][~flicker_ok].sum()),
-            "mask": int(clip["count"][flicker_ok & ~mask_ok].sum()),
+            "never_visible": clip.never_visible,
+            "flicker": int(clip.count[~flicker_ok].sum()),
+            "mask": int(clip.count[flicker_ok & ~mask_ok].sum()),
         }
-        survivors = int(clip["count"][flicker_ok & mask_ok].sum())
-        return ClipCount(clip["clip"], clip["candidates"], dropped, survivors, clip["target_tracks"])
+        survivors = int(clip.count[flicker_ok & mask_ok].sum())
+        return ClipCount(clip.clip, clip.candidates, dropped, survivors, clip.target_tracks)
 
-    splits = {row["clip"]: row["split"] for row in data["verdicts"]} if data["verdicts"] is not None else None
-    return totals(map(folded, data["clips"]), min_tracks, splits)
+    verdicts = data.verdicts
+    splits = {row.verdict.clip: row.verdict.split for row in verdicts} if verdicts is not None else None
+    return totals(map(folded, data.clips), min_tracks, splits)
 
 
-def page_data(output: str, names: list[str]) -> list[dict]:
+def page_data(output: str, names: list[str]) -> list[SourceData]:
     """``source_data`` of each named source that has audit tables in ``output``."""
     found = (source_data(output, sources.get(name)) for name in names)
     return [data for data in found if data is not None]

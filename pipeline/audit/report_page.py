@@ -22,7 +22,7 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline import sources
-from pipeline.audit.report_data import counts_at, page_data
+from pipeline.audit.report_data import FoldedClip, SourceData, counts_at, page_data
 from pipeline.audit.report_script import SCRIPT, STYLE
 from pipeline.audit.report_thumbs import MAX_TRACKS, thumbnails
 from pipeline.audit.sweep import matches_run
@@ -41,24 +41,24 @@ def packed(values, dtype) -> str:
     return base64.b64encode(np.asarray(values, dtype=np.dtype(dtype).newbyteorder("<")).tobytes()).decode()
 
 
-def pairs_json(clips: list[dict]) -> dict:
+def pairs_json(clips: list[FoldedClip]) -> dict:
     """Every clip's (flicker bucket, mask bucket, count) pairs, concatenated, with offsets [C + 1]."""
-    offsets = np.cumsum([0] + [len(clip["count"]) for clip in clips])
-    count = np.concatenate([clip["count"] for clip in clips] + [np.zeros(0, np.int64)])
+    offsets = np.cumsum([0] + [len(clip.count) for clip in clips])
+    count = np.concatenate([clip.count for clip in clips] + [np.zeros(0, np.int64)])
     wide = len(count) and count.max() > 0xFFFF
     return {
         "offsets": packed(offsets, np.uint32),
-        "flicker": packed(np.concatenate([clip["flicker"] for clip in clips] + [np.zeros(0)]), np.uint8),
-        "mask": packed(np.concatenate([clip["mask"] for clip in clips] + [np.zeros(0)]), np.uint8),
+        "flicker": packed(np.concatenate([clip.flicker for clip in clips] + [np.zeros(0)]), np.uint8),
+        "mask": packed(np.concatenate([clip.mask for clip in clips] + [np.zeros(0)]), np.uint8),
         "count": packed(count, np.uint32 if wide else np.uint16),
         "count_bytes": 4 if wide else 2,
     }
 
 
-def slider_json(data: dict) -> list[dict]:
+def slider_json(data: SourceData) -> list[dict]:
     """The three sliders: config key, grid of values, the run's value, a line on what it does."""
-    flicker, mask, min_tracks = data["grids"]
-    grids, run = data["grids"], data["thresholds"]
+    flicker, mask, min_tracks = data.grids
+    grids, run = data.grids, data.thresholds
     steps = "0 to 1 in steps of 0.01 and the run's value"
     notes = {
         flicker: f"keep a track whose visibility flips <= this x T frames; "
@@ -73,15 +73,15 @@ def slider_json(data: dict) -> list[dict]:
     ]
 
 
-def about(data: dict) -> str:
+def about(data: SourceData) -> str:
     """One paragraph on where the source's numbers come from."""
-    run = ", ".join(f"{key}={value}" for key, value in data["thresholds"].items())
-    if data["summary"] is None:
-        return f"No run's provenance (run_{data['name']}.json): the sliders start at the defaults ({run})."
+    run = ", ".join(f"{key}={value}" for key, value in data.thresholds.items())
+    if data.summary is None:
+        return f"No run's provenance (run_{data.name}.json): the sliders start at the defaults ({run})."
     text = f"The run's thresholds: {run}."
-    if data["named"] is not None:
-        named = ", ".join(f"{split} {count}" for split, count in data["named"].items())
-        splits = f" ({data['release_path']})" if data["release_path"] else ""
+    if data.named is not None:
+        named = ", ".join(f"{split} {count}" for split, count in data.named.items())
+        splits = f" ({data.release_path})" if data.release_path else ""
         text += (
             f" Release run{splits}: only the release's clips count; release clips named: {named}. "
             "A release clip survives when it is written (a clip the run could not make never does)."
@@ -89,49 +89,51 @@ def about(data: dict) -> str:
     return text
 
 
-def missing_json(data: dict) -> list[dict]:
+def missing_json(data: SourceData) -> list[dict]:
     """The release verdicts of clips without an audit table (input absent, not made, failed)."""
-    made = {clip["clip"] for clip in data["clips"]}
+    made = {clip.clip for clip in data.clips}
+    verdicts = [row.verdict for row in data.verdicts or []]
     return [
-        {key: row[key] for key in ("clip", "split", "status", "reason")}
-        for row in data["verdicts"] or []
-        if row["clip"] not in made
+        {"clip": row.clip, "split": row.split, "status": row.status, "reason": row.reason}
+        for row in verdicts
+        if row.clip not in made
     ]
 
 
-def source_json(output: str, data: dict, count: int) -> tuple[dict, list[str]]:
+def source_json(output: str, data: SourceData, count: int) -> tuple[dict, list[str]]:
     """The page's data of one source, and the lines on thumbnails that could not be drawn."""
-    clips = data["clips"]
+    clips = data.clips
     if not clips:
         note = "A release run that annotated no clip of this source: its verdicts "
-        note += f"(release_{data['name']}.jsonl)."
-        return {"name": data["name"], "verdicts_only": True, "about": note, "missing": missing_json(data)}, []
-    names = [clip["clip"] for clip in clips]
-    images, problems = thumbnails(output, data["name"], names, count)
+        note += f"(release_{data.name}.jsonl)."
+        return {"name": data.name, "verdicts_only": True, "about": note, "missing": missing_json(data)}, []
+    names = [clip.clip for clip in clips]
+    images, problems = thumbnails(output, data.name, names, count)
     splits = None
-    if data["verdicts"] is not None:
-        split_of = {row["clip"]: row["split"] for row in data["verdicts"]}
+    if data.verdicts is not None:
+        split_of = {row.verdict.clip: row.verdict.split for row in data.verdicts}
         splits = [split_of.get(name) for name in names]
     missing = missing_json(data)
-    summary = None if data["summary"] is None else {key: data["summary"][key] for key in SUMMARY_KEYS}
+    summary = None if data.summary is None else {key: data.summary[key] for key in SUMMARY_KEYS}
+    agreement = None if data.verdicts is None else agreement_summary(data.verdicts)
     return {
-        "name": data["name"],
+        "name": data.name,
         "about": about(data),
         "sliders": slider_json(data),
         "clips": {
             "clip": names,
-            "frames": [clip["num_frames"] for clip in clips],
-            "target": [clip["target_tracks"] for clip in clips],
-            "candidates": [clip["candidates"] for clip in clips],
-            "never_visible": [clip["never_visible"] for clip in clips],
+            "frames": [clip.num_frames for clip in clips],
+            "target": [clip.target_tracks for clip in clips],
+            "candidates": [clip.candidates for clip in clips],
+            "never_visible": [clip.never_visible for clip in clips],
             "split": splits,
         },
         "pairs": pairs_json(clips),
-        "histograms": data["histograms"],
+        "histograms": data.histograms,
         "summary": summary,
-        "named": data["named"],
+        "named": data.named,
         "missing": missing,
-        "agreement": None if data["verdicts"] is None else agreement_summary(data["verdicts"]),
+        "agreement": None if agreement is None else agreement.to_json(),
         "thumbnails": images,
         "thumbnail_note": f"Thumbnails: the middle frame of {len(images)} written clip(s), evenly spaced by "
         f"name, at most {MAX_TRACKS} tracks drawn (large filled = visible, small grey = occluded); "
@@ -169,15 +171,15 @@ def page_html(output: str, sources_json: list[dict]) -> str:
     )
 
 
-def run_check(data: dict) -> str:
+def run_check(data: SourceData) -> str:
     """Whether the folded counts at the run's thresholds reproduce its provenance file, in words."""
-    if data["summary"] is None:
+    if data.summary is None:
         return "no run's provenance"
     flicker_index, mask_index = (
-        grid.index(data["thresholds"][key]) for key, grid in list(data["grids"].items())[:2]
+        grid.index(data.thresholds[key]) for key, grid in list(data.grids.items())[:2]
     )
-    result = counts_at(data, flicker_index, mask_index, data["thresholds"]["min_tracks"])
-    if matches_run(result, data["summary"]):
+    result = counts_at(data, flicker_index, mask_index, int(data.thresholds["min_tracks"]))
+    if matches_run(result, data.summary):
         return "reproduces the run's provenance"
     return "DOES NOT reproduce it"
 
@@ -211,7 +213,7 @@ def main(argv: list[str]) -> int:
     output = os.path.abspath(args.output) if "://" not in args.output else args.output
     try:
         found = page_data(output, args.source or list(sources.names()))
-        absent = sorted(set(args.source or []) - {data["name"] for data in found})
+        absent = sorted(set(args.source or []) - {data.name for data in found})
         if absent:
             raise ValueError(f"--source {absent[0]}: no audit tables in {output}/audit/{absent[0]}/")
         if not found:
@@ -229,13 +231,13 @@ def main(argv: list[str]) -> int:
         return 2
     for data, (part, problems) in zip(found, parts, strict=True):
         for line in problems:
-            print(f"report: {data['name']}: {line}", file=sys.stderr)
-        if not data["clips"]:
-            verdicts = len(data["verdicts"])
-            print(f"{data['name']}: no audit tables; the page shows its {verdicts} release verdicts")
+            print(f"report: {data.name}: {line}", file=sys.stderr)
+        if not data.clips:
+            verdicts = len(data.verdicts or [])
+            print(f"{data.name}: no audit tables; the page shows its {verdicts} release verdicts")
             continue
         print(
-            f"{data['name']}: {len(data['clips'])} clips, {len(part['thumbnails'])} thumbnails; "
+            f"{data.name}: {len(data.clips)} clips, {len(part['thumbnails'])} thumbnails; "
             f"at the run's thresholds the page {run_check(data)}"
         )
     print(f"report: {args.out} ({len(page) / 1e6:.2f} MB)")

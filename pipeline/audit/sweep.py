@@ -25,7 +25,6 @@ import json
 import os
 import sys
 from collections.abc import Iterable, Mapping
-from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -111,11 +110,25 @@ class ClipCount:
     target_tracks: int
 
 
-def totals(counts: Iterable[ClipCount], min_tracks: int, splits: dict[str, str] | None = None) -> dict:
-    """The filter stage's totals over clips: candidates, dropped per filter, passed, clips written
-    (at least ``min_tracks`` passing), those below their target track count, the tracks written (at
-    most the target per clip) and, with the release's ``splits`` (clip -> split), the release clips
-    written per split."""
+@dataclasses.dataclass(frozen=True)
+class Totals:
+    """The filter stage's totals over clips: candidates, the tracks each filter drops (``FILTER_ORDER``
+    -> count), those passing every filter, the clips written (at least ``min_tracks`` passing), those
+    below their target track count, the tracks written (at most the target per clip) and, on a
+    release run, the release clips written per split (None otherwise)."""
+
+    candidates: int
+    dropped: Mapping[str, int]
+    passed: int
+    clips_written: int
+    clips_below_target: int
+    tracks_written: int
+    release: Mapping[str, int] | None = None
+
+
+def totals(counts: Iterable[ClipCount], min_tracks: int, splits: dict[str, str] | None = None) -> Totals:
+    """The ``Totals`` of ``counts``, written clips per split with the release's ``splits`` (clip ->
+    split)."""
     dropped = dict.fromkeys(FILTER_ORDER, 0)
     candidates = passed = written = below = tracks_written = 0
     release = dict.fromkeys(SPLITS, 0)
@@ -130,23 +143,15 @@ def totals(counts: Iterable[ClipCount], min_tracks: int, splits: dict[str, str] 
         tracks_written += min(count.passed, count.target_tracks) if kept else 0
         if splits is not None and kept and count.clip in splits:
             release[splits[count.clip]] += 1
-    result = {
-        "candidates": candidates,
-        "dropped": dropped,
-        "passed": passed,
-        "clips_written": written,
-        "clips_below_target": below,
-        "tracks_written": tracks_written,
-    }
-    if splits is not None:
-        result["release"] = release
-    return result
+    return Totals(
+        candidates, dropped, passed, written, below, tracks_written, release if splits is not None else None
+    )
 
 
 def evaluate(
     clips: list[AuditTable], source: Source, config: RunConfig, splits: dict[str, str] | None = None
-) -> dict:
-    """The filter stage's totals (``totals``) at ``config``, replayed from the recorded statistics."""
+) -> Totals:
+    """The filter stage's totals at ``config``, replayed from the recorded statistics."""
 
     def replayed(clip: AuditTable) -> ClipCount:
         verdicts = verdicts_from_stats(clip.stats, clip.num_frames, config, source.mask_min_agreement(config))
@@ -257,12 +262,26 @@ def numeric_statistics(clips: list[AuditTable]) -> dict[str, np.ndarray]:
     return result
 
 
+@dataclasses.dataclass(frozen=True)
+class SweepRow:
+    """One combination of thresholds: config key -> value (as given; the run's own as text), its
+    totals and, on the run's own row when the run left its summary, whether they reproduce it."""
+
+    values: dict[str, str]
+    result: Totals
+    matches_run: bool | None = None
+
+
 def report_markdown(
-    source: str, rows: list[dict], run_summary: dict | None, statistics: dict, named: dict | None = None
+    source: str,
+    rows: list[SweepRow],
+    run_summary: dict | None,
+    statistics: dict[str, np.ndarray],
+    named: dict[str, int] | None = None,
 ) -> str:
     """The report: the table of combinations (with, on a release run, the release clips surviving
     per split of ``named``: split -> release clips named), then the statistics' quantiles."""
-    keys = list(rows[0]["values"])
+    keys = list(rows[0].values)
     lines = [f"# Threshold sweep: {source}", ""]
     if named is not None:
         lines += [
@@ -271,7 +290,7 @@ def report_markdown(
             "",
         ]
     if run_summary is not None:
-        matches = rows[0]["matches_run"]
+        matches = rows[0].matches_run
         lines += [
             f"First row = the run's own thresholds; it {'reproduces' if matches else 'DOES NOT reproduce'} "
             "the run's counts (run_<source>.json summary).",
@@ -283,11 +302,11 @@ def report_markdown(
     header += [f"release {split}" for split in SPLITS] if named is not None else []
     lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for row in rows:
-        r = row["result"]
-        cells = [row["values"][k] for k in keys] + [r["candidates"]] + [r["dropped"][n] for n in FILTER_ORDER]
-        cells += [r["passed"], r["clips_written"], r["clips_below_target"]]
-        if named is not None:
-            cells += [f"{r['release'][split]} of {named[split]}" for split in SPLITS]
+        r = row.result
+        cells: list[object] = [*(row.values[k] for k in keys), r.candidates]
+        cells += [*(r.dropped[n] for n in FILTER_ORDER), r.passed, r.clips_written, r.clips_below_target]
+        if named is not None and r.release is not None:
+            cells += [f"{r.release[split]} of {named[split]}" for split in SPLITS]
         lines.append("| " + " | ".join(str(c) for c in cells) + " |")
     lines += ["", "## Statistics over all candidates", "", "| statistic | min | 5% | median | 95% | max |"]
     lines.append("|---|---|---|---|---|---|")
@@ -426,20 +445,12 @@ def sweep(args: argparse.Namespace) -> int:
         print(f"sweep: no audit tables{which} in {output}/audit/{args.source}/", file=sys.stderr)
         return 1
     keys = list(grid)
-    # A combination's values and totals; the run's own row also says whether it matches the run.
-    rows: list[dict[str, Any]] = [
-        {"values": {k: _current(base, k) for k in keys}, "result": evaluate(clips, source, base, splits)}
-    ]
+    own = evaluate(clips, source, base, splits)
+    matches = matches_run(own, run_summary) if run_summary is not None else None
+    rows = [SweepRow({k: _current(base, k) for k in keys}, own, matches)]
     for values in itertools.product(*grid.values()) if keys else []:
         config = with_overrides(base, [f"{k}={v}" for k, v in zip(keys, values, strict=True)])
-        rows.append(
-            {
-                "values": dict(zip(keys, values, strict=True)),
-                "result": evaluate(clips, source, config, splits),
-            }
-        )
-    if run_summary is not None:
-        rows[0]["matches_run"] = matches_run(rows[0]["result"], run_summary)
+        rows.append(SweepRow(dict(zip(keys, values, strict=True)), evaluate(clips, source, config, splits)))
     report = args.out or sweep_folder(output, args.source)
     os.makedirs(report, exist_ok=True)
     statistics = numeric_statistics(clips)
@@ -453,33 +464,36 @@ def sweep(args: argparse.Namespace) -> int:
     write_atomic(f"{report}/sweep.parquet", _rows_parquet(rows))
     print(markdown.split("\n## Statistics")[0])
     print(f"report: {report}/report.md (with survival.png, histograms.png, sweep.parquet)")
-    return 0 if rows[0].get("matches_run", True) else 1
+    return 1 if rows[0].matches_run is False else 0
 
 
 def _current(config: RunConfig, key: str) -> str:
     return str(value_at(config, key))
 
 
-def matches_run(result: dict, summary: dict) -> bool:
+def matches_run(result: Totals, summary: dict) -> bool:
     """Whether replayed counts equal the run's own summary."""
     return (
-        result["candidates"] == summary["candidate_tracks"]
-        and result["dropped"] == summary["dropped_by_filter"]
-        and result["passed"] == summary["tracks_passing_filters"]
-        and result["clips_below_target"] == summary["clips_below_target"]
+        result.candidates == summary["candidate_tracks"]
+        and result.dropped == summary["dropped_by_filter"]
+        and result.passed == summary["tracks_passing_filters"]
+        and result.clips_below_target == summary["clips_below_target"]
     )
 
 
-def _rows_parquet(rows: list[dict]) -> bytes:
-    columns: dict[str, list] = {key: [r["values"][key] for r in rows] for key in rows[0]["values"]}
-    columns["candidates"] = [r["result"]["candidates"] for r in rows]
+def _rows_parquet(rows: list[SweepRow]) -> bytes:
+    """The table of combinations: a column per swept key, then the totals (``report_markdown``'s)."""
+    columns: dict[str, list] = {key: [row.values[key] for row in rows] for key in rows[0].values}
+    columns["candidates"] = [row.result.candidates for row in rows]
     for name in FILTER_ORDER:
-        columns[f"dropped_{name}"] = [r["result"]["dropped"][name] for r in rows]
-    for name in ("passed", "clips_written", "clips_below_target"):
-        columns[name] = [r["result"][name] for r in rows]
-    if "release" in rows[0]["result"]:
+        columns[f"dropped_{name}"] = [row.result.dropped[name] for row in rows]
+    columns["passed"] = [row.result.passed for row in rows]
+    columns["clips_written"] = [row.result.clips_written for row in rows]
+    columns["clips_below_target"] = [row.result.clips_below_target for row in rows]
+    releases = [row.result.release for row in rows if row.result.release is not None]
+    if releases:
         for split in SPLITS:
-            columns[f"release_{split}"] = [r["result"]["release"][split] for r in rows]
+            columns[f"release_{split}"] = [release[split] for release in releases]
     buffer = io.BytesIO()
     pq.write_table(pa.table(columns), buffer)
     return buffer.getvalue()

@@ -4,22 +4,82 @@ listed, and each clip's agreement with the reference, added to its row and summe
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
+from collections.abc import Mapping
+from typing import Any
 
 from pipeline import sources
 from pipeline.core.outcomes import FILTER_ORDER
 from pipeline.export.layout import release_verdicts_path
 from pipeline.io.files import read_bytes, write_atomic
 from pipeline.runner.splits import SPLITS
-from pipeline.runner.verdicts import STATUSES
+from pipeline.runner.verdicts import STATUSES, Verdict
 
 MAX_VERDICT_BYTES = 256 << 20
 # The fields of a verdict row (``pipeline.runner.verdicts.Verdict``) the audit commands read.
 ROW_FIELDS = ("clip", "split", "status", "tracks", "reason", "candidates", "dropped", "passed")
+# What a verdict row's ``agreement`` holds of a compare row, when the compare scored the clip.
+AGREEMENT_FIELDS = ("query_frames_equal", "visibility", "median_mm", "p95_mm", "agrees", "aj_median", "oa")
 
 
-def read_verdicts(output: str, source: str) -> list[dict] | None:
+@dataclasses.dataclass(frozen=True)
+class ClipAgreement:
+    """A verdict row's ``agreement``, from ``audit compare``: the clip's compare status (scored; zero:
+    no clip of ours to score; ref_error; not_in_ref) and agree_mm; when scored, the agreement's
+    measures (None where NaN), whether it agrees fully, and two of tapnet's metrics (aj_median, oa);
+    else ``error``: why not."""
+
+    status: str
+    agree_mm: float
+    error: str = ""
+    query_frames_equal: float | None = None
+    visibility: float | None = None
+    median_mm: float | None = None
+    p95_mm: float | None = None
+    agrees: bool = False
+    aj_median: float | None = None
+    oa: float | None = None
+
+    @property
+    def scored(self) -> bool:
+        return self.status == "scored"
+
+    def to_json(self) -> dict[str, Any]:
+        """The entry as a verdict row holds it: the measures when scored, else the error."""
+        entry = {"status": self.status, "agree_mm": self.agree_mm}
+        if self.scored:
+            return entry | {key: getattr(self, key) for key in AGREEMENT_FIELDS}
+        return entry | {"error": self.error}
+
+    @classmethod
+    def from_json(cls, entry: Mapping[str, Any]) -> ClipAgreement:
+        """The entry a verdict row holds (``to_json``'s)."""
+        measures = {key: entry.get(key) for key in AGREEMENT_FIELDS if key != "agrees"}
+        return cls(
+            entry["status"],
+            entry["agree_mm"],
+            entry.get("error", ""),
+            agrees=bool(entry.get("agrees")),
+            **measures,
+        )
+
+
+@dataclasses.dataclass(frozen=True)
+class VerdictRow:
+    """One line of ``release_<source>.jsonl``: the run's verdict on a release clip and, once ``audit
+    compare`` has added it, the clip's agreement with the reference."""
+
+    verdict: Verdict
+    agreement: ClipAgreement | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        agreement = {} if self.agreement is None else {"agreement": self.agreement.to_json()}
+        return self.verdict.to_json() | agreement
+
+
+def read_verdicts(output: str, source: str) -> list[VerdictRow] | None:
     """The verdict rows of ``source`` in ``output``, None when the run wrote none."""
     path = release_verdicts_path(output, source)
     if not os.path.exists(path) and "://" not in output:
@@ -35,13 +95,11 @@ def read_verdicts(output: str, source: str) -> list[dict] | None:
             ]
             if missing:
                 raise ValueError(f"no {', '.join(missing)}")
+            agreement = ClipAgreement.from_json(row["agreement"]) if "agreement" in row else None
         except (ValueError, KeyError, TypeError) as error:
             raise ValueError(f"{path} line {number}: not a release verdict ({error})") from None
-        rows.append(row)
+        rows.append(VerdictRow(Verdict(**{key: row[key] for key in ROW_FIELDS}), agreement))
     return rows
-
-# What a verdict row's ``agreement`` holds of a compare row, when the compare scored the clip.
-AGREEMENT_FIELDS = ("query_frames_equal", "visibility", "median_mm", "p95_mm", "agrees", "aj_median", "oa")
 
 
 def release_clip_keys(output: str) -> list[str] | None:
@@ -52,38 +110,23 @@ def release_clip_keys(output: str) -> list[str] | None:
         rows = read_verdicts(output, source)
         if rows is not None:
             found = True
-            keys += [f"{source}/{row['clip']}.npz" for row in rows]
+            keys += [f"{source}/{row.verdict.clip}.npz" for row in rows]
     return keys if found else None
 
 
-def agreement_entry(row: dict, agree_mm: float) -> dict:
-    """A verdict row's ``agreement`` from a compare row: its status (scored, zero: no clip of ours to
-    score, ref_error, not_in_ref), the agreement and two of tapnet's metrics when scored, else why."""
-    entry = {"status": row["status"], "agree_mm": agree_mm}
-    if row["status"] == "scored":
-        return entry | {key: _plain(row[key]) for key in AGREEMENT_FIELDS}
-    return entry | {"error": row.get("error", "")}
-
-
-def _plain(value):
-    """A JSON value: NaN as None."""
-    return None if isinstance(value, float) and value != value else value
-
-
-def add_agreement(output: str, rows: list[dict], agree_mm: float) -> list[str]:
-    """Rewrite each verdict file of ``output`` with the ``agreement`` of every clip ``rows`` (compare
-    rows) scored or tried; the files rewritten. A row without a compare row keeps no agreement."""
+def add_agreement(output: str, agreements: Mapping[str, ClipAgreement]) -> list[str]:
+    """Rewrite each verdict file of ``output`` with the agreement of every clip in ``agreements``
+    (``<source>/<clip>.npz`` -> what ``audit compare`` found); the files rewritten. A row of a clip
+    not in ``agreements`` keeps no agreement."""
     updated = []
     for source in sources.names():
         verdicts = read_verdicts(output, source)
         if verdicts is None:
             continue
-        compared = {row["clip"].removesuffix(".npz"): row for row in rows if row["source"] == source}
-        for verdict in verdicts:
-            verdict.pop("agreement", None)
-            if verdict["clip"] in compared:
-                verdict["agreement"] = agreement_entry(compared[verdict["clip"]], agree_mm)
-        text = "".join(json.dumps(verdict, sort_keys=True) + "\n" for verdict in verdicts)
+        rows = [
+            VerdictRow(row.verdict, agreements.get(f"{source}/{row.verdict.clip}.npz")) for row in verdicts
+        ]
+        text = "".join(json.dumps(row.to_json(), sort_keys=True) + "\n" for row in rows)
         path = release_verdicts_path(output, source)
         write_atomic(path, text.encode())
         updated.append(path)
@@ -91,56 +134,98 @@ def add_agreement(output: str, rows: list[dict], agree_mm: float) -> list[str]:
 
 
 LEAST_SHOWN = 5
+LEAST_FIELDS = ("query_frames_equal", "visibility", "median_mm", "p95_mm")
 
 
-def agreement_summary(rows: list[dict]) -> dict | None:
+@dataclasses.dataclass(frozen=True)
+class SplitAgreement:
+    """Of one split's (or ``all``'s) release clips: how many, those scored against the reference,
+    those that agree fully, those the reference does not hold."""
+
+    split: str
+    clips: int
+    scored: int
+    agree: int
+    not_in_ref: int
+
+
+@dataclasses.dataclass(frozen=True)
+class LeastAgreeing:
+    """A scored clip that does not agree fully, with its measures (``LEAST_FIELDS``, None where NaN)."""
+
+    clip: str
+    split: str
+    query_frames_equal: float | None
+    visibility: float | None
+    median_mm: float | None
+    p95_mm: float | None
+
+
+@dataclasses.dataclass(frozen=True)
+class AgreementSummary:
+    """A release run's agreement with the reference: agree_mm, a ``SplitAgreement`` per split then
+    ``all``, and the ``LEAST_SHOWN`` least-agreeing scored clips."""
+
+    agree_mm: float
+    splits: tuple[SplitAgreement, ...]
+    least: tuple[LeastAgreeing, ...]
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "agree_mm": self.agree_mm,
+            "splits": [dataclasses.asdict(row) for row in self.splits],
+            "least": [dataclasses.asdict(row) for row in self.least],
+        }
+
+
+def agreement_summary(rows: list[VerdictRow]) -> AgreementSummary | None:
     """Per split (and ``all``): release clips, clips scored against the reference, those that agree
     fully, those the reference does not hold; and the ``LEAST_SHOWN`` least-agreeing scored clips
     (lowest visibility agreement, then largest p95 distance). None when no row has an agreement
     (``audit compare`` has not run on this run)."""
-    compared = [row for row in rows if "agreement" in row]
+    compared = [(row.verdict, row.agreement) for row in rows if row.agreement is not None]
     if not compared:
         return None
     per_split = []
     for split in (*SPLITS, "all"):
-        chosen = [row for row in rows if split in ("all", row["split"])]
-        entries = [row["agreement"] for row in chosen if "agreement" in row]
+        chosen = [row for row in rows if split in ("all", row.verdict.split)]
+        entries = [row.agreement for row in chosen if row.agreement is not None]
         per_split.append(
-            {
-                "split": split,
-                "clips": len(chosen),
-                "scored": sum(entry["status"] == "scored" for entry in entries),
-                "agree": sum(bool(entry.get("agrees")) for entry in entries),
-                "not_in_ref": sum(entry["status"] == "not_in_ref" for entry in entries),
-            }
+            SplitAgreement(
+                split,
+                len(chosen),
+                sum(entry.scored for entry in entries),
+                sum(entry.agrees for entry in entries),
+                sum(entry.status == "not_in_ref" for entry in entries),
+            )
         )
-    short = [row["agreement"] | row for row in compared if row["agreement"]["status"] == "scored"]
-    short = [row for row in short if not row["agrees"]]
-    short.sort(key=lambda row: (_number(row["visibility"]), -_number(row["p95_mm"])))
-    least = [{key: row[key] for key in ("clip", "split", *LEAST_FIELDS)} for row in short[:LEAST_SHOWN]]
-    return {"agree_mm": compared[0]["agreement"]["agree_mm"], "splits": per_split, "least": least}
+    short = [(verdict, entry) for verdict, entry in compared if entry.scored and not entry.agrees]
+    short.sort(key=lambda pair: (_number(pair[1].visibility), -_number(pair[1].p95_mm)))
+    least = tuple(
+        LeastAgreeing(verdict.clip, verdict.split, *(getattr(entry, key) for key in LEAST_FIELDS))
+        for verdict, entry in short[:LEAST_SHOWN]
+    )
+    return AgreementSummary(compared[0][1].agree_mm, tuple(per_split), least)
 
 
-LEAST_FIELDS = ("query_frames_equal", "visibility", "median_mm", "p95_mm")
-
-
-def _number(value) -> float:
+def _number(value: float | None) -> float:
     return float("nan") if value is None else float(value)
 
 
-def agreement_lines(summary: dict) -> list[str]:
+def agreement_lines(summary: AgreementSummary) -> list[str]:
     """``agreement_summary`` as the lines ``audit release`` prints."""
     lines = [
         f"  agreement with the reference (audit compare; agree fully: the same query frames and "
-        f"visibility, tracks within {summary['agree_mm']:g} mm at p95):",
+        f"visibility, tracks within {summary.agree_mm:g} mm at p95):",
         f"  {'split':<10}{'clips':>7}{'scored':>8}{'agree fully':>13}{'not in reference':>18}",
     ]
-    for row in summary["splits"]:
-        counts = f"{row['clips']:>7}{row['scored']:>8}{row['agree']:>13}{row['not_in_ref']:>18}"
-        lines.append(f"  {row['split']:<10}{counts}")
-    if summary["least"]:
+    for row in summary.splits:
+        counts = f"{row.clips:>7}{row.scored:>8}{row.agree:>13}{row.not_in_ref:>18}"
+        lines.append(f"  {row.split:<10}{counts}")
+    if summary.least:
         lines.append("  least agreeing (query frames equal, visibility, median mm, p95 mm):")
-        for row in summary["least"]:
-            values = ", ".join("-" if row[key] is None else f"{row[key]:.4g}" for key in LEAST_FIELDS)
-            lines.append(f"    {row['clip']} ({row['split']}): {values}")
+        for clip in summary.least:
+            measures = (getattr(clip, key) for key in LEAST_FIELDS)
+            values = ", ".join("-" if value is None else f"{value:.4g}" for value in measures)
+            lines.append(f"    {clip.clip} ({clip.split}): {values}")
     return lines

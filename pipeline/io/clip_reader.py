@@ -10,12 +10,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-from typing import BinaryIO
+
+import numpy as np
 
 from pipeline.core.images import jpeg_size
 from pipeline.io.files import read_bytes
 from pipeline.io.http import HttpClient, is_http, open_remote, shown
-from pipeline.io.npz_reader import NpzArchive, NpzError
+from pipeline.io.npz_reader import NpzArchive, NpzError, SeekableFile
 
 FRAMES = "images_jpeg_bytes"
 CLIP_KEYS = (FRAMES, "queries_xyt", "tracks_XYZ", "visibility", "fx_fy_cx_cy", "extrinsics_w2c")
@@ -70,8 +71,11 @@ def limits_from(assignments: list[str]) -> ReadLimits:
 
 
 def read_clip_file(
-    path: str, limits: ReadLimits = DEFAULT_LIMITS, keys=CLIP_KEYS, client: HttpClient | None = None
-) -> dict:
+    path: str,
+    limits: ReadLimits = DEFAULT_LIMITS,
+    keys: tuple[str, ...] = CLIP_KEYS,
+    client: HttpClient | None = None,
+) -> dict[str, np.ndarray]:
     """``read_clip_bytes`` of the file at ``path``, refusing an oversized file before reading it: any
     Beam filesystem's file is read whole; an ``http(s)://`` one by Range requests for the members of
     ``keys`` only (through ``client``, or one made with the default policy). HttpError when a remote
@@ -87,8 +91,11 @@ def read_clip_file(
 
 
 def read_clip_bytes(
-    data: bytes | BinaryIO, name: str, limits: ReadLimits = DEFAULT_LIMITS, keys=CLIP_KEYS
-) -> dict:
+    data: bytes | SeekableFile,
+    name: str,
+    limits: ReadLimits = DEFAULT_LIMITS,
+    keys: tuple[str, ...] = CLIP_KEYS,
+) -> dict[str, np.ndarray]:
     """The members of ``keys`` the clip (its bytes, or a seekable file) holds, as arrays (missing keys
     are absent from the result).
 
@@ -98,7 +105,9 @@ def read_clip_bytes(
     return read_clip_archive(NpzArchive(data, name), limits, keys)
 
 
-def read_clip_archive(archive: NpzArchive, limits: ReadLimits = DEFAULT_LIMITS, keys=CLIP_KEYS) -> dict:
+def read_clip_archive(
+    archive: NpzArchive, limits: ReadLimits = DEFAULT_LIMITS, keys: tuple[str, ...] = CLIP_KEYS
+) -> dict[str, np.ndarray]:
     """``read_clip_bytes`` of an opened archive."""
     name = archive.name
     present = [key for key in keys if key in archive.keys]

@@ -16,7 +16,7 @@ import io
 import math
 import struct
 import zipfile
-from typing import BinaryIO
+from typing import Protocol
 
 import numpy as np
 
@@ -49,11 +49,22 @@ class ArrayHeader:
     data_offset: int
 
 
+class SeekableFile(Protocol):
+    """What an archive is read through: a seekable binary file (an open local file, ``io.BytesIO``,
+    ``pipeline.io.http.RemoteFile``)."""
+
+    def read(self, size: int = -1, /) -> bytes: ...
+
+    def seek(self, offset: int, whence: int = io.SEEK_SET, /) -> int: ...
+
+    def tell(self) -> int: ...
+
+
 class NpzArchive:
     """The members of one ``.npz`` (its bytes, or a seekable binary file), read header first. On a
     remote file (``pipeline.io.http.RemoteFile``) each member's span is fetched in one request."""
 
-    def __init__(self, data: bytes | BinaryIO, name: str, max_members: int = 64):
+    def __init__(self, data: bytes | SeekableFile, name: str, max_members: int = 64):
         self.name = name
         self._file = io.BytesIO(data) if isinstance(data, bytes) else data
         try:

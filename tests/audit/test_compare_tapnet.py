@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from pipeline.audit.compare import compare_dirs, main
+from pipeline.audit.compare import Status, compare_dirs, main
 from pipeline.export.npz_writer import encode_npz
 
 # Frames of 16 x 32 px with f = 0.625 px: the evaluation scale 256 / min(16, 32) = 16 makes f = 10 px,
@@ -73,8 +73,8 @@ def test_nan_predictions_are_misses_and_leave_only_the_predictions_median(tmp_pa
     pred = on_z_axis(np.nan, 4, 6, 8)
     pred[0, 0] = np.nan
     write_prediction(new, "adt/a.npz", pred)
-    row = compare_dirs(str(ref), str(new))["clips"][0]
-    assert row["status"] == "scored"
+    row = compare_dirs(str(ref), str(new)).clips[0]
+    assert row.status is Status.SCORED
     # median: nanmedian of the GT norms keeps track 0 (its GT is a number): median(1, 2, 3, 4) = 2.5;
     # the prediction's drops it: median(4, 6, 8) = 6. Scale 2.5 / 6 = 5/12 puts tracks 1-3 at 5z/6,
     # errors z/6 = 0.33, 0.5, 0.67 m against radii d * z / 10 = 0.2, 0.3, 0.4 m at 1 px (all miss)
@@ -82,19 +82,19 @@ def test_nan_predictions_are_misses_and_leave_only_the_predictions_median(tmp_pa
     # pts_within = 0, 3/4, 3/4, 3/4, 3/4 -> APD 0.6. jaccard: 1 px 0 / (4 + 4 false positives) = 0,
     # then 3 / (4 + 1) = 0.6 -> AJ 0.48. (Dropping track 0 from both medians gives scale 3 / 6,
     # every track 1-3 exact and APD 0.75; a plain median gives a NaN scale and 0.)
-    assert row["apd_median"] == pytest.approx(0.6)
-    assert row["aj_median"] == pytest.approx(0.48)
+    assert row.scores.apd["median"] == pytest.approx(0.6)
+    assert row.scores.aj["median"] == pytest.approx(0.48)
     # none: errors z = 2, 3, 4 m within only at 16 px (radius 1.6 z) -> pts_within_16 = 3/4,
     # APD 0.75 / 5 = 0.15; jaccard_16 = 3/5, the others 0 -> AJ 0.12.
-    assert row["apd_none"] == pytest.approx(0.15)
-    assert row["aj_none"] == pytest.approx(0.12)
+    assert row.scores.apd["none"] == pytest.approx(0.15)
+    assert row.scores.aj["none"] == pytest.approx(0.12)
     # per_trajectory: track 0's scale is NaN (a miss), tracks 1-3 scale by 1/2 and are exact:
     # pts_within 3/4 at every threshold, jaccard 3 / (4 + 1).
-    assert row["apd_per_trajectory"] == pytest.approx(0.75)
-    assert row["aj_per_trajectory"] == pytest.approx(0.6)
-    assert row["oa"] == 1.0
+    assert row.scores.apd["per_trajectory"] == pytest.approx(0.75)
+    assert row.scores.aj["per_trajectory"] == pytest.approx(0.6)
+    assert row.scores.oa == 1.0
     # Unscaled errors inf (NaN), 2, 3, 4 -> median (3 + 4) / 2.
-    assert row["median_error_m"] == 3.5
+    assert row.scores.median_error_m == 3.5
 
 
 def test_a_missing_prediction_file_counts_zero_and_is_named(tmp_path, capsys):
@@ -131,12 +131,12 @@ def test_unreadable_predictions_count_zero(tmp_path):
     np.savez(new / "adt" / "c.npz", tracks_XYZ=at_2m(1, 2))  # no visibility
     (new / "adt" / "d.npz").write_bytes(b"not an npz")
     report = compare_dirs(str(ref), str(new))
-    assert [row["status"] for row in report["clips"]] == ["scored", "zero", "zero", "zero"]
-    assert "not an .npz archive" in report["clips"][1]["error"]
-    assert "missing ['visibility']" in report["clips"][2]["error"]
+    assert [row.status.value for row in report.clips] == ["scored", "zero", "zero", "zero"]
+    assert "not an .npz archive" in report.clips[1].error
+    assert "missing ['visibility']" in report.clips[2].error
     # (1 + 0 + 0 + 0) / 4 on every tapnet metric.
     for key in TAPNET_KEYS:
-        assert report["sources"][0][key] == 0.25, key
+        assert report.sources[0].means.tapnet()[key] == 0.25, key
 
 
 def test_a_pickled_prediction_is_refused_unread_and_counts_zero(tmp_path, monkeypatch):
@@ -149,10 +149,10 @@ def test_a_pickled_prediction_is_refused_unread_and_counts_zero(tmp_path, monkey
     write_prediction(new, "adt/a.npz", at_2m(1, 2), tracks_XYZ=np.array([None, 1.0], dtype=object))
     monkeypatch.setattr(pickle, "load", refuse)
     monkeypatch.setattr(pickle, "loads", refuse)
-    row = compare_dirs(str(ref), str(new))["clips"][0]
-    assert row["status"] == "zero"
-    assert "pickle" in row["error"]
-    assert row["aj_median"] == 0.0
+    row = compare_dirs(str(ref), str(new)).clips[0]
+    assert row.status is Status.ZERO
+    assert "pickle" in row.error
+    assert row.scores.aj["median"] == 0.0
 
 
 def test_a_prediction_only_file_is_scored(tmp_path):
@@ -164,15 +164,15 @@ def test_a_prediction_only_file_is_scored(tmp_path):
     pred[0, :, 0] += [0.0, 0.3, 1.0, 5.0]
     write_prediction(new, "pstudio/a.npz", pred)
     assert sorted(np.load(new / "pstudio" / "a.npz").files) == ["tracks_XYZ", "visibility"]
-    row = compare_dirs(str(ref), str(new))["clips"][0]
-    assert row["status"] == "scored"
+    row = compare_dirs(str(ref), str(new)).clips[0]
+    assert row.status is Status.SCORED
     # Within per threshold: 1, 2, 2, 3, 3 of 4 -> APD (1 + 2 + 2 + 3 + 3) / 4 / 5 = 0.55.
     # jaccard = c / (4 + (4 - c)) = 1/7, 2/6, 2/6, 3/5, 3/5 -> AJ = (1/7 + 2/3 + 6/5) / 5 = 0.401905.
-    assert row["apd_none"] == pytest.approx(0.55)
-    assert row["aj_none"] == pytest.approx(0.401905, abs=1e-6)
-    assert row["oa"] == 1.0
+    assert row.scores.apd["none"] == pytest.approx(0.55)
+    assert row.scores.aj["none"] == pytest.approx(0.401905, abs=1e-6)
+    assert row.scores.oa == 1.0
     # Median of the errors 0, 0.3, 1.0, 5.0 -> (0.3 + 1.0) / 2.
-    assert row["median_error_m"] == pytest.approx(0.65)
+    assert row.scores.median_error_m == pytest.approx(0.65)
 
 
 def test_prediction_members_are_capped_by_the_ref_clips_size(tmp_path):
@@ -180,10 +180,10 @@ def test_prediction_members_are_capped_by_the_ref_clips_size(tmp_path):
     ref, new = tmp_path / "ref", tmp_path / "new"
     write_ref(ref, "adt/a.npz", at_2m(1, 4))
     write_prediction(new, "adt/a.npz", at_2m(50, 4))
-    row = compare_dirs(str(ref), str(new))["clips"][0]
-    assert row["status"] == "zero"
-    assert "REF's clip has T = 1 frames and N = 4 tracks" in row["error"]
-    assert "refused" in row["error"]
+    row = compare_dirs(str(ref), str(new)).clips[0]
+    assert row.status is Status.ZERO
+    assert "REF's clip has T = 1 frames and N = 4 tracks" in row.error
+    assert "refused" in row.error
 
 
 def test_clips_of_different_lengths_weigh_one_each_and_sources_one_each(tmp_path):
@@ -204,23 +204,23 @@ def test_clips_of_different_lengths_weigh_one_each_and_sources_one_each(tmp_path
     write_ref(ref, "pstudio/d.npz", at_2m(3, 2))
     write_prediction(new, "pstudio/d.npz", at_2m(3, 2) + far)
     report = compare_dirs(str(ref), str(new))
-    assert [row["status"] for row in report["clips"]] == ["scored", "scored", "zero", "scored"]
-    assert "shapes differ" in report["clips"][2]["error"]
-    adt, pstudio, overall = report["sources"]
+    assert [row.status.value for row in report.clips] == ["scored", "scored", "zero", "scored"]
+    assert "shapes differ" in report.clips[2].error
+    adt, pstudio, overall = report.sources
     # adt: each clip weighs 1 whatever its length: APD (1/4 + 1 + 0) / 3 = 5/12, AJ (1/7 + 1 + 0) / 3
     # = 8/21, OA (1 + 1 + 0) / 3 = 2/3. (Pooling adt's points would give APD (1 + 2 + 0) / 9 = 1/3.)
-    assert adt["apd_none"] == pytest.approx(5 / 12)
-    assert adt["aj_none"] == pytest.approx(8 / 21)
-    assert adt["oa"] == pytest.approx(2 / 3)
-    assert pstudio["apd_none"] == 0.0
-    assert pstudio["aj_none"] == 0.0
-    assert pstudio["oa"] == 1.0
+    assert adt.means.apd["none"] == pytest.approx(5 / 12)
+    assert adt.means.aj["none"] == pytest.approx(8 / 21)
+    assert adt.means.oa == pytest.approx(2 / 3)
+    assert pstudio.means.apd["none"] == 0.0
+    assert pstudio.means.aj["none"] == 0.0
+    assert pstudio.means.oa == 1.0
     # all: the mean of the source means, APD (5/12 + 0) / 2 = 5/24, AJ 4/21, OA (2/3 + 1) / 2 = 5/6
     # (the mean over the 4 clips would give APD 5/16).
-    assert overall["apd_none"] == pytest.approx(5 / 24)
-    assert overall["aj_none"] == pytest.approx(4 / 21)
-    assert overall["oa"] == pytest.approx(5 / 6)
-    assert (overall["clips"], overall["zero"]) == (4, 1)
+    assert overall.means.apd["none"] == pytest.approx(5 / 24)
+    assert overall.means.aj["none"] == pytest.approx(4 / 21)
+    assert overall.means.oa == pytest.approx(5 / 6)
+    assert (overall.clips, overall.zero) == (4, 1)
 
 
 def test_a_nan_clip_metric_makes_the_mean_nan_as_in_tapnet(tmp_path):
@@ -231,10 +231,10 @@ def test_a_nan_clip_metric_makes_the_mean_nan_as_in_tapnet(tmp_path):
     write_ref(ref, "adt/b.npz", at_2m(1, 2))
     for name in ("a", "b"):
         write_prediction(new, f"adt/{name}.npz", at_2m(1, 2))
-    adt = compare_dirs(str(ref), str(new))["sources"][0]
-    assert np.isnan(adt["apd_none"])
-    assert adt["aj_none"] == 0.5
-    assert adt["oa"] == 0.5
+    adt = compare_dirs(str(ref), str(new)).sources[0]
+    assert np.isnan(adt.means.apd["none"])
+    assert adt.means.aj["none"] == 0.5
+    assert adt.means.oa == 0.5
 
 
 def test_query_frames_outside_the_clip_zero_the_per_trajectory_scores_only(tmp_path):
@@ -243,10 +243,10 @@ def test_query_frames_outside_the_clip_zero_the_per_trajectory_scores_only(tmp_p
     ref, new = tmp_path / "ref", tmp_path / "new"
     write_ref(ref, "adt/a.npz", at_2m(1, 2), query_t=5.0)
     write_prediction(new, "adt/a.npz", at_2m(1, 2))
-    row = compare_dirs(str(ref), str(new))["clips"][0]
-    assert row["aj_per_trajectory"] == row["apd_per_trajectory"] == 0.0
-    assert row["aj_median"] == row["apd_none"] == row["oa"] == 1.0
-    assert "per_trajectory counted as 0" in row["note"]
+    row = compare_dirs(str(ref), str(new)).clips[0]
+    assert row.scores.aj["per_trajectory"] == row.scores.apd["per_trajectory"] == 0.0
+    assert row.scores.aj["median"] == row.scores.apd["none"] == row.scores.oa == 1.0
+    assert "per_trajectory counted as 0" in row.note
 
 
 def test_a_clip_list_picks_the_benchmark_and_a_missing_ref_clip_is_left_out(tmp_path, capsys):

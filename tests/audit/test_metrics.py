@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from pipeline.audit.compare import compare_dirs, main, read_reference
+from pipeline.audit.compare import Status, compare_dirs, main, read_reference
 from pipeline.audit.metrics import (
     PIXEL_THRESHOLDS,
     eval_intrinsics,
@@ -193,21 +193,21 @@ def test_mismatched_and_missing_predictions_count_zero_and_unmatched_clips_are_l
     write_clip(new, "adt", "a_1.npz", synthetic_clip(1))
     write_clip(new, "drivetrack", "extra.npz", synthetic_clip(3))
     report = compare_dirs(str(ref_dir), str(new))
-    first, second, third = report["clips"]
-    assert first["status"] == "zero"
-    assert "shapes differ" in first["error"]
-    assert first["aj_median"] == 0.0
-    assert second["status"] == "scored"
-    assert second["aj_median"] == 1.0
-    assert third["status"] == "zero"
-    assert third["error"] == "no prediction file"
-    assert report["only_in_new"] == ["drivetrack/extra.npz"]
+    first, second, third = report.clips
+    assert first.status is Status.ZERO
+    assert "shapes differ" in first.error
+    assert first.scores.aj["median"] == 0.0
+    assert second.status is Status.SCORED
+    assert second.scores.aj["median"] == 1.0
+    assert third.status is Status.ZERO
+    assert third.error == "no prediction file"
+    assert report.only_in_new == ["drivetrack/extra.npz"]
     # adt: (0 + 1) / 2; pstudio: 0; all: the mean of the two source means.
-    adt, pstudio, overall = report["sources"]
-    assert (adt["clips"], adt["zero"], adt["aj_median"]) == (2, 1, 0.5)
-    assert (pstudio["clips"], pstudio["zero"], pstudio["aj_median"]) == (1, 1, 0.0)
-    assert overall["aj_median"] == 0.25
-    assert overall["median_error_m"] == 0.0
+    adt, pstudio, overall = report.sources
+    assert (adt.clips, adt.zero, adt.means.aj["median"]) == (2, 1, 0.5)
+    assert (pstudio.clips, pstudio.zero, pstudio.means.aj["median"]) == (1, 1, 0.0)
+    assert overall.means.aj["median"] == 0.25
+    assert overall.means.median_error_m == 0.0
     assert main([str(ref_dir), str(tmp_path / "absent")]) == 2
     (tmp_path / "empty").mkdir()
     assert main([str(ref_dir), str(tmp_path / "empty")]) == 1
@@ -229,11 +229,12 @@ def test_metrics_fall_with_noise_and_apd_matches_the_chi_distribution(ref_dir, t
         noisy["tracks_XYZ"] = (gt["tracks_XYZ"] + noise).astype(np.float32)
         new = tmp_path / f"noisy_{sigma}"
         write_clip(new, "adt", "a_0.npz", noisy)
-        row = compare_dirs(str(ref_dir), str(new))["clips"][0]
-        assert row["oa"] == 1.0
+        row = compare_dirs(str(ref_dir), str(new)).clips[0]
+        assert row.scores.oa == 1.0
         expected = expected_apd(gt["tracks_XYZ"][..., 2].astype(np.float64), sigma)
-        assert row["apd_none"] == pytest.approx(expected, abs=0.01), (sigma, row["apd_none"], expected)
+        apd = row.scores.apd["none"]
+        assert apd == pytest.approx(expected, abs=0.01), (sigma, apd, expected)
         results.append(row)
     for key in SCORE_KEYS:
-        values = [row[key] for row in results]
+        values = [row.scores.tapnet()[key] for row in results]
         assert values[0] > values[1] > values[2] > values[3], (key, values)
