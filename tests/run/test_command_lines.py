@@ -290,18 +290,9 @@ def test_a_terminal_gets_a_live_progress_bar(pstudio_sample, tmp_path):
     assert "\nunit dome/camera_3: 1 of 1 clip(s) written" in text.replace("\r", "\n")  # the bar counts
 
 
-def test_workers_are_as_quiet_as_the_main_process(pstudio_sample, tmp_path):
-    result = command(
-        "pipeline.run",
-        "--source",
-        "pstudio",
-        "--input",
-        pstudio_sample[0],
-        "--output",
-        str(tmp_path / "o"),
-        "--direct_running_mode=multi_processing",
-        "--direct_num_workers=2",
-    )
+def test_workers_are_as_quiet_as_the_main_process(reference_run):
+    """The pstudio run on 2 worker processes (tests/pstudio/test_cli.py compares its clips)."""
+    _, result = reference_run.multi_processing("pstudio")
     assert result.returncode == 0, result.stderr[-3000:]
     assert result.stderr == ""
     lines = [line for line in result.stdout.splitlines() if line.startswith("[")]
