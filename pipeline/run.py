@@ -2,8 +2,12 @@
 TAPVid-3D clips from a source dataset (``pipeline/runner/command.py``; ``--help`` lists the options
 and exit statuses)."""
 
-from pipeline.pipes import run_command
-from pipeline.runner.command import main, stop_workers
+import time
+
+STARTED = time.monotonic()  # the command's start for its "finished in": the imports below count too
+
+from pipeline.pipes import run_command  # noqa: E402
+from pipeline.runner.command import main, stop_workers  # noqa: E402
 
 if __name__ == "__main__":
-    run_command(main, stop=stop_workers)
+    run_command(lambda: main(started=STARTED), stop=stop_workers)

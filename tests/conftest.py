@@ -14,9 +14,11 @@ from __future__ import annotations
 
 import fcntl
 import hashlib
+import json
 import os
 import pathlib
 import shutil
+import subprocess
 
 import cv2
 import numpy as np
@@ -141,30 +143,55 @@ def pstudio_links(pstudio_sample, tmp_path):
     return root
 
 
+def shared_folder(factory: pytest.TempPathFactory) -> pathlib.Path:
+    """A folder of this pytest run that every xdist worker sees (the workers' basetemps share a
+    parent made for the run); without xdist, the run's own basetemp."""
+    base = factory.getbasetemp()
+    return base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+
+
 class ReferenceRuns:
     """``runs(source)``: the output folder of one plain DirectRunner run on that source's sample
     (drivetrack or pstudio), made on first use by ``python -m pipeline.run`` in a subprocess (the
     CLI's end-to-end run, ``runs.result(source)`` its exit code and output) and shared by every
-    test that reads a finished run or compares bytes with one. Never write into it: copy it."""
+    test that reads a finished run or compares bytes with one. ``runs.multi_processing(source)``:
+    the same run on the DirectRunner's multi_processing mode with 2 workers (its folder and result).
+    Each run is made once per pytest run, whichever xdist worker asks first (the others wait for
+    it under a file lock, then read its folder and result). Never write into a folder: copy it."""
+
+    MULTI_PROCESSING = ("--direct_running_mode=multi_processing", "--direct_num_workers=2")
 
     def __init__(self, factory: pytest.TempPathFactory, inputs: dict[str, str]):
-        self._factory, self._inputs = factory, inputs
-        self._made: dict[str, tuple[str, object]] = {}
+        self._shared, self._inputs = shared_folder(factory), inputs
+        self._made: dict[str, tuple[str, subprocess.CompletedProcess]] = {}
 
     def __call__(self, source: str) -> str:
         return self._run(source)[0]
 
-    def result(self, source: str):
+    def result(self, source: str) -> subprocess.CompletedProcess:
         """The ``subprocess.CompletedProcess`` of that run."""
         return self._run(source)[1]
 
-    def _run(self, source: str) -> tuple[str, object]:
-        if source not in self._made:
-            out = str(self._factory.mktemp(f"reference_{source}"))
-            result = run_pipeline(source, "--input", self._inputs[source], "--output", out)
-            assert result.returncode == 0, result.stderr[-3000:]
-            self._made[source] = (out, result)
-        return self._made[source]
+    def multi_processing(self, source: str) -> tuple[str, subprocess.CompletedProcess]:
+        """(output folder, completed process) of the run on 2 worker processes."""
+        return self._run(source, self.MULTI_PROCESSING, "multi_processing")
+
+    def _run(
+        self, source: str, options: tuple[str, ...] = (), mode: str = "direct"
+    ) -> tuple[str, subprocess.CompletedProcess]:
+        name = f"reference_{mode}_{source}"
+        if name not in self._made:
+            out, record = self._shared / name, self._shared / f"{name}.json"
+            with open(self._shared / f".{name}.lock", "w") as lock:
+                fcntl.flock(lock, fcntl.LOCK_EX)  # another worker making it: wait, then read it
+                if not record.exists():
+                    shutil.rmtree(out, ignore_errors=True)  # a worker's run that failed
+                    given = ("--input", self._inputs[source], "--output", str(out), *options)
+                    result = run_pipeline(source, *given)
+                    assert result.returncode == 0, result.stderr[-3000:]
+                    record.write_text(json.dumps([result.args, 0, result.stdout, result.stderr]))
+            self._made[name] = (str(out), subprocess.CompletedProcess(*json.loads(record.read_text())))
+        return self._made[name]
 
 
 @pytest.fixture(scope="session")

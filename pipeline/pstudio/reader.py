@@ -32,13 +32,11 @@ PARAMS_SHAPES: dict[str, tuple[str | int, ...]] = {  # member -> shape with T, N
 
 
 def data_root(input_root: str) -> str:
-    """The folder holding ``<seq>/train_meta.json``: ``<input>/data`` if present, else ``<input>``."""
+    """The folder holding ``<seq>/train_meta.json``: ``<input>/data`` if present, else ``<input>``.
+    The listing stops at the first match (the whole of data/, every image and mask, otherwise)."""
     candidate = FileSystems.join(input_root, "data")
-    return (
-        candidate
-        if FileSystems.match([FileSystems.join(candidate, "*", "train_meta.json")])[0].metadata_list
-        else input_root
-    )
+    pattern = FileSystems.join(candidate, "*", "train_meta.json")
+    return candidate if FileSystems.match([pattern], [1])[0].metadata_list else input_root
 
 
 def list_sequences(input_root: str) -> list[str]:

@@ -1,4 +1,5 @@
-"""One Panoptic Studio camera's candidate clip, on arrays (no Beam, no files).
+"""One Panoptic Studio camera's candidate clip, on arrays (no Beam, no files). Every camera's masks
+are read first (``read_masks``), so a bad one fails the unit before the Gaussian work.
 
 1. Queries: pixels on the unit camera's foreground mask at random frames; the splats' median
    depth (pipeline/pstudio/render.py) rendered at those pixels' centres; unprojected; attached
@@ -200,6 +201,14 @@ def track_first_visible(
     return np.concatenate(kept), np.concatenate(tracks, axis=1), np.concatenate(visible, axis=1), depth_maps
 
 
+def read_masks(unit: UnitInput) -> None:
+    """Read every camera's mask at every frame, as the multi-view mask statistic will: a missing or
+    bad mask fails the unit before any Gaussian is projected (each is decoded once, then cached)."""
+    for t in range(unit.gaussians.num_frames):
+        for view in range(len(unit.views.camera_ids)):
+            unit.mask(view, t)
+
+
 def annotate_unit(unit: UnitInput, settings: PstudioConfig, choices: RunChoices) -> list[ClipRecord]:
     """One candidate clip (oversampled tracks with their statistics) for the unit; none when
     ``--queries-from`` holds no clip of its name."""
@@ -208,6 +217,7 @@ def annotate_unit(unit: UnitInput, settings: PstudioConfig, choices: RunChoices)
     queries = choices.given.of(unit.clip_name)
     if choices.given.active and queries is None:
         return []
+    read_masks(unit)
     if queries is not None:
         gaussians = match_given_queries(unit, queries)
         query_frames, distance = queries[:, 2].astype(np.int64), np.full(len(queries), np.nan)

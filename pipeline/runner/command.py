@@ -263,9 +263,10 @@ def stopped(prepared: PreparedRun) -> int:
     return INTERRUPTED
 
 
-def main(argv: list[str] | None = None) -> int:
-    """The command; its exit status (the module's docstring lists them)."""
-    started = time.monotonic()
+def main(argv: list[str] | None = None, started: float | None = None) -> int:
+    """The command; its exit status (the module's docstring lists them). ``started``: the
+    ``time.monotonic()`` its "finished in" counts from (default: now)."""
+    started = time.monotonic() if started is None else started
     try:
         args, beam_args = parse_args(sys.argv[1:] if argv is None else argv)
     except UsageError as problem:

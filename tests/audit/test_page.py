@@ -13,6 +13,7 @@ import dataclasses
 import json
 import os
 import re
+import shutil
 
 import cv2
 import numpy as np
@@ -65,13 +66,14 @@ GRIDS = {
 
 
 @pytest.fixture(scope="module")
-def out(pstudio_sample, sample_split, tmp_path_factory):
-    """A Panoptic Studio run and a DriveTrack --release run, in one output folder; the release run
-    compared with itself (``audit compare``: every clip it wrote agrees fully)."""
+def out(reference_run, sample_split, tmp_path_factory):
+    """A Panoptic Studio run (a copy of the plain one) and a DriveTrack --release run, in one output
+    folder; the release run compared with itself (``audit compare``: every clip it wrote agrees
+    fully)."""
     splits = tmp_path_factory.mktemp("splits") / "splits.json"
     splits.write_text(json.dumps(RELEASE))
-    folder = tmp_path_factory.mktemp("page_run")
-    assert run_main(["--source", "pstudio", "--input", pstudio_sample[0], "--output", str(folder)]) == 0
+    folder = tmp_path_factory.mktemp("page") / "run"
+    shutil.copytree(reference_run("pstudio"), folder)
     release = ["--release", str(splits)]
     assert (
         run_main(["--source", "drivetrack", "--input", sample_split[0], "--output", str(folder), *release])

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 
 import pyarrow.parquet as pq
 import pytest
@@ -20,9 +21,10 @@ def summary(out, source):
 
 
 @pytest.fixture(scope="module")
-def pstudio_run(pstudio_sample, tmp_path_factory):
-    out = tmp_path_factory.mktemp("sweep_pstudio")
-    assert run_main(["--source", "pstudio", "--input", pstudio_sample[0], "--output", str(out)]) == 0
+def pstudio_run(reference_run, tmp_path_factory):
+    """A copy of the plain Panoptic Studio run (the sweep writes its report into the run's folder)."""
+    out = tmp_path_factory.mktemp("sweep") / "pstudio"
+    shutil.copytree(reference_run("pstudio"), out)
     return out
 
 

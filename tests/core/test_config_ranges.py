@@ -9,7 +9,7 @@ import pytest
 from pipeline.adt.settings import AdtConfig
 from pipeline.settings.fields import check_ranges, config_from_dict, settings_items, with_overrides
 from pipeline.settings.run_config import RunConfig
-from tests.support.cli import run_pipeline
+from tests.support.cli import run_in_process
 
 REFUSED = [
     # (assignments, the whole message): one row per kind of rule.
@@ -158,7 +158,7 @@ def test_a_config_rebuilt_from_a_run_record_is_checked_too():
 
 
 def test_the_cli_refuses_a_bad_setting_before_any_work(tmp_path):
-    result = run_pipeline("pstudio", "--set", "adt.image_size=0", "--output", str(tmp_path / "out"))
+    result = run_in_process("pstudio", "--set", "adt.image_size=0", "--output", str(tmp_path / "out"))
     assert result.returncode == 2
     # Beam may log an import warning first; the refusal is the last line (run.py may prefix it).
     message = "--set adt.image_size=0: must be an integer in [2, 8192] and even"

@@ -16,7 +16,7 @@ from pipeline.samples.waymo_world import SEGMENT
 from pipeline.settings.fields import with_overrides
 from pipeline.settings.run_config import RunConfig
 from tests.support import stress_worlds
-from tests.support.units import drivetrack_clips, drivetrack_input
+from tests.support.units import drivetrack_segment_clips
 from tests.support.waymo_truth import true_tracks
 
 REFINED = ["drivetrack.refined_visibility=true"]
@@ -38,8 +38,8 @@ def scored_clips(split: str, segment: str, world, overrides: list[str], cameras=
     """The clips of a world's segment made with ``overrides``, each with its ray-cast truth."""
     config = with_overrides(RunConfig(), overrides)
     scored = []
-    for camera in cameras:
-        for clip in drivetrack_clips(drivetrack_input(split, segment, camera), config):
+    for camera, clips in drivetrack_segment_clips(split, segment, cameras, config).items():
+        for clip in clips:
             tracks, pixels, _, visible, _ = true_tracks(world, clip, camera)
             scored.append(Scored(camera, clip, tracks, pixels, visible))
     return scored

@@ -16,7 +16,7 @@ from pipeline.samples.waymo_world import SEGMENT
 from pipeline.settings.fields import with_overrides
 from pipeline.settings.run_config import RunConfig
 from pipeline.sources import RunChoices
-from tests.support.units import drivetrack_clips, drivetrack_input
+from tests.support.units import drivetrack_clips, drivetrack_input, drivetrack_segment_clips
 from tests.support.waymo_truth import true_tracks, world_points
 
 
@@ -88,8 +88,9 @@ def depth_test_agreement(sample_split, world):
     def agreement(setting: str | None) -> float:
         config = with_overrides(RunConfig(), [DEPTH_TEST] + ([setting] if setting else []))
         agree = total = 0
-        for camera in (1, 3):
-            for clip in drivetrack_clips(drivetrack_input(sample_split[0], SEGMENT, camera), config):
+        made = drivetrack_segment_clips(sample_split[0], SEGMENT, (1, 3), config)
+        for camera, camera_clips in made.items():
+            for clip in camera_clips:
                 visible = true_tracks(world, clip, camera)[3]
                 agree, total = agree + (visible == clip.visibility).sum(), total + visible.size
         return agree / total

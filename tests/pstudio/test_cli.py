@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 from pipeline.validate import main as validate_main
-from tests.support.cli import run_pipeline
 
 
 def clip_files(out):
@@ -38,18 +37,9 @@ def test_run_writes_valid_clips(direct_run):
     assert "pstudio: 4 unit(s), 0 finished earlier, 0 failed" in result.stdout
 
 
-def test_multiprocessing_runner_writes_identical_bytes(direct_run, pstudio_sample, tmp_path):
+def test_multiprocessing_runner_writes_identical_bytes(direct_run, reference_run):
     out, _ = direct_run
-    other = str(tmp_path / "mp")
-    result = run_pipeline(
-        "pstudio",
-        "--input",
-        pstudio_sample[0],
-        "--output",
-        other,
-        "--direct_running_mode=multi_processing",
-        "--direct_num_workers=2",
-    )
+    other, result = reference_run.multi_processing("pstudio")
     assert result.returncode == 0, result.stderr[-3000:]
     assert clip_files(other) == clip_files(out)
     for name in clip_files(out):

@@ -20,7 +20,7 @@ import psutil
 import pytest
 
 from pipeline.runner.splits import parse_release
-from tests.support.cli import REPO, clip_bytes, run_in_process
+from tests.support.cli import REPO, clip_bytes, command_in_process, run_in_process
 
 PYTHON = [sys.executable, "-m"]
 RESUMED = "finished by an earlier run with these settings; skipped"
@@ -72,7 +72,7 @@ def test_a_typo_is_refused_with_the_nearest_option_before_any_work(tmp_path):
 )
 def test_bad_beam_options_are_one_line_before_the_sample_world(tmp_path, option, message):
     out = tmp_path / "out"
-    result = command("pipeline.run", "--source", "drivetrack", "--output", str(out), option)
+    result = command_in_process("pipeline.run", "--source", "drivetrack", "--output", str(out), option)
     assert result.returncode == 2
     assert "Traceback" not in result.stderr
     (line,) = result.stderr.splitlines()
@@ -155,7 +155,7 @@ COMMANDS = [
 
 @pytest.mark.parametrize("words", COMMANDS, ids=" ".join)
 def test_help_goes_to_stdout_as_plain_text_with_exit_0(words):
-    result = command(*words, "--help")
+    result = command_in_process(*words, "--help")
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip()
     assert "``" not in result.stdout  # the docstrings' reStructuredText marks are not shown
@@ -163,9 +163,18 @@ def test_help_goes_to_stdout_as_plain_text_with_exit_0(words):
     assert result.stderr == ""
 
 
+@pytest.mark.parametrize("words", [("pipeline.run",), ("benchmarks",)], ids=" ".join)
+def test_help_from_a_new_interpreter_is_the_same(words, monkeypatch):
+    """``python -m`` itself: the help of ``main`` in this process, exit 0, nothing on stderr (the other
+    commands' new interpreters: tests/run/test_closed_output.py and test_faults.py)."""
+    monkeypatch.setenv("COLUMNS", "100")  # argparse's width, for both
+    shown, expected = command(*words, "--help"), command_in_process(*words, "--help")
+    assert (shown.returncode, shown.stdout, shown.stderr) == (0, expected.stdout, "")
+
+
 @pytest.mark.parametrize("words", COMMANDS, ids=" ".join)
 def test_an_unknown_option_is_one_line_with_exit_2(words):
-    result = command(*words, "--no-such-option")
+    result = command_in_process(*words, "--no-such-option")
     assert result.returncode == 2
     (line,) = result.stderr.splitlines()
     assert "--no-such-option" in line or "unknown" in line
@@ -210,12 +219,12 @@ def test_validate_takes_one_clip_and_says_what_is_missing(reference_run, tmp_pat
         for n in clip_bytes(reference_run("pstudio"), "pstudio")
     )[0]
     assert validate_main([clip]) == 0
-    missing = command("pipeline.validate", str(tmp_path / "absent"))
+    missing = command_in_process("pipeline.validate", str(tmp_path / "absent"))
     assert (missing.returncode, missing.stderr.strip()) == (
         2,
         f"validate: {tmp_path / 'absent'} does not exist",
     )
-    empty = command("pipeline.validate", str(tmp_path))
+    empty = command_in_process("pipeline.validate", str(tmp_path))
     assert empty.returncode == 2
     assert "no .npz clips in" in empty.stderr
 
@@ -290,18 +299,9 @@ def test_a_terminal_gets_a_live_progress_bar(pstudio_sample, tmp_path):
     assert "\nunit dome/camera_3: 1 of 1 clip(s) written" in text.replace("\r", "\n")  # the bar counts
 
 
-def test_workers_are_as_quiet_as_the_main_process(pstudio_sample, tmp_path):
-    result = command(
-        "pipeline.run",
-        "--source",
-        "pstudio",
-        "--input",
-        pstudio_sample[0],
-        "--output",
-        str(tmp_path / "o"),
-        "--direct_running_mode=multi_processing",
-        "--direct_num_workers=2",
-    )
+def test_workers_are_as_quiet_as_the_main_process(reference_run):
+    """The pstudio run on 2 worker processes (tests/pstudio/test_cli.py compares its clips)."""
+    _, result = reference_run.multi_processing("pstudio")
     assert result.returncode == 0, result.stderr[-3000:]
     assert result.stderr == ""
     lines = [line for line in result.stdout.splitlines() if line.startswith("[")]

@@ -8,7 +8,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from pipeline.validate import main as validate_main
-from tests.support.cli import run_pipeline
+from tests.support.cli import run_in_process, run_pipeline
 
 
 def run_cli(*args):
@@ -68,6 +68,6 @@ def test_multiprocessing_runner_writes_identical_bytes(direct_run, sample_split,
 
 
 def test_unknown_setting_is_refused_before_running(tmp_path):
-    result = run_cli("--input", str(tmp_path), "--set", "flicker.bogus=1")
+    result = run_in_process("drivetrack", "--input", str(tmp_path), "--set", "flicker.bogus=1")
     assert result.returncode == 2
     assert "unknown setting" in result.stderr

@@ -33,6 +33,17 @@ def drivetrack_clips(unit: DriveTrackInput, config: RunConfig) -> list[ClipRecor
     return list(_ok(annotate_cameras([unit], config.section(DriveTrackConfig), choices)[0]).clips)
 
 
+def drivetrack_segment_clips(
+    input_root: str, segment: str, cameras: tuple[int, ...], config: RunConfig
+) -> dict[int, list[ClipRecord]]:
+    """Camera -> the candidate clips of a segment's cameras annotated together, as the run's group
+    does (one lidar read for all; raises a camera's failure)."""
+    choices = RunChoices.of(config, "drivetrack")
+    units = [_ok(unit) for unit in load_units(input_root, segment, list(cameras))]
+    made = annotate_cameras(units, config.section(DriveTrackConfig), choices)
+    return {camera: list(_ok(result).clips) for camera, result in zip(cameras, made, strict=True)}
+
+
 def pstudio_input(input_root: str, sequence: str, camera: int, config: RunConfig) -> StudioInput:
     """What the (sequence, camera) unit reads."""
     return camera_input(load_sequence(input_root, sequence, config.section(PstudioConfig)), camera)
