@@ -39,16 +39,26 @@ def away_from_edges(pixels: np.ndarray, margin: float = 0.01) -> np.ndarray:
     return inside(pixels + margin) == inside(pixels - margin)
 
 
-def test_lidar_points_appear_where_the_truth_says(sample_split, world):
-    """Each point's camera coordinates as seen, its pinhole pixel and its sensor pixel."""
+@pytest.fixture(scope="module")
+def at_frames(sample_split, world):
+    """(camera models of cameras 1-3, (camera, frame) -> the frame's lidar points and ``seen`` of them
+    at FRAMES), which the tests against the truth share."""
     folder, generated = sample_split
+    models = {camera: unit_camera(drivetrack_input(folder, SEGMENT, camera)) for camera in (1, 2, 3)}
+    points = {frame: lidar_points(generated, frame) for frame in FRAMES}
+    views = {(c, t): (points[t], *seen(world, c, t, points[t])) for c in models for t in FRAMES}
+    return models, views
+
+
+def test_lidar_points_appear_where_the_truth_says(at_frames):
+    """Each point's camera coordinates as seen, its pinhole pixel and its sensor pixel."""
+    models, views = at_frames
     worst_pinhole = worst_sensor = worst_point = 0.0
     for camera in (1, 2, 3):
-        model = unit_camera(drivetrack_input(folder, SEGMENT, camera))
+        model = models[camera]
         for frame in FRAMES:
-            points = lidar_points(generated, frame)
+            points, truth, sensor, _ = views[camera, frame]
             ours = model.project(frame, points)
-            truth, sensor, _ = seen(world, camera, frame, points)
             front = truth[:, 2] > 0
             pinhole = np.where(front[:, None], pinhole_pixels(truth), -1.0)
             in_view = front & inside(np.nan_to_num(sensor, nan=-1.0)) & inside(pinhole)
@@ -67,18 +77,16 @@ def test_lidar_points_appear_where_the_truth_says(sample_split, world):
     assert worst_point < 1e-4
 
 
-def test_pinhole_at_the_pose_misses_by_pixels(sample_split, world):
+def test_pinhole_at_the_pose_misses_by_pixels(at_frames):
     """What the camera model is for: the pinhole projection from the frame's pose (the pipeline
     before it) lands pixels away from where the points appear; the pinhole projection of the
     points as the camera sees them misses by the lens distortion alone."""
-    folder, generated = sample_split
+    models, views = at_frames
     old, lens = [], []
     for camera in (1, 2, 3):
-        unit = drivetrack_input(folder, SEGMENT, camera)
-        cam_from_world = unit_camera(unit).cam_from_world
+        cam_from_world = models[camera].cam_from_world
         for frame in FRAMES:
-            points = lidar_points(generated, frame)
-            truth, sensor, _ = seen(world, camera, frame, points)
+            points, truth, sensor, _ = views[camera, frame]
             at_pose = points @ cam_from_world[frame, :3, :3].T + cam_from_world[frame, :3, 3]
             shown = (truth[:, 2] > 0) & (at_pose[:, 2] > 0) & inside(np.nan_to_num(sensor, nan=-1.0))
             old.append(np.linalg.norm(pinhole_pixels(at_pose[shown]) - sensor[shown], axis=1))

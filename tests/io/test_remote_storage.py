@@ -12,7 +12,7 @@ from apache_beam.options.pipeline_options import PipelineOptions
 from moto.server import ThreadedMotoServer
 
 from pipeline.io import storage
-from tests.support.cli import clip_bytes, run_pipeline
+from tests.support.cli import clip_bytes, run_in_process, run_pipeline
 
 BUCKET = "tapvid3d"
 CREDENTIALS = {"aws_access_key_id": "testing", "aws_secret_access_key": "testing", "region_name": "us-east-1"}
@@ -152,7 +152,7 @@ def gcs_installed() -> bool:
 )
 def test_cli_stops_with_a_one_line_hint(option, path, hint, tmp_path):
     paths = {"--input": str(tmp_path), "--output": str(tmp_path), option: path}
-    result = run_pipeline("drivetrack", *(arg for item in paths.items() for arg in item))
+    result = run_in_process("drivetrack", *(arg for item in paths.items() for arg in item))
     assert result.returncode == 2, result.stderr[-3000:]
     assert "Traceback" not in result.stderr
     lines = result.stderr.splitlines()
