@@ -18,7 +18,7 @@ from pipeline.export.layout import check_clip_name
 from pipeline.io import files
 from pipeline.io.files import remove_quietly, temporary_path, write_atomic
 from pipeline.runner.resume import remove_partial_files
-from tests.support.cli import REPO, run_pipeline
+from tests.support.cli import REPO, run_in_process
 
 
 def test_replace_is_atomic_and_never_deletes_first(tmp_path, monkeypatch):
@@ -86,14 +86,14 @@ def test_a_bad_splits_file_or_input_stops_the_run_before_any_work(pstudio_sample
     splits = tmp_path / "splits.json"
     splits.write_text('{"minival": {"pstudio": "dome_3.npz"}}')
     out = tmp_path / "out"
-    result = run_pipeline(
+    result = run_in_process(
         "pstudio", "--input", pstudio_sample[0], "--output", str(out), "--set", f"splits_file={splits}"
     )
     assert result.returncode == 2
     assert not out.exists()
     assert f"cannot start: --set splits_file={splits}: not the release's splits JSON" in result.stderr
     assert "must map each source to a list of clip file names" in result.stderr
-    result = run_pipeline("pstudio", "--input", str(tmp_path / "absent"), "--output", str(out))
+    result = run_in_process("pstudio", "--input", str(tmp_path / "absent"), "--output", str(out))
     assert result.returncode == 2
     assert "--input" in result.stderr
     assert "does not exist" in result.stderr
@@ -121,7 +121,7 @@ def test_an_output_error_at_the_end_is_one_clear_line(pstudio_sample, tmp_path):
     out = tmp_path / "out"
     out.mkdir()
     (out / "manifests").write_text("a file where the manifests folder should be")
-    result = run_pipeline(
+    result = run_in_process(
         "pstudio", "--input", pstudio_sample[0], "--output", str(out), "--set", "pstudio.cameras=3"
     )
     assert result.returncode == 2
