@@ -18,7 +18,7 @@ from pipeline.export.layout import check_clip_name
 from pipeline.io import files
 from pipeline.io.files import remove_quietly, temporary_path, write_atomic
 from pipeline.runner.resume import remove_partial_files
-from tests.support.cli import REPO, run_in_process
+from tests.support.cli import REPO, command_in_process, run_in_process
 
 
 def test_replace_is_atomic_and_never_deletes_first(tmp_path, monkeypatch):
@@ -154,6 +154,8 @@ def test_ctrl_c_stops_with_one_line_and_no_partial_files(pstudio_sample, tmp_pat
 
 
 def test_commands_print_one_line_errors_and_no_beam_import_noise(tmp_path):
+    """Each command's error through its main in this process; validate's from a new interpreter too,
+    whose imports must add nothing (every command's: tests/run/test_closed_output.py)."""
     audit = tmp_path / "out" / "audit" / "pstudio"
     audit.mkdir(parents=True)
     (audit / "dome_3.parquet").write_bytes(b"not parquet")
@@ -165,8 +167,12 @@ def test_commands_print_one_line_errors_and_no_beam_import_noise(tmp_path):
         "validate": ["pipeline.validate", str(tmp_path / "absent")],
     }
     stderr = {}
-    for name, args in runs.items():
-        result = subprocess.run([sys.executable, "-m", *args], cwd=REPO, capture_output=True, text=True)
+    for name, args in [*runs.items(), ("validate, a new interpreter", None)]:
+        if args is None:
+            command = [sys.executable, "-m", *runs["validate"]]
+            result = subprocess.run(command, cwd=REPO, capture_output=True, text=True)
+        else:
+            result = command_in_process(*args)
         lines = result.stderr.strip().splitlines()
         assert result.returncode in (1, 2), (name, result.stderr)
         assert len(lines) == 1, (name, result.stderr)
