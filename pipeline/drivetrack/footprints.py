@@ -26,7 +26,7 @@ import numpy as np
 
 from pipeline.core.geometry import invert_se3, transform_points
 from pipeline.drivetrack.camera_model import UnitCamera
-from pipeline.drivetrack.objects import SURFACE_GROW_M, box_corners_local, box_poses, on_surface_box
+from pipeline.drivetrack.objects import SURFACE_GROW_M, box_corners_local, box_poses
 
 # Where a footprint's plane is seen within this cosine of edge-on from its lidar, its half-vectors
 # stretch no further: ten times the beam spacing.
@@ -64,35 +64,57 @@ class SweepFootprints:
 def sweep_footprints(sweep, index: np.ndarray, spacing: np.ndarray) -> SweepFootprints:
     """The footprints of the kept returns ``index`` [K] of a ``lidar.TopSweep``, its rows' angular
     spacing ``spacing`` [H] (``row_spacings``)."""
-    height, width = sweep.kept.shape
-    pixels = np.flatnonzero(sweep.kept)[index]
-    rows, cols = pixels // width, pixels % width
-    ranges = sweep.ranges[rows, cols]
-    beam = sweep.grid[rows, cols] / ranges[:, None]  # lidar frame, unit
-    level = np.hypot(beam[:, 0], beam[:, 1])
-    zero = np.zeros_like(level)
-    d_azimuth = np.stack([-beam[:, 1], beam[:, 0], zero], 1)  # d beam / d azimuth
-    d_inclination = np.stack([-beam[:, 0] * beam[:, 2] / level, -beam[:, 1] * beam[:, 2] / level, level], 1)
-    to_world = sweep.pose_rotations[sweep.pose_of_point[index]] @ sweep.lidar_rotation
-    beam, d_azimuth, d_inclination = (
-        np.einsum("kij,kj->ki", to_world, v) for v in (beam, d_azimuth, d_inclination)
-    )
     normals = sweep.normals(index)
-    facing = np.einsum("ki,ki->k", normals, beam)
-    facing = np.where(np.abs(facing) < MIN_BEAM_COSINE, np.copysign(MIN_BEAM_COSINE, facing), facing)
-
-    def on_plane(direction: np.ndarray, half_angle: np.ndarray) -> np.ndarray:
-        """The beam turned by half_angle [K] along ``direction`` [K, 3], met on the tangent plane."""
-        slide = direction - beam * (np.einsum("ki,ki->k", normals, direction) / facing)[:, None]
-        return slide * (ranges * half_angle)[:, None]
-
-    return SweepFootprints(
-        sweep.points[index],
+    along = np.empty((2, len(index), 3))
+    _half_vectors(
+        sweep.grid,
+        sweep.ranges,
+        sweep.pixels[index],
+        sweep.world_from_lidar,
+        sweep.pose_of_point[index],
+        spacing,
         normals,
-        on_plane(d_azimuth, np.full(len(index), np.pi / width)),
-        on_plane(d_inclination, spacing[rows] / 2.0),
-        index,
+        MIN_BEAM_COSINE,
+        along,
     )
+    return SweepFootprints(sweep.points[index], normals, along[0], along[1], index)
+
+
+@numba.njit(cache=True, nogil=True)
+def _half_vectors(grid, ranges, pixels, world_from_lidar, pose, spacing, normals, min_cosine, along):
+    """along [2, K, 3]: the half-vectors along the azimuth and the inclination (world frame) of the
+    footprints of returns at range-image pixels [K] (flat), with their poses [K] (rows of
+    world_from_lidar [P, 3, 3]) and unit world normals [K, 3]: the beam turned by half the beam
+    spacing (pi / W; the row's ``spacing`` [H] / 2) either way, met on the tangent plane, whose
+    cosine to the beam counts as at least ``min_cosine``. Rotations summed as ``lidar.turned``,
+    dot products as einsum (x + z) + y: the bits of the array expressions."""
+    width = ranges.shape[1]
+    for k in range(len(pixels)):
+        row, col = pixels[k] // width, pixels[k] % width
+        distance = ranges[row, col]
+        bx, by, bz = grid[row, col, 0] / distance, grid[row, col, 1] / distance, grid[row, col, 2] / distance
+        level = np.hypot(bx, by)
+        directions = (
+            (-by, bx, 0.0),  # d beam / d azimuth
+            (-bx * bz / level, -by * bz / level, level),  # d beam / d inclination
+        )
+        r = world_from_lidar[pose[k]]
+        beam = np.empty(3)
+        for i in range(3):
+            beam[i] = (r[i, 0] * bx + r[i, 2] * bz) + r[i, 1] * by
+        n0, n1, n2 = normals[k, 0], normals[k, 1], normals[k, 2]
+        facing = (n0 * beam[0] + n2 * beam[2]) + n1 * beam[1]
+        if abs(facing) < min_cosine:
+            facing = np.copysign(min_cosine, facing)
+        for a in range(2):
+            dx, dy, dz = directions[a]
+            direction = np.empty(3)
+            for i in range(3):
+                direction[i] = (r[i, 0] * dx + r[i, 2] * dz) + r[i, 1] * dy
+            share = ((n0 * direction[0] + n2 * direction[2]) + n1 * direction[1]) / facing
+            scale = distance * (np.pi / width if a == 0 else spacing[row] / 2.0)
+            for i in range(3):
+                along[a, k, i] = (direction[i] - beam[i] * share) * scale
 
 
 @dataclasses.dataclass(frozen=True)
@@ -138,9 +160,11 @@ class BoxMotions:
         self._labels = np.searchsorted(self.object_ids, boxes.object_ids)
         self._lidar = boxes.lidar_boxes
         poses = world_from_frame[np.maximum(frame, 0)]
-        self._attached = poses @ box_poses(boxes.lidar_boxes)
+        self._detached = invert_se3(poses @ box_poses(boxes.lidar_boxes))  # lidar box from world
         self._placed = poses @ box_poses(boxes.synced_boxes)
         self._box_from_vehicle = invert_se3(box_poses(boxes.lidar_boxes))
+        # Per row, the circumscribed sphere's radius and a metre.
+        self._reach = np.array([np.linalg.norm(box[3:6]) / 2.0 + 1.0 for box in boxes.lidar_boxes])
 
     def label(self, object_id: str) -> int:
         """The label of a labelled object."""
@@ -151,18 +175,16 @@ class BoxMotions:
         (``objects.on_surface_box`` of its lidar box; the first by label where boxes overlap), -1
         where none."""
         labels = np.full(len(vehicle_points), -1, np.int64)
-        if not len(vehicle_points):
-            return labels
-        x, y = np.ascontiguousarray(vehicle_points[:, 0]), np.ascontiguousarray(vehicle_points[:, 1])
-        low, high = np.array([x.min(), y.min()]), np.array([x.max(), y.max()])
-        for row in self._rows[t][::-1]:  # lowest label last: it wins overlaps
-            box = self._lidar[row]
-            reach = np.linalg.norm(box[3:6]) / 2.0 + 1.0  # the circumscribed sphere's and a metre
-            if np.any(box[:2] + reach < low) or np.any(box[:2] - reach > high):
-                continue  # no point near this box
-            near = np.flatnonzero((np.abs(x - box[0]) <= reach) & (np.abs(y - box[1]) <= reach))
-            local = transform_points(self._box_from_vehicle[row], vehicle_points[near])
-            labels[near[on_surface_box(local, box[3:6])]] = self._labels[row]
+        rows = self._rows[t][::-1]  # lowest label last: it wins overlaps
+        _labels(
+            np.ascontiguousarray(vehicle_points, np.float64),
+            self._lidar[rows],
+            self._box_from_vehicle[rows],
+            self._reach[rows],
+            self._labels[rows],
+            SURFACE_GROW_M,
+            labels,
+        )
         return labels
 
     def box_limits(
@@ -179,81 +201,147 @@ class BoxMotions:
                 continue
             box_from_world = self._box_from_vehicle[row] @ vehicle_from_world
             rotation = box_from_world[:3, :3]
-            local = transform_points(box_from_world, footprints.points[members])
-            half = self._lidar[row, 3:6] / 2.0
-            upper = half + SURFACE_GROW_M
-            lower = -upper
-            lower[2] = SURFACE_GROW_M - half[2]
-            for axis, vectors in enumerate((footprints.along_azimuth, footprints.along_inclination)):
-                step = vectors[members] @ rotation.T
-                for sign in (-1.0, 1.0):
-                    limits[members, 2 * axis + (sign > 0)] = _room(local, sign * step, lower, upper)
+            _box_room(
+                footprints.points,
+                members,
+                box_from_world,
+                footprints.along_azimuth[members] @ rotation.T,
+                footprints.along_inclination[members] @ rotation.T,
+                self._lidar[row, 3:6] / 2.0,
+                SURFACE_GROW_M,
+                limits,
+            )
         return np.clip(limits, MIN_LIMIT, 1.0)
 
-    def moves(self, source: int, target: int) -> dict[int, np.ndarray]:
-        """label -> target_world_from_source_world [4, 4] of each object with a lidar box at frame
-        ``source`` and a camera-synced box at frame ``target``."""
+    def moves(self, source: int, target: int) -> Moves:
+        """How each object with a lidar box at frame ``source`` and a camera-synced box at frame
+        ``target`` moves between them (target_world_from_source_world)."""
         placed = {self._labels[row]: self._placed[row] for row in self._rows[target]}
-        return {
-            self._labels[row]: placed[self._labels[row]] @ invert_se3(self._attached[row])
+        moves = {
+            self._labels[row]: placed[self._labels[row]] @ self._detached[row]
             for row in self._rows[source]
             if self._labels[row] in placed
         }
+        transforms = np.stack([moves[label] for label in sorted(moves)]) if moves else np.zeros((0, 4, 4))
+        row_of_label = np.full(len(self.object_ids), -1, np.int64)
+        row_of_label[sorted(moves)] = np.arange(len(moves))
+        rotations, translations = transforms[:, :3, :3], transforms[:, :3, 3]
+        return Moves(row_of_label, np.ascontiguousarray(rotations), np.ascontiguousarray(translations))
+
+
+@dataclasses.dataclass(frozen=True)
+class Moves:
+    """How the labelled objects move from a sweep's frame to another frame: per label [L] the row of
+    its move, -1 for an object without one, and per row its rotation [R, 3, 3] and translation
+    [R, 3] (target_world_from_source_world, ``BoxMotions.moves``)."""
+
+    row_of_label: np.ndarray
+    rotations: np.ndarray
+    translations: np.ndarray
+
+
+@numba.njit(cache=True, nogil=True)
+def _labels(points, boxes, box_from_vehicle, reach, box_labels, grow, labels):
+    """labels [K] (``BoxMotions.labels_at``) of points [K, 3] from lidar boxes [B, 7] laid in order
+    (a later one wins overlaps), each with its box_from_vehicle [B, 4, 4], reach [B] (only points
+    that near its centre in x and y are carried into the box frame) and label [B]. Points carried as
+    ``transform_points`` carries them (einsum's (x + z) + y): the same bits."""
+    if not len(points):
+        return
+    low_x, low_y = points[:, 0].min(), points[:, 1].min()
+    high_x, high_y = points[:, 0].max(), points[:, 1].max()
+    for b in range(len(boxes)):
+        x0, y0, near = boxes[b, 0], boxes[b, 1], reach[b]
+        if x0 + near < low_x or y0 + near < low_y or x0 - near > high_x or y0 - near > high_y:
+            continue  # no point near this box
+        r = box_from_vehicle[b]
+        half_x, half_y, half_z = boxes[b, 3] / 2.0, boxes[b, 4] / 2.0, boxes[b, 5] / 2.0
+        for k in range(len(points)):
+            x, y, z = points[k, 0], points[k, 1], points[k, 2]
+            if abs(x - x0) > near or abs(y - y0) > near:
+                continue
+            local_x = ((r[0, 0] * x + r[0, 2] * z) + r[0, 1] * y) + r[0, 3]
+            local_y = ((r[1, 0] * x + r[1, 2] * z) + r[1, 1] * y) + r[1, 3]
+            local_z = ((r[2, 0] * x + r[2, 2] * z) + r[2, 1] * y) + r[2, 3]
+            if abs(local_x) <= half_x + grow and abs(local_y) <= half_y + grow:
+                if local_z <= half_z + grow and local_z >= grow - half_z:
+                    labels[k] = box_labels[b]
+
+
+@numba.njit(cache=True, nogil=True)
+def _box_room(points, members, box_from_world, along_azimuth, along_inclination, half, grow, limits):
+    """limits [K, 4] of the footprints ``members`` [M] (rows of points [K, 3]), their half-vectors
+    in the box frame [M, 3] each (``BoxMotions.box_limits``): the largest share (up to 1) of each
+    signed half-vector the point can take and stay within the box of half size ``half`` [3] grown by
+    ``grow`` (its bottom raised by as much). Points carried as ``transform_points`` carries them."""
+    r = box_from_world
+    upper = np.empty(3)
+    lower = np.empty(3)
+    for c in range(3):
+        upper[c] = half[c] + grow
+        lower[c] = -upper[c]
+    lower[2] = grow - half[2]
+    local = np.empty(3)
+    for m in range(len(members)):
+        x, y, z = points[members[m], 0], points[members[m], 1], points[members[m], 2]
+        for c in range(3):
+            local[c] = ((r[c, 0] * x + r[c, 2] * z) + r[c, 1] * y) + r[c, 3]
+        for axis in range(2):
+            steps = along_azimuth if axis == 0 else along_inclination
+            for side in range(2):
+                sign = 1.0 if side else -1.0
+                room = np.inf
+                for c in range(3):
+                    step = sign * steps[m, c]
+                    if step > 0:
+                        room = min(room, (upper[c] - local[c]) / step)
+                    elif step < 0:
+                        room = min(room, (lower[c] - local[c]) / step)
+                limits[members[m], 2 * axis + side] = min(max(room, 0.0), 1.0)
 
 
 # A footprint reaches at least this share of its half-vectors, even from a box's border.
 MIN_LIMIT = 0.05
 
 
-def _room(points: np.ndarray, steps: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
-    """[K] the largest share (up to 1) of steps [K, 3] that points [K, 3] can take and stay within
-    lower [3] <= p <= upper [3]."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        room = np.where(
-            steps > 0, (upper - points) / steps, np.where(steps < 0, (lower - points) / steps, np.inf)
-        )
-    return np.clip(room.min(axis=1), 0.0, 1.0)
+def moved(
+    index: np.ndarray, labels: np.ndarray, moves: Moves, points: np.ndarray, *vectors: np.ndarray
+) -> tuple[np.ndarray, ...]:
+    """World points [K, 3] and directions (each [K, 3]) of the returns ``index`` [N], labels [K],
+    moved by their objects' ``moves`` (every labelled one has a move): the moved points and
+    directions [N, 3]. Carried as einsum("kij,kj->ki") over the gathered moves carries them."""
+    out = np.empty((1 + len(vectors), len(index), 3))
+    directions = tuple(np.ascontiguousarray(vector, np.float64) for vector in vectors)
+    rotations, translations = moves.rotations, moves.translations
+    _moved(index, labels, moves.row_of_label, rotations, translations, points, directions, out)
+    return tuple(out)
 
 
-def moved(labels: np.ndarray, moves: dict[int, np.ndarray], points: np.ndarray, *vectors: np.ndarray):
-    """World points [K, 3] and directions (each [K, 3]) of returns with labels [K] moved by their
-    objects' ``moves`` (``BoxMotions.moves``): the rows kept [K'] (a labelled return whose object has
-    no move is dropped), then the moved points and directions [K', 3]."""
-    movable = np.array(sorted(moves), np.int64)
-    rows = np.flatnonzero((labels < 0) | np.isin(labels, movable))
-    points, kept = points[rows], [vector[rows] for vector in vectors]
-    movers = np.flatnonzero(labels[rows] >= 0)
-    if len(movers):
-        transforms = np.stack([moves[label] for label in movable])[
-            np.searchsorted(movable, labels[rows[movers]])
-        ]
-        rotations = transforms[:, :3, :3]
-        points[movers] = np.einsum("kij,kj->ki", rotations, points[movers]) + transforms[:, :3, 3]
-        for vector in kept:
-            vector[movers] = np.einsum("kij,kj->ki", rotations, vector[movers])
-    return rows, points, *kept
+@numba.njit(cache=True, nogil=True)
+def _moved(index, labels, row_of_label, rotations, translations, points, vectors, out):
+    """out [1 + V, N, 3] (``moved``) of points [K, 3] and V vectors [K, 3] at rows index [N]."""
+    for v in range(len(out)):
+        source = points if v == 0 else vectors[v - 1]
+        for n in range(len(index)):
+            k = index[n]
+            x, y, z = source[k, 0], source[k, 1], source[k, 2]
+            row = row_of_label[labels[k]] if labels[k] >= 0 else -1
+            if row < 0:
+                out[v, n, 0], out[v, n, 1], out[v, n, 2] = x, y, z
+                continue
+            r = rotations[row]
+            for i in range(3):
+                turned = (r[i, 0] * x + r[i, 2] * z) + r[i, 1] * y
+                out[v, n, i] = turned + translations[row, i] if v == 0 else turned
 
 
 def likely_reach(sweep, index: np.ndarray, spacing: np.ndarray) -> np.ndarray:
     """[K] how far (metres) a footprint of the kept returns ``index`` reaches from its return unless
     its surface is seen within 60 degrees of edge-on: twice the larger half beam spacing, both ways."""
     width = sweep.kept.shape[1]
-    pixels = np.flatnonzero(sweep.kept)[index]
+    pixels = sweep.pixels[index]
     beam = np.maximum(np.pi / width, spacing[pixels // width] / 2.0)
     return 4.0 * sweep.ranges.ravel()[pixels] * beam
-
-
-def pixel_vectors(fx: float, fy: float, points: np.ndarray, vectors: np.ndarray) -> np.ndarray:
-    """Pixel offsets [K, 2] of small camera-frame offsets ``vectors`` [K, 3] at camera points
-    [K, 3]: the pinhole's Jacobian."""
-    z = points[:, 2]
-    return np.stack(
-        [
-            fx * (vectors[:, 0] - points[:, 0] * vectors[:, 2] / z) / z,
-            fy * (vectors[:, 1] - points[:, 1] * vectors[:, 2] / z) / z,
-        ],
-        1,
-    )
 
 
 def object_regions(camera: UnitCamera, t: int, boxes: list[tuple[np.ndarray, np.ndarray]]):
@@ -281,27 +369,42 @@ def object_regions(camera: UnitCamera, t: int, boxes: list[tuple[np.ndarray, np.
     return np.array(rectangles, np.float64).reshape(-1, 4), np.array(depths, np.float64)
 
 
+# The pinhole of the frame's pose misplaces a point, against the camera model, by at most the
+# lens's distortion (Waymo's: ~8 px at a 1920x1280 frame's corners) plus the rolling shutter.
+LENS_BOUND_PX = 16.0
+
+
 def serving_returns(
     camera: UnitCamera,
     points: np.ndarray,
     labels: np.ndarray,
     reach: np.ndarray,
-    targets: list[tuple[int, dict[int, np.ndarray], tuple[np.ndarray, np.ndarray]]],
-) -> list[np.ndarray]:
-    """Per target frame, the rows [K'] of a sweep's returns (world points [K, 3], labels [K],
+    targets: list[tuple[int, Moves, tuple[np.ndarray, np.ndarray]]],
+) -> np.ndarray:
+    """[F, K] bool: per target frame [F], the returns of a sweep (world points [K, 3], labels [K],
     footprints reaching about ``reach`` [K] metres, ``likely_reach``) whose footprints may serve
-    there: moved to it (``targets``: per frame, its moves and its regions, ``object_regions``), near
-    one of its regions. A footprint seen nearly edge-on may reach further: such a surface covers
+    there: moved to it (``targets``: per frame, its moves and its regions, ``object_regions``; a
+    labelled return whose object has no move is dropped), near one of its regions
+    (``near_regions``). A footprint seen nearly edge-on may reach further: such a surface covers
     little of the image beyond its return."""
-    still = np.flatnonzero(labels < 0)
-    movers = np.flatnonzero(labels >= 0)
-    still_points, mover_points = points[still], points[movers]
-    serving = []
-    for target, moves, regions in targets:
-        rows, placed = moved(labels[movers], moves, mover_points)
-        near_still = still[near_regions(camera, target, still_points, reach[still], regions)]
-        near_movers = movers[rows[near_regions(camera, target, placed, reach[movers[rows]], regions)]]
-        serving.append(np.union1d(near_still, near_movers))
+    serving = np.zeros((len(targets), len(points)), np.bool_)
+    points = np.ascontiguousarray(points, np.float64)
+    for near, (target, moves, (rectangles, depths)) in zip(serving, targets, strict=True):
+        _near_regions(
+            points,
+            labels,
+            moves.row_of_label,
+            moves.rotations,
+            moves.translations,
+            np.ascontiguousarray(reach, np.float64),
+            camera.cam_from_world[target],
+            camera.calibration.fx_fy_cx_cy,
+            *shutter_motion(camera, target),
+            LENS_BOUND_PX,
+            rectangles,
+            depths,
+            near,
+        )
     return serving
 
 
@@ -309,7 +412,7 @@ def frame_footprints(
     camera: UnitCamera,
     t: int,
     source: int,
-    world: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    world: tuple[np.ndarray, ...],
     limits: np.ndarray,
     labels: np.ndarray,
     regions: tuple[np.ndarray, np.ndarray],
@@ -322,84 +425,99 @@ def frame_footprints(
     points, normals, along_azimuth, along_inclination = world
     seen = camera.project(t, points)
     rotation = camera.cam_from_world[t, :3, :3]
-    fx, fy = camera.calibration.fx_fy_cx_cy[:2]
     rows = np.flatnonzero(seen.in_view)
-    local = seen.points[seen.in_view]
-    half_u = pixel_vectors(fx, fy, local, along_azimuth[rows] @ rotation.T)
-    half_v = pixel_vectors(fx, fy, local, along_inclination[rows] @ rotation.T)
-    pixels = seen.pixels[seen.in_view]
+    local, pixels = seen.points[rows], seen.pixels[rows]
+    half = np.empty((2, len(rows), 2))
     wanted = np.empty(len(rows), np.bool_)
-    _overlapping(pixels, np.abs(half_u) + np.abs(half_v), local[:, 2], *regions, wanted)
+    _overlapping(
+        pixels,
+        local,
+        along_azimuth[rows] @ rotation.T,
+        along_inclination[rows] @ rotation.T,
+        camera.calibration.fx_fy_cx_cy,
+        *regions,
+        half,
+        wanted,
+    )
     keep = np.flatnonzero(wanted)
+    chosen = rows[keep]
     return FrameFootprints(
         pixels[keep],
         local[keep],
-        normals[rows[keep]] @ rotation.T,
-        half_u[keep],
-        half_v[keep],
-        limits[rows[keep]],
-        labels[rows[keep]],
+        normals[chosen] @ rotation.T,
+        half[0, keep],
+        half[1, keep],
+        limits[chosen],
+        labels[chosen],
         np.full(len(keep), source, np.int8),
     )
 
 
 @numba.njit(cache=True, nogil=True)
-def _overlapping(pixels, reach, depth, rectangles, depths, wanted):
-    """wanted [K]: the rectangle of pixels [K, 2] +- reach [K, 2] overlaps a rectangle [R, 4] (u0,
-    v0, u1, v1) whose depth [R] is beyond the footprint's depth [K]."""
+def _overlapping(pixels, points, along_u, along_v, lens, rectangles, depths, half, wanted):
+    """half [2, K, 2] and wanted [K] of footprints at pixels [K, 2] and camera points [K, 3], their
+    half-vectors [K, 3] each (camera frame): the pixel half-vectors, their images through the
+    pinhole's Jacobian (lens: fx, fy, ...); wanted where the footprint's pixel rectangle (the pixel
+    +- the sum of their sizes) overlaps a rectangle [R, 4] (u0, v0, u1, v1) whose depth [R] is
+    beyond the footprint's depth."""
+    fx, fy = lens[0], lens[1]
     for k in range(len(pixels)):
+        x, y, z = points[k, 0], points[k, 1], points[k, 2]
+        for h in range(2):
+            vectors = along_u if h == 0 else along_v
+            half[h, k, 0] = fx * (vectors[k, 0] - x * vectors[k, 2] / z) / z
+            half[h, k, 1] = fy * (vectors[k, 1] - y * vectors[k, 2] / z) / z
+        reach_u = abs(half[0, k, 0]) + abs(half[1, k, 0])
+        reach_v = abs(half[0, k, 1]) + abs(half[1, k, 1])
         wanted[k] = False
         for i in range(len(depths)):
-            if depth[k] < depths[i] and pixels[k, 0] + reach[k, 0] >= rectangles[i, 0]:
-                if (
-                    pixels[k, 0] - reach[k, 0] <= rectangles[i, 2]
-                    and pixels[k, 1] + reach[k, 1] >= rectangles[i, 1]
-                ):
-                    if pixels[k, 1] - reach[k, 1] <= rectangles[i, 3]:
+            if z < depths[i] and pixels[k, 0] + reach_u >= rectangles[i, 0]:
+                if pixels[k, 0] - reach_u <= rectangles[i, 2] and pixels[k, 1] + reach_v >= rectangles[i, 1]:
+                    if pixels[k, 1] - reach_v <= rectangles[i, 3]:
                         wanted[k] = True
                         break
 
 
-# The pinhole of the frame's pose misplaces a point, against the camera model, by at most the
-# lens's distortion (Waymo's: ~8 px at a 1920x1280 frame's corners) plus the rolling shutter.
-LENS_BOUND_PX = 16.0
-
-
-def near_regions(
-    camera: UnitCamera, t: int, points: np.ndarray, extent: np.ndarray, regions: tuple[np.ndarray, np.ndarray]
-) -> np.ndarray:
-    """Indices of the world points [K, 3] whose footprints (reaching ``extent`` [K] metres from them)
-    may lie in ``regions`` of frame t: their pinhole pixels at the frame's pose, padded by what the
-    lens and the rolling shutter can move them (the camera's speed and turn over the readout, at the
-    point's depth) and by the footprint's size, overlap a region, nearer than its depth."""
-    rectangles, depths = regions
-    if not len(points) or not len(depths):
-        return np.zeros(0, np.int64)
-    near = np.empty(len(points), np.bool_)
-    _near_regions(
-        np.ascontiguousarray(points, np.float64),
-        np.ascontiguousarray(extent, np.float64),
-        camera.cam_from_world[t],
-        camera.calibration.fx_fy_cx_cy,
-        *shutter_motion(camera, t),
-        LENS_BOUND_PX,
-        rectangles,
-        depths,
-        near,
-    )
-    return np.flatnonzero(near)
-
-
 @numba.njit(cache=True, nogil=True)
-def _near_regions(points, extent, cam_from_world, lens, travel, turn, lens_bound, rectangles, depths, near):
-    """near [K] (``near_regions``) of world points [K, 3] reaching extent [K] metres."""
+def _near_regions(
+    points,
+    labels,
+    row_of_label,
+    rotations,
+    translations,
+    extent,
+    cam_from_world,
+    lens,
+    travel,
+    turn,
+    lens_bound,
+    rectangles,
+    depths,
+    near,
+):
+    """near [K] (``serving_returns``) of world points [K, 3] of labels [K] reaching extent [K]
+    metres, moved as ``moved`` moves them (a labelled one without a move is not near): their
+    pinhole pixels at the frame's pose (cam_from_world [4, 4], lens: fx, fy, cx, cy), padded by
+    what the lens and the rolling shutter can move them (the camera's ``travel`` and ``turn`` over
+    the readout, at the point's depth) and by the footprint's size, overlap a region (rectangles
+    [R, 4], depths [R]), nearer than its depth."""
     fx, fy, cx, cy = lens[0], lens[1], lens[2], lens[3]
     focal = max(fx, fy)
     r = cam_from_world
     for k in range(len(points)):
-        x, y, z = points[k, 0], points[k, 1], points[k, 2]
-        depth = r[2, 0] * x + r[2, 1] * y + r[2, 2] * z + r[2, 3]
         near[k] = False
+        x, y, z = points[k, 0], points[k, 1], points[k, 2]
+        if labels[k] >= 0:
+            row = row_of_label[labels[k]]
+            if row < 0:
+                continue
+            m = rotations[row]
+            x, y, z = (
+                ((m[0, 0] * x + m[0, 2] * z) + m[0, 1] * y) + translations[row, 0],
+                ((m[1, 0] * x + m[1, 2] * z) + m[1, 1] * y) + translations[row, 1],
+                ((m[2, 0] * x + m[2, 2] * z) + m[2, 1] * y) + translations[row, 2],
+            )
+        depth = r[2, 0] * x + r[2, 1] * y + r[2, 2] * z + r[2, 3]
         if depth <= 0:
             continue
         u = fx * (r[0, 0] * x + r[0, 1] * y + r[0, 2] * z + r[0, 3]) / depth + cx
@@ -502,16 +620,29 @@ class BoxCells:
         last = np.floor((high - origin) / side).astype(np.int64)
         columns, rows = int(last[:, 0].max()) + 1, int(last[:, 1].max()) + 1
         span = last - first + 1
-        count = span[:, 0] * span[:, 1]
-        member = np.repeat(np.arange(len(low)), count)
-        offset = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
-        width = np.repeat(span[:, 0], count)
-        keys = (np.repeat(first[:, 1], count) + offset // width) * columns + np.repeat(first[:, 0], count)
-        keys += offset % width
-        order = np.argsort(keys, kind="stable")
         starts = np.zeros(rows * columns + 1, np.int64)
-        np.cumsum(np.bincount(keys, minlength=rows * columns), out=starts[1:])
-        self.arrays = (origin, side, columns, rows, starts, member[order])
+        members = np.empty(int((span[:, 0] * span[:, 1]).sum()), np.int64)
+        _bin(first, last, columns, starts, members)
+        self.arrays = (origin, side, columns, rows, starts, members)
+
+
+@numba.njit(cache=True, nogil=True)
+def _bin(first, last, columns, starts, members):
+    """starts [cells + 1] and members (``BoxCells``) of rectangles spanning the cells first [M, 2] to
+    last [M, 2] (column, row): each cell's rectangles in ascending order."""
+    for j in range(len(first)):
+        for row in range(first[j, 1], last[j, 1] + 1):
+            for column in range(first[j, 0], last[j, 0] + 1):
+                starts[row * columns + column + 1] += 1
+    for cell in range(len(starts) - 1):
+        starts[cell + 1] += starts[cell]
+    filled = starts[:-1].copy()
+    for j in range(len(first)):
+        for row in range(first[j, 1], last[j, 1] + 1):
+            for column in range(first[j, 0], last[j, 0] + 1):
+                cell = row * columns + column
+                members[filled[cell]] = j
+                filled[cell] += 1
 
 
 @numba.njit(cache=True, nogil=True)

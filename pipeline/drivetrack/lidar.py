@@ -93,30 +93,32 @@ def range_image_to_vehicle(
 @dataclasses.dataclass(frozen=True)
 class TopSweep:
     """A TOP sweep in the world: points [M, 3] of the kept pixels (range > 0, row-major), kept
-    [H, W], and what their normals need: the lidar-frame grid [H, W, 3] of every pixel, the ranges
-    [H, W], the world-from-vehicle rotations [P, 3, 3] of the sweep's poses with the pose of each
-    kept point [M] (``kept_poses``), and the vehicle-from-lidar rotation [3, 3]."""
+    [H, W], their flat pixel indices [M] (row * W + column), and what their normals need: the
+    lidar-frame grid [H, W, 3] of every pixel, the ranges [H, W], the world-from-lidar rotations
+    [P, 3, 3] of the sweep's poses (world-from-vehicle @ vehicle-from-lidar) with the pose of each
+    kept point [M] (``kept_poses``)."""
 
     points: np.ndarray
     kept: np.ndarray
+    pixels: np.ndarray
     grid: np.ndarray
     ranges: np.ndarray
-    pose_rotations: np.ndarray
+    world_from_lidar: np.ndarray
     pose_of_point: np.ndarray
-    lidar_rotation: np.ndarray
 
     def normals(self, index: np.ndarray) -> np.ndarray:
         """Unit world-frame normals [K, 3], facing the lidar, of the kept points ``index`` [K]."""
-        local = range_image_normals(self.grid, self.ranges, np.flatnonzero(self.kept)[index])
-        rotations = self.pose_rotations[self.pose_of_point[index]]
-        return np.einsum("kij,kj->ki", rotations @ self.lidar_rotation, local)
+        return self.to_world(index, range_image_normals(self.grid, self.ranges, self.pixels[index]))
 
     def beams(self, index: np.ndarray) -> np.ndarray:
         """Unit world-frame directions [K, 3] from the lidar to the kept points ``index`` [K]."""
-        pixels = np.flatnonzero(self.kept)[index]
-        local = self.grid.reshape(-1, 3)[pixels] / self.ranges.ravel()[pixels, None]
-        rotations = self.pose_rotations[self.pose_of_point[index]]
-        return np.einsum("kij,kj->ki", rotations @ self.lidar_rotation, local)
+        pixels = self.pixels[index]
+        return self.to_world(index, self.grid.reshape(-1, 3)[pixels] / self.ranges.ravel()[pixels, None])
+
+    def to_world(self, index: np.ndarray, vectors: np.ndarray) -> np.ndarray:
+        """Lidar-frame directions [K, 3] at the kept points ``index`` [K] turned to the world."""
+        vectors = np.ascontiguousarray(vectors, np.float64)
+        return turned(vectors, self.world_from_lidar, self.pose_of_point[index])
 
 
 def kept_poses(
@@ -155,6 +157,20 @@ def posed_points(points, rotations, translations, pose_of_point):
     return out
 
 
+@numba.njit(cache=True, nogil=True)
+def turned(vectors, rotations, which):
+    """Vectors [K, 3] turned by rotations [R, 3, 3], rotations[which[k]] @ vectors[k] (which [K]):
+    the bits of NumPy's einsum("kij,kj->ki") over the gathered rotations, summed as ``posed_points``
+    sums."""
+    out = np.empty_like(vectors)
+    for m in range(vectors.shape[0]):
+        k = which[m]
+        x, y, z = vectors[m, 0], vectors[m, 1], vectors[m, 2]
+        for i in range(3):
+            out[m, i] = (rotations[k, i, 0] * x + rotations[k, i, 2] * z) + rotations[k, i, 1] * y
+    return out
+
+
 def top_lidar_world_points(
     range_image: np.ndarray,
     pixel_pose: np.ndarray,
@@ -181,9 +197,9 @@ def top_lidar_world_points(
     points = grid[kept] @ extrinsic[:3, :3].T + extrinsic[:3, 3]
     rotations, translations, pose_of_point = kept_poses(pixel_pose, kept, what)
     world = posed_points(points, rotations, translations, pose_of_point)
-    return TopSweep(
-        world, kept, grid, range_image.astype(np.float64), rotations, pose_of_point, extrinsic[:3, :3]
-    )
+    ranges = range_image.astype(np.float64)
+    world_from_lidar = rotations @ extrinsic[:3, :3]
+    return TopSweep(world, kept, np.flatnonzero(kept), grid, ranges, world_from_lidar, pose_of_point)
 
 
 # A neighbour lies on the same surface when its range differs by at most this fraction of the
@@ -192,45 +208,57 @@ def top_lidar_world_points(
 MAX_RANGE_JUMP = 0.2
 
 
-def _tangent(
-    points: np.ndarray, ranges: np.ndarray, rows: np.ndarray, cols: np.ndarray, axis: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """For pixels (rows [K], cols [K]), the offset [K, 3] to the neighbour along ``axis`` (either
-    side, the nearer in range) on the same surface, and whether there is one [K]. The image's edges
-    have no neighbour beyond them (the columns' seam joins the sweep's first and last instants)."""
-    here = ranges[rows, cols]
-    best = np.zeros((len(rows), 3))
-    best_jump = np.full(len(rows), np.inf)
-    for step in (-1, 1):
-        r, c = (rows + step, cols) if axis == 0 else (rows, cols + step)
-        on_image = (r >= 0) & (r < ranges.shape[0]) & (c >= 0) & (c < ranges.shape[1])
-        r, c = np.where(on_image, r, 0), np.where(on_image, c, 0)
-        there = np.where(on_image, ranges[r, c], 0.0)
-        jump = np.abs(there - here)
-        same = (there > 0) & (here > 0) & (jump <= MAX_RANGE_JUMP * here) & (jump < best_jump)
-        best[same] = points[r[same], c[same]] - points[rows[same], cols[same]]
-        best_jump[same] = jump[same]
-    return best, np.isfinite(best_jump)
-
-
 def range_image_normals(points: np.ndarray, ranges: np.ndarray, pixels: np.ndarray) -> np.ndarray:
     """Unit normals [K, 3] facing the lidar at the range image's pixels [K] (flat indices), in the
     frame of ``points`` [H, W, 3] (each pixel's return, lidar at the origin), for ranges [H, W]
     (<= 0: no return): the cross product of the offsets to a row neighbour and a column neighbour
     on the same surface. A pixel lacking either gets the direction back to the lidar (which saw the
     surface from there)."""
-    ranges = np.asarray(ranges, np.float64)
-    rows, cols = np.unravel_index(np.asarray(pixels, np.int64), ranges.shape)
-    along_rows, has_row = _tangent(points, ranges, rows, cols, 0)
-    along_columns, has_column = _tangent(points, ranges, rows, cols, 1)
-    normals = np.cross(along_rows, along_columns)
-    length = np.linalg.norm(normals, axis=-1, keepdims=True)
-    here = points[rows, cols]
-    towards_lidar = -here / np.maximum(np.linalg.norm(here, axis=-1, keepdims=True), 1e-12)
-    defined = (has_row & has_column)[:, None] & (length > 0)
-    normals = np.where(defined, normals / np.where(length > 0, length, 1.0), towards_lidar)
-    facing = np.einsum("ki,ki->k", normals, towards_lidar) >= 0
-    return np.where(facing[:, None], normals, -normals)
+    points, ranges = np.ascontiguousarray(points, np.float64), np.ascontiguousarray(ranges, np.float64)
+    normals = np.empty((len(pixels), 3))
+    _normals(points, ranges, np.asarray(pixels, np.int64), MAX_RANGE_JUMP, normals)
+    return normals
+
+
+@numba.njit(cache=True, nogil=True)
+def _normals(points, ranges, pixels, max_jump, normals):
+    """normals [K, 3] (``range_image_normals``) of pixels [K]. Each pixel's neighbour along the rows
+    and along the columns: either side, the nearer in range (the earlier on ties), on the same
+    surface (a range step of at most ``max_jump`` of its own range); the image's edges have none
+    beyond them (the columns' seam joins the sweep's first and last instants). Sums in NumPy's order
+    (np.linalg.norm's (x + y) + z, einsum's (x + z) + y): the bits of the array expressions."""
+    height, width = ranges.shape
+    offsets = np.empty((2, 3))
+    for k in range(len(pixels)):
+        row, col = pixels[k] // width, pixels[k] % width
+        here = ranges[row, col]
+        both = True
+        for axis in range(2):
+            best_jump = np.inf
+            offsets[axis, 0] = offsets[axis, 1] = offsets[axis, 2] = 0.0
+            for step in (-1, 1):
+                r, c = (row + step, col) if axis == 0 else (row, col + step)
+                there = ranges[r, c] if 0 <= r < height and 0 <= c < width else 0.0
+                jump = abs(there - here)
+                if there > 0 and here > 0 and jump <= max_jump * here and jump < best_jump:
+                    for i in range(3):
+                        offsets[axis, i] = points[r, c, i] - points[row, col, i]
+                    best_jump = jump
+            both = both and best_jump < np.inf
+        ax, ay, az = offsets[0, 0], offsets[0, 1], offsets[0, 2]
+        bx, by, bz = offsets[1, 0], offsets[1, 1], offsets[1, 2]
+        nx, ny, nz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+        length = np.sqrt((nx * nx + ny * ny) + nz * nz)
+        px, py, pz = points[row, col, 0], points[row, col, 1], points[row, col, 2]
+        distance = max(np.sqrt((px * px + py * py) + pz * pz), 1e-12)
+        tx, ty, tz = -px / distance, -py / distance, -pz / distance
+        if both and length > 0:
+            nx, ny, nz = nx / length, ny / length, nz / length
+        else:
+            nx, ny, nz = tx, ty, tz
+        if (nx * tx + nz * tz) + ny * ty < 0:
+            nx, ny, nz = -nx, -ny, -nz
+        normals[k, 0], normals[k, 1], normals[k, 2] = nx, ny, nz
 
 
 @dataclasses.dataclass
@@ -274,6 +302,19 @@ class RefinedEvidence:
     footprints: dict[int, dict[int, FrameFootprints]]
     labels: dict[str, int]
     occluders: dict[int, FrameOccluders] = dataclasses.field(default_factory=dict)
+    regions: dict[int, tuple[np.ndarray, np.ndarray]] = dataclasses.field(default_factory=dict)
+
+    def frame_regions(self, item: CameraPass, t: int) -> tuple[np.ndarray, np.ndarray]:
+        """The image regions of the objects ``item`` tracks at camera frame t
+        (``footprints.object_regions``), found at the first sweep that serves the frame."""
+        if t not in self.regions:
+            boxes = [
+                (run.world_from_box[t - run.start], run.lidar_boxes[t - run.start])
+                for run in item.runs
+                if run.start <= t < run.stop
+            ]
+            self.regions[t] = object_regions(item.camera, t, boxes)
+        return self.regions[t]
 
     def frame_occluders(self, t: int) -> FrameOccluders:
         """Frame t's footprints joined and binned (``footprints.FrameOccluders``), built at the first
@@ -415,7 +456,7 @@ def _camera_frame(
             world[in_camera], item.camera, t, occlusion_margin, parallax_cleanup
         )
     vehicle_from_world, vehicle = in_vehicle
-    pixels = np.flatnonzero(sweep.kept)
+    pixels = sweep.pixels
     bodies = {}
     for run in item.runs:
         if run.start <= t < run.stop:
@@ -449,20 +490,16 @@ def _refined_frame(
     labels = motions.labels_at(t, vehicle[in_camera])
     active = [run for run in item.runs if run.start <= t < run.stop]
     needed = set(item.needed)
-    targets = []  # (frame, its moves, its regions)
-    for target in (t - 1, t, t + 1):
-        if target in needed:
-            boxes = [
-                (run.world_from_box[target - run.start], run.lidar_boxes[target - run.start])
-                for run in item.runs
-                if run.start <= target < run.stop
-            ]
-            targets.append((target, motions.moves(t, target), object_regions(item.camera, target, boxes)))
+    targets = [  # (frame, its moves, its regions)
+        (target, motions.moves(t, target), refined.frame_regions(item, target))
+        for target in (t - 1, t, t + 1)
+        if target in needed
+    ]
     reach = likely_reach(sweep, in_camera, spacing)
     serving = serving_returns(item.camera, sweep.points[in_camera], labels, reach, targets)
     tracked = [refined.labels[run.object_id] for run in active]
     # Footprints for the returns on the objects tracked now (their surfaces) or serving some frame.
-    wanted = np.unique(np.concatenate([np.flatnonzero(np.isin(labels, tracked)), *serving]))
+    wanted = np.flatnonzero(np.isin(labels, tracked) | serving.any(axis=0))
     footprints = sweep_footprints(sweep, in_camera[wanted], spacing)
     wanted_labels = labels[wanted]
     limits = motions.box_limits(t, footprints, wanted_labels, vehicle_from_world)
@@ -471,20 +508,12 @@ def _refined_frame(
         refined.body_views[run.object_id][t] = -sweep.beams(bodies[run.object_id]) @ box_from_world[:3, :3].T
         on_object = np.flatnonzero(wanted_labels == refined.labels[run.object_id])
         refined.surfaces[run.object_id][t] = _surface(sweep, footprints, on_object, box_from_world, spacing)
-    for (target, moves, regions), rows in zip(targets, serving, strict=True):
-        at = np.searchsorted(wanted, rows)  # the target's returns among those with footprints
-        kept, *world = moved(
-            wanted_labels[at],
-            moves,
-            footprints.points[at],
-            footprints.normals[at],
-            footprints.along_azimuth[at],
-            footprints.along_inclination[at],
-        )
-        source, chosen = t - target, at[kept]
-        seen = frame_footprints(
-            item.camera, target, source, tuple(world), limits[chosen], wanted_labels[chosen], regions
-        )
+    vectors = (footprints.normals, footprints.along_azimuth, footprints.along_inclination)
+    for (target, moves, regions), serves in zip(targets, serving, strict=True):
+        at = np.flatnonzero(serves[wanted])  # the target's returns among those with footprints
+        world = moved(at, wanted_labels, moves, footprints.points, *vectors)
+        source = t - target
+        seen = frame_footprints(item.camera, target, source, world, limits[at], wanted_labels[at], regions)
         refined.footprints.setdefault(target, {})[source] = seen
 
 
@@ -501,7 +530,7 @@ def _surface(
     points = transform_points(box_from_world, footprints.points[on_object])
     if len(on_object) < 3:
         return points, np.zeros((0, 3), np.int64)
-    pixels = np.flatnonzero(sweep.kept)[footprints.index[on_object]]
+    pixels = sweep.pixels[footprints.index[on_object]]
     triangles = surface_triangles(pixels, sweep.ranges, spacing)
     normals = footprints.normals[on_object] @ box_from_world[:3, :3].T
     return points, consistent_triangles(points, normals, triangles)

@@ -14,6 +14,7 @@ triangle that one sweep got wrong is not confirmed by the other half.
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 # A triangle's range step may be at most this many beam spacings (at its nearest corner's range):
@@ -27,41 +28,98 @@ def surface_triangles(pixels: np.ndarray, ranges: np.ndarray, spacing: np.ndarra
     """Triangles [M, 3] (indices into the K returns) of returns at range-image pixels [K] (flat
     indices into ranges [H, W], ascending), rows' angular spacing [H] (``footprints.row_spacings``):
     each square of four neighbouring returns gives two triangles, three of them one, when their range
-    steps are those of one surface (``consistent_triangles`` checks their normals)."""
+    steps are those of one surface (``consistent_triangles`` checks their normals). In order: every
+    square's first triangle (here, right, down), then every square's second (right, diagonal, down),
+    then the three-return squares' (here, diagonal, down) and (here, right, diagonal)."""
+    pixels, ranges = np.asarray(pixels, np.int64), np.ascontiguousarray(ranges, np.float64)
+    triangles = np.empty((2 * len(pixels), 3), np.int64)
+    return triangles[: _surface_triangles(pixels, ranges, spacing, MAX_STEP_SPACINGS, triangles)]
+
+
+@numba.njit(cache=True, nogil=True)
+def _surface_triangles(pixels, ranges, spacing, max_step, triangles):
+    """Fills triangles [<= 2K, 3] (``surface_triangles``) and returns their count. A triangle's range
+    step (largest less smallest corner range) is at most max_step x its nearest range x its beam
+    spacing (the larger of the azimuth's and its corner rows')."""
     height, width = ranges.shape
-    rows, cols = pixels // width, pixels % width
-    here = np.flatnonzero((rows + 1 < height) & (cols + 1 < width))
-    right, down, diagonal = (_position(pixels, pixels[here] + step) for step in (1, width, width + 1))
-    has_right, has_down, has_diagonal = right >= 0, down >= 0, diagonal >= 0
-    four = has_right & has_down & has_diagonal
-    candidates = [
-        (np.stack([here, right, down], 1), four | (has_right & has_down & ~has_diagonal)),
-        (np.stack([right, diagonal, down], 1), four),
-        (np.stack([here, diagonal, down], 1), ~has_right & has_down & has_diagonal),
-        (np.stack([here, right, diagonal], 1), has_right & ~has_down & has_diagonal),
-    ]
-    triangles = np.concatenate([corners[keep] for corners, keep in candidates]).astype(np.int64)
-    corner_ranges = ranges.ravel()[pixels[triangles]]
-    beam = np.maximum(2.0 * np.pi / width, spacing[rows[triangles]].max(axis=1))
-    one_surface = np.ptp(corner_ranges, axis=1) <= MAX_STEP_SPACINGS * corner_ranges.min(axis=1) * beam
-    return triangles[one_surface]
+    corners = np.empty((4, len(pixels), 3), np.int64)  # per kind, the squares' candidates
+    counts = np.zeros(4, np.int64)
+    for k in range(len(pixels)):
+        row, col = pixels[k] // width, pixels[k] % width
+        if row + 1 >= height or col + 1 >= width:
+            continue
+        right = _position(pixels, pixels[k] + 1)
+        down = _position(pixels, pixels[k] + width)
+        diagonal = _position(pixels, pixels[k] + width + 1)
+        for kind, (a, b, c, kept) in enumerate(
+            (
+                (k, right, down, right >= 0 and down >= 0),
+                (right, diagonal, down, right >= 0 and down >= 0 and diagonal >= 0),
+                (k, diagonal, down, right < 0 and down >= 0 and diagonal >= 0),
+                (k, right, diagonal, right >= 0 and down < 0 and diagonal >= 0),
+            )
+        ):
+            if kept:
+                corners[kind, counts[kind], 0] = a
+                corners[kind, counts[kind], 1] = b
+                corners[kind, counts[kind], 2] = c
+                counts[kind] += 1
+    flat = ranges.ravel()
+    count = 0
+    for kind in range(4):
+        for m in range(counts[kind]):
+            first = flat[pixels[corners[kind, m, 0]]]
+            low = high = first
+            beam = 2.0 * np.pi / width
+            for c in range(3):
+                corner = pixels[corners[kind, m, c]]
+                low = min(low, flat[corner])
+                high = max(high, flat[corner])
+                beam = max(beam, spacing[corner // width])
+            if high - low <= max_step * low * beam:
+                triangles[count] = corners[kind, m]
+                count += 1
+    return count
 
 
-def _position(sorted_pixels: np.ndarray, wanted: np.ndarray) -> np.ndarray:
-    """Index [Q] of each wanted pixel [Q] in the sorted pixels [K], -1 where it is not one of them."""
-    at = np.minimum(np.searchsorted(sorted_pixels, wanted), len(sorted_pixels) - 1)
-    return np.where(sorted_pixels[at] == wanted, at, -1)
+@numba.njit(cache=True, nogil=True)
+def _position(sorted_pixels, wanted):
+    """Index of the wanted pixel in the sorted pixels [K], -1 where it is not one of them."""
+    at = np.searchsorted(sorted_pixels, wanted)
+    return at if at < len(sorted_pixels) and sorted_pixels[at] == wanted else -1
 
 
 def consistent_triangles(points: np.ndarray, normals: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """The triangles [M, 3] over points [K, 3] whose own normal lies within MIN_NORMAL_COSINE of each
     corner's normal [K, 3] (either sign)."""
-    corners = points[triangles]
-    own = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    length = np.linalg.norm(own, axis=1)
-    own = own / np.where(length > 0, length, 1.0)[:, None]
-    agreement = np.abs(np.einsum("mi,mci->mc", own, normals[triangles])).min(axis=1)
-    return triangles[(length > 0) & (agreement >= MIN_NORMAL_COSINE)]
+    keep = np.empty(len(triangles), np.bool_)
+    _consistent(
+        np.ascontiguousarray(points, np.float64),
+        np.ascontiguousarray(normals, np.float64),
+        triangles,
+        MIN_NORMAL_COSINE,
+        keep,
+    )
+    return triangles[keep]
+
+
+@numba.njit(cache=True, nogil=True)
+def _consistent(points, normals, triangles, min_cosine, keep):
+    """keep [M] (``consistent_triangles``): sums in NumPy's order (np.linalg.norm's (x + y) + z,
+    einsum's (x + z) + y), the bits of the array expressions."""
+    for m in range(len(triangles)):
+        a, b, c = triangles[m, 0], triangles[m, 1], triangles[m, 2]
+        ux, uy, uz = points[b, 0] - points[a, 0], points[b, 1] - points[a, 1], points[b, 2] - points[a, 2]
+        vx, vy, vz = points[c, 0] - points[a, 0], points[c, 1] - points[a, 1], points[c, 2] - points[a, 2]
+        nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+        length = np.sqrt((nx * nx + ny * ny) + nz * nz)
+        keep[m] = length > 0
+        if not keep[m]:
+            continue
+        nx, ny, nz = nx / length, ny / length, nz / length
+        for corner in (a, b, c):
+            cosine = (nx * normals[corner, 0] + nz * normals[corner, 2]) + ny * normals[corner, 1]
+            keep[m] = keep[m] and abs(cosine) >= min_cosine
 
 
 class OwnSurface:
@@ -96,14 +154,18 @@ class OwnSurface:
 
     def hides(self, points: np.ndarray, rays: np.ndarray, clearance: np.ndarray) -> np.ndarray:
         """[N] bool: the rays [N, 3] that end at points [N, 3] (both box frame) cross the surface of
-        both halves more than ``clearance`` [N] (metres) before their end."""
+        both halves more than ``clearance`` [N] (metres) before their end. Each half casts only the
+        rays that every half before it found crossing."""
         scenes = [scene for scene in self.halves if scene is not None]
+        hidden = np.zeros(len(points), bool)
         if not len(points) or len(scenes) < len(self.halves):
-            return np.zeros(len(points), bool)
+            return hidden
         length = np.linalg.norm(rays, axis=1)
         short = rays * np.clip(1.0 - clearance / length, 0.0, 1.0)[:, None]
-        tensor = self._tensor(np.concatenate([points - rays, short], axis=1).astype(np.float32))
-        hidden = np.ones(len(points), bool)
+        cast = np.concatenate([points - rays, short], axis=1).astype(np.float32)
+        crossing = np.arange(len(points))
         for scene in scenes:
-            hidden &= scene.test_occlusions(tensor, tnear=0.0, tfar=1.0, nthreads=1).numpy().astype(bool)
+            hits = scene.test_occlusions(self._tensor(cast[crossing]), tnear=0.0, tfar=1.0, nthreads=1)
+            crossing = crossing[hits.numpy().astype(bool)]
+        hidden[crossing] = True
         return hidden

@@ -53,19 +53,27 @@ def refined_visibility(
     label among them; occlusion_margin: the share of a point's depth another surface must
     be nearer by."""
     visibility = np.zeros(in_view.shape, bool)
+    # Per frame, the candidates no other surface covers, and their rays to the own surface.
+    frames, ends, rays, clearances = [], [], [], []
     for i, frame_occluders in enumerate(occluders):
         rotation = cam_from_box[i, :3, :3]
         points = tracks[i]
         distance = np.linalg.norm(points, axis=1)
         cosine = -np.einsum("ni,ni->n", box_normals @ rotation.T, points) / distance
         candidates = np.flatnonzero(in_view[i] & (cosine > 0))
-        if not len(candidates):
-            continue
         seen = points[candidates]
         across = SURFACE_TOLERANCE_M / np.maximum(cosine[candidates], MIN_RAY_COSINE)
-        hidden = surface.hides(box_points[candidates], seen @ rotation, np.maximum(OWN_CLEARANCE_M, across))
         depth = seen[:, 2]
         limits = depth - np.maximum(occlusion_margin * depth, across * depth / distance[candidates])
         reach = occluder_reach(frame_occluders, pixels[i, candidates], seen, limits, own_label)
-        visibility[i, candidates] = ~hidden & ~occluded_by_others(reach, frame_occluders.sources)
+        uncovered = np.flatnonzero(~occluded_by_others(reach, frame_occluders.sources))
+        frames.append((i, candidates[uncovered]))
+        ends.append(box_points[candidates[uncovered]])
+        rays.append(seen[uncovered] @ rotation)
+        clearances.append(np.maximum(OWN_CLEARANCE_M, across[uncovered]))
+    hidden = surface.hides(np.concatenate(ends), np.concatenate(rays), np.concatenate(clearances))
+    start = 0
+    for i, rows in frames:
+        visibility[i, rows] = ~hidden[start : start + len(rows)]
+        start += len(rows)
     return visibility

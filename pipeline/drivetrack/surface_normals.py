@@ -56,6 +56,8 @@ def _fit(points, query, neighbours, towards, tolerance, min_sine, normals):
                 nx, ny, nz = nx / length, ny / length, nz / length
                 members, spread = 0, 0.0
                 for k in range(count):
+                    if members + count - k < best_count:
+                        break  # this plane can no longer hold as many as the best
                     distance = nx * offsets[k, 0] + ny * offsets[k, 1] + nz * offsets[k, 2]
                     if abs(distance) < tolerance:
                         members += 1
