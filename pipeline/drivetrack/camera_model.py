@@ -251,10 +251,13 @@ class UnitCamera:
         bounds = np.concatenate([[0], np.cumsum(counts)])
         readouts = [self.readouts[t] for t in frames]
         rolling = [i for i, readout in enumerate(readouts) if readout is not None]
-        if rolling:
+        read = [readout for readout in readouts if readout is not None]
+        if len(rolling) == len(frames):  # every frame's: no points to pick out and put back
+            local = self._seen(read, np.repeat(np.arange(len(frames)), counts), local)
+        elif rolling:
             rows = np.concatenate([np.arange(bounds[i], bounds[i + 1]) for i in rolling])
             frame = np.repeat(np.arange(len(rolling)), counts[rolling])
-            local[rows] = self._seen([r for r in readouts if r is not None], frame, local[rows])
+            local[rows] = self._seen(read, frame, local[rows])
         whole = self._stored(local)
         arrays = (whole.points, whole.pixels, whole.sensor, whole.in_view)
         parts = (np.split(array, bounds[1:-1]) for array in arrays)

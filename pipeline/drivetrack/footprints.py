@@ -89,6 +89,7 @@ def _half_vectors(grid, ranges, pixels, world_from_lidar, pose, spacing, normals
     cosine to the beam counts as at least ``min_cosine``. Rotations summed as ``lidar.turned``,
     dot products as einsum (x + z) + y: the bits of the array expressions."""
     width = ranges.shape[1]
+    beam, direction = np.empty(3), np.empty(3)
     for k in range(len(pixels)):
         row, col = pixels[k] // width, pixels[k] % width
         distance = ranges[row, col]
@@ -99,7 +100,6 @@ def _half_vectors(grid, ranges, pixels, world_from_lidar, pose, spacing, normals
             (-bx * bz / level, -by * bz / level, level),  # d beam / d inclination
         )
         r = world_from_lidar[pose[k]]
-        beam = np.empty(3)
         for i in range(3):
             beam[i] = (r[i, 0] * bx + r[i, 2] * bz) + r[i, 1] * by
         n0, n1, n2 = normals[k, 0], normals[k, 1], normals[k, 2]
@@ -108,7 +108,6 @@ def _half_vectors(grid, ranges, pixels, world_from_lidar, pose, spacing, normals
             facing = np.copysign(min_cosine, facing)
         for a in range(2):
             dx, dy, dz = directions[a]
-            direction = np.empty(3)
             for i in range(3):
                 direction[i] = (r[i, 0] * dx + r[i, 2] * dz) + r[i, 1] * dy
             share = ((n0 * direction[0] + n2 * direction[2]) + n1 * direction[1]) / facing
@@ -195,10 +194,11 @@ class BoxMotions:
         at the border of its box (``objects.on_surface_box``: no surface of the object lies beyond),
         the rest reach a whole half-vector. labels [K]: ``labels_at``'s."""
         limits = np.ones((len(labels), 4))
+        present = np.bincount(labels + 1, minlength=len(self.object_ids) + 1)[1:] > 0
         for row in self._rows[t]:
-            members = np.flatnonzero(labels == self._labels[row])
-            if not len(members):
+            if not present[self._labels[row]]:
                 continue
+            members = np.flatnonzero(labels == self._labels[row])
             box_from_world = self._box_from_vehicle[row] @ vehicle_from_world
             rotation = box_from_world[:3, :3]
             _box_room(
@@ -216,15 +216,13 @@ class BoxMotions:
     def moves(self, source: int, target: int) -> Moves:
         """How each object with a lidar box at frame ``source`` and a camera-synced box at frame
         ``target`` moves between them (target_world_from_source_world)."""
-        placed = {self._labels[row]: self._placed[row] for row in self._rows[target]}
-        moves = {
-            self._labels[row]: placed[self._labels[row]] @ self._detached[row]
-            for row in self._rows[source]
-            if self._labels[row] in placed
-        }
-        transforms = np.stack([moves[label] for label in sorted(moves)]) if moves else np.zeros((0, 4, 4))
+        placed = {self._labels[row]: row for row in self._rows[target]}
+        attached = {self._labels[row]: row for row in self._rows[source] if self._labels[row] in placed}
+        labels = sorted(attached)
+        rows = [placed[label] for label in labels], [attached[label] for label in labels]
+        transforms = self._placed[rows[0]] @ self._detached[rows[1]]
         row_of_label = np.full(len(self.object_ids), -1, np.int64)
-        row_of_label[sorted(moves)] = np.arange(len(moves))
+        row_of_label[labels] = np.arange(len(labels))
         rotations, translations = transforms[:, :3, :3], transforms[:, :3, 3]
         return Moves(row_of_label, np.ascontiguousarray(rotations), np.ascontiguousarray(translations))
 
@@ -425,57 +423,67 @@ def frame_footprints(
     points, normals, along_azimuth, along_inclination = world
     seen = camera.project(t, points)
     rotation = camera.cam_from_world[t, :3, :3]
-    rows = np.flatnonzero(seen.in_view)
-    local, pixels = seen.points[rows], seen.pixels[rows]
-    half = np.empty((2, len(rows), 2))
-    wanted = np.empty(len(rows), np.bool_)
-    _overlapping(
-        pixels,
-        local,
-        along_azimuth[rows] @ rotation.T,
-        along_inclination[rows] @ rotation.T,
+    pixels, local, half = (
+        np.empty((len(points), 2)),
+        np.empty((len(points), 3)),
+        np.empty((2, len(points), 2)),
+    )
+    chosen = np.empty(len(points), np.int64)
+    count = _overlapping(
+        seen.in_view,
+        seen.pixels,
+        seen.points,
+        along_azimuth @ rotation.T,
+        along_inclination @ rotation.T,
         camera.calibration.fx_fy_cx_cy,
         *regions,
-        half,
-        wanted,
+        (pixels, local, half, chosen),
     )
-    keep = np.flatnonzero(wanted)
-    chosen = rows[keep]
+    chosen = chosen[:count]
     return FrameFootprints(
-        pixels[keep],
-        local[keep],
+        pixels[:count],
+        local[:count],
         normals[chosen] @ rotation.T,
-        half[0, keep],
-        half[1, keep],
+        half[0, :count],
+        half[1, :count],
         limits[chosen],
         labels[chosen],
-        np.full(len(keep), source, np.int8),
+        np.full(count, source, np.int8),
     )
 
 
 @numba.njit(cache=True, nogil=True)
-def _overlapping(pixels, points, along_u, along_v, lens, rectangles, depths, half, wanted):
-    """half [2, K, 2] and wanted [K] of footprints at pixels [K, 2] and camera points [K, 3], their
-    half-vectors [K, 3] each (camera frame): the pixel half-vectors, their images through the
-    pinhole's Jacobian (lens: fx, fy, ...); wanted where the footprint's pixel rectangle (the pixel
-    +- the sum of their sizes) overlaps a rectangle [R, 4] (u0, v0, u1, v1) whose depth [R] is
-    beyond the footprint's depth."""
+def _overlapping(in_view, seen_pixels, seen_points, along_u, along_v, lens, rectangles, depths, kept):
+    """The count C of the footprints kept, and for them ``kept`` = (pixels [C, 2], camera points
+    [C, 3], pixel half-vectors [2, C, 2], rows [C]) of footprints in view where ``in_view`` [K] at
+    ``seen_pixels`` [K, 2] and ``seen_points`` [K, 3], their half-vectors [K, 3] each (camera frame):
+    the pixel half-vectors are their images through the pinhole's Jacobian (lens: fx, fy, ...); kept
+    where the footprint's pixel rectangle (the pixel +- the sum of their sizes) overlaps a rectangle
+    [R, 4] (u0, v0, u1, v1) whose depth [R] is beyond the footprint's depth."""
+    pixels, points, half, rows = kept
     fx, fy = lens[0], lens[1]
-    for k in range(len(pixels)):
-        x, y, z = points[k, 0], points[k, 1], points[k, 2]
-        for h in range(2):
-            vectors = along_u if h == 0 else along_v
-            half[h, k, 0] = fx * (vectors[k, 0] - x * vectors[k, 2] / z) / z
-            half[h, k, 1] = fy * (vectors[k, 1] - y * vectors[k, 2] / z) / z
-        reach_u = abs(half[0, k, 0]) + abs(half[1, k, 0])
-        reach_v = abs(half[0, k, 1]) + abs(half[1, k, 1])
-        wanted[k] = False
+    count = 0
+    for k in range(len(in_view)):
+        if not in_view[k]:
+            continue
+        x, y, z = seen_points[k, 0], seen_points[k, 1], seen_points[k, 2]
+        u_x = fx * (along_u[k, 0] - x * along_u[k, 2] / z) / z
+        u_y = fy * (along_u[k, 1] - y * along_u[k, 2] / z) / z
+        v_x = fx * (along_v[k, 0] - x * along_v[k, 2] / z) / z
+        v_y = fy * (along_v[k, 1] - y * along_v[k, 2] / z) / z
+        reach_u, reach_v = abs(u_x) + abs(v_x), abs(u_y) + abs(v_y)
+        u, v = seen_pixels[k, 0], seen_pixels[k, 1]
         for i in range(len(depths)):
-            if z < depths[i] and pixels[k, 0] + reach_u >= rectangles[i, 0]:
-                if pixels[k, 0] - reach_u <= rectangles[i, 2] and pixels[k, 1] + reach_v >= rectangles[i, 1]:
-                    if pixels[k, 1] - reach_v <= rectangles[i, 3]:
-                        wanted[k] = True
-                        break
+            if z < depths[i] and u + reach_u >= rectangles[i, 0] and u - reach_u <= rectangles[i, 2]:
+                if v + reach_v >= rectangles[i, 1] and v - reach_v <= rectangles[i, 3]:
+                    pixels[count, 0], pixels[count, 1] = u, v
+                    points[count, 0], points[count, 1], points[count, 2] = x, y, z
+                    half[0, count, 0], half[0, count, 1] = u_x, u_y
+                    half[1, count, 0], half[1, count, 1] = v_x, v_y
+                    rows[count] = k
+                    count += 1
+                    break
+    return count
 
 
 @numba.njit(cache=True, nogil=True)

@@ -442,10 +442,10 @@ def _camera_frame(
     occlusion_margin: float,
     parallax_cleanup: bool,
     depth: bool,
-) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+) -> tuple[np.ndarray, dict[str, tuple[np.ndarray, np.ndarray]]]:
     """Camera frame t's share of a sweep: its objects' points and, with ``depth``, its depth samples,
-    into ``evidence``. Returns the kept points the lidar projects into this camera [K] and each
-    object's body points [K'] (kept-point indices).
+    into ``evidence``. Returns the kept points the lidar projects into this camera [K] and per object
+    its body points [K'] (kept-point indices) with its box_from_vehicle [4, 4].
 
     projection: [H, W, 6] the sweep's lidar_camera_projection (camera name, u, v, twice);
     in_vehicle: vehicle_from_world [4, 4] at the frame and the sweep's points [M, 3] in that frame."""
@@ -465,7 +465,7 @@ def _camera_frame(
             evidence.body_points[run.object_id][t] = points
             evidence.body_normals[run.object_id][t] = sweep.normals(inside) @ box_from_world.T
             evidence.body_pixels[run.object_id][t] = pixels[inside]
-            bodies[run.object_id] = inside
+            bodies[run.object_id] = inside, box_from_vehicle
     return np.flatnonzero(in_camera), bodies
 
 
@@ -477,15 +477,15 @@ def _refined_frame(
     sweep: TopSweep,
     spacing: np.ndarray,
     in_camera: np.ndarray,
-    bodies: dict[str, np.ndarray],
+    bodies: dict[str, tuple[np.ndarray, np.ndarray]],
     in_vehicle: tuple[np.ndarray, np.ndarray],
 ) -> None:
     """What the refined visibility reads of camera frame t's sweep, into ``refined``: its objects'
     body views and surfaces, and its footprints in the camera frames t - 1, t and t + 1 it serves.
 
     spacing: [H] the rows' angular spacing; in_camera: [K] the kept points the lidar projects into
-    this camera; bodies: object -> its body points (kept-point indices); in_vehicle: as
-    ``_camera_frame``'s."""
+    this camera; bodies: object -> its body points (kept-point indices) and box_from_vehicle [4, 4];
+    in_vehicle: as ``_camera_frame``'s."""
     vehicle_from_world, vehicle = in_vehicle
     labels = motions.labels_at(t, vehicle[in_camera])
     active = [run for run in item.runs if run.start <= t < run.stop]
@@ -504,8 +504,9 @@ def _refined_frame(
     wanted_labels = labels[wanted]
     limits = motions.box_limits(t, footprints, wanted_labels, vehicle_from_world)
     for run in active:
-        box_from_world = invert_se3(box_poses(run.lidar_boxes[t - run.start])) @ vehicle_from_world
-        refined.body_views[run.object_id][t] = -sweep.beams(bodies[run.object_id]) @ box_from_world[:3, :3].T
+        body, box_from_vehicle = bodies[run.object_id]
+        box_from_world = box_from_vehicle @ vehicle_from_world
+        refined.body_views[run.object_id][t] = -sweep.beams(body) @ box_from_world[:3, :3].T
         on_object = np.flatnonzero(wanted_labels == refined.labels[run.object_id])
         refined.surfaces[run.object_id][t] = _surface(sweep, footprints, on_object, box_from_world, spacing)
     vectors = (footprints.normals, footprints.along_azimuth, footprints.along_inclination)
