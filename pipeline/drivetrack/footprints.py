@@ -145,9 +145,9 @@ class BoxMotions:
     """The labelled objects of a camera's unit, and how each moves between its frames.
 
     object_ids: every object id of the segment's boxes, sorted: an object's label is its position.
-    Per box row on one of the unit's frames: its label, its lidar box [7] (vehicle frame) and the
-    world poses of its lidar and camera-synced boxes [4, 4] (world_from_frame [T, 4, 4]:
-    ``camera_model.frame_poses``)."""
+    Per box row on one of the unit's frames: its label, its lidar box [7] (vehicle frame) with its
+    box_from_vehicle [4, 4] and reach (metres), box_from_world of its lidar box and world_from_box of
+    its camera-synced box [4, 4] (world_from_frame [T, 4, 4]: ``camera_model.frame_poses``)."""
 
     def __init__(self, unit, world_from_frame: np.ndarray):
         boxes = unit.boxes
@@ -159,7 +159,7 @@ class BoxMotions:
         self._labels = np.searchsorted(self.object_ids, boxes.object_ids)
         self._lidar = boxes.lidar_boxes
         poses = world_from_frame[np.maximum(frame, 0)]
-        self._detached = invert_se3(poses @ box_poses(boxes.lidar_boxes))  # lidar box from world
+        self._detached = invert_se3(poses @ box_poses(boxes.lidar_boxes))
         self._placed = poses @ box_poses(boxes.synced_boxes)
         self._box_from_vehicle = invert_se3(box_poses(boxes.lidar_boxes))
         # Per row, the circumscribed sphere's radius and a metre.
@@ -219,8 +219,8 @@ class BoxMotions:
         placed = {self._labels[row]: row for row in self._rows[target]}
         attached = {self._labels[row]: row for row in self._rows[source] if self._labels[row] in placed}
         labels = sorted(attached)
-        rows = [placed[label] for label in labels], [attached[label] for label in labels]
-        transforms = self._placed[rows[0]] @ self._detached[rows[1]]
+        to_rows, from_rows = [placed[label] for label in labels], [attached[label] for label in labels]
+        transforms = self._placed[to_rows] @ self._detached[from_rows]
         row_of_label = np.full(len(self.object_ids), -1, np.int64)
         row_of_label[labels] = np.arange(len(labels))
         rotations, translations = transforms[:, :3, :3], transforms[:, :3, 3]
@@ -329,8 +329,8 @@ def _moved(index, labels, row_of_label, rotations, translations, points, vectors
                 continue
             r = rotations[row]
             for i in range(3):
-                turned = (r[i, 0] * x + r[i, 2] * z) + r[i, 1] * y
-                out[v, n, i] = turned + translations[row, i] if v == 0 else turned
+                rotated = (r[i, 0] * x + r[i, 2] * z) + r[i, 1] * y
+                out[v, n, i] = rotated + translations[row, i] if v == 0 else rotated
 
 
 def likely_reach(sweep, index: np.ndarray, spacing: np.ndarray) -> np.ndarray:
@@ -383,7 +383,7 @@ def serving_returns(
     footprints reaching about ``reach`` [K] metres, ``likely_reach``) whose footprints may serve
     there: moved to it (``targets``: per frame, its moves and its regions, ``object_regions``; a
     labelled return whose object has no move is dropped), near one of its regions
-    (``near_regions``). A footprint seen nearly edge-on may reach further: such a surface covers
+    (``_near_regions``). A footprint seen nearly edge-on may reach further: such a surface covers
     little of the image beyond its return."""
     serving = np.zeros((len(targets), len(points)), np.bool_)
     points = np.ascontiguousarray(points, np.float64)
