@@ -19,6 +19,7 @@ import os
 import pathlib
 import shutil
 import subprocess
+import time
 
 import cv2
 import numpy as np
@@ -164,6 +165,7 @@ class ReferenceRuns:
     def __init__(self, factory: pytest.TempPathFactory, inputs: dict[str, str]):
         self._shared, self._inputs = shared_folder(factory), inputs
         self._made: dict[str, tuple[str, subprocess.CompletedProcess]] = {}
+        self._walls: dict[str, float] = {}
 
     def __call__(self, source: str) -> str:
         return self._run(source)[0]
@@ -187,11 +189,19 @@ class ReferenceRuns:
                 if not record.exists():
                     shutil.rmtree(out, ignore_errors=True)  # a worker's run that failed
                     given = ("--input", self._inputs[source], "--output", str(out), *options)
+                    started = time.monotonic()
                     result = run_pipeline(source, *given)
+                    wall = time.monotonic() - started
                     assert result.returncode == 0, result.stderr[-3000:]
-                    record.write_text(json.dumps([result.args, 0, result.stdout, result.stderr]))
-            self._made[name] = (str(out), subprocess.CompletedProcess(*json.loads(record.read_text())))
+                    record.write_text(json.dumps([result.args, 0, result.stdout, result.stderr, wall]))
+            *completed, self._walls[name] = json.loads(record.read_text())
+            self._made[name] = (str(out), subprocess.CompletedProcess(*completed))
         return self._made[name]
+
+    def wall(self, source: str) -> float:
+        """Seconds from that run's launch to its exit, as its parent saw them."""
+        self._run(source)
+        return self._walls[f"reference_direct_{source}"]
 
 
 @pytest.fixture(scope="session")

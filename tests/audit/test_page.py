@@ -290,20 +290,28 @@ def test_the_page_loads_offline_without_errors(loaded, tmp_path):
     assert shot.stat().st_size > 20_000
 
 
-def move(driver, source: str, slider: str, index: int, last: int) -> str:
-    """Put a slider at ``index`` with the keyboard (Home or End, then arrows); its shown value."""
-    element = driver.find_element(By.ID, f"{source}-slider-{slider}")
-    keys = (
-        Keys.HOME + Keys.ARROW_RIGHT * index
-        if index <= last - index
-        else Keys.END + Keys.ARROW_LEFT * (last - index)
-    )
-    element.send_keys(keys)
-    return driver.find_element(By.ID, f"{source}-value-{slider}").text
+def move(driver, source: str, slider: str, index: int, last: int, now: int | None = None) -> None:
+    """Put a slider at ``index`` with the keyboard, as few keys as it takes: arrows from ``now``
+    (its index, when known), or Home or End, then arrows."""
+    ways = [Keys.HOME + Keys.ARROW_RIGHT * index, Keys.END + Keys.ARROW_LEFT * (last - index)]
+    if now is not None:
+        ways.append(Keys.ARROW_RIGHT * (index - now) if index >= now else Keys.ARROW_LEFT * (now - index))
+    keys = min(ways, key=len)
+    if keys:
+        driver.find_element(By.ID, f"{source}-slider-{slider}").send_keys(keys)
 
 
-def shown(driver, ident: str) -> int:
-    return int(driver.find_element(By.ID, ident).get_attribute("data-value"))
+# What the page shows, read from its document in one call: element id -> [attribute or "text", ...].
+READ_SHOWN = """
+const [wanted, dropped] = arguments;
+const read = {};
+for (const [id, fields] of Object.entries(wanted)) {
+  const element = document.getElementById(id);
+  read[id] = fields.map(field => field === "text" ? element.textContent : element.getAttribute(field));
+}
+read.dropped_rows = document.querySelectorAll("#" + dropped + " tr.dropped").length;
+return read;
+"""
 
 
 @pytest.mark.parametrize("source", ["pstudio", "drivetrack"])
@@ -315,6 +323,16 @@ def test_sliders_show_the_sweeps_counts(loaded, out, source, tmp_path):
     clips = len(load_statistics(str(out), source))
     Select(loaded.find_element(By.ID, f"{source}-table-show")).select_by_value("all")
     keys = ["flicker.max_fraction", f"{source}.mask_min_agreement", "min_tracks"]
+    sliders = ("flicker", "mask", "min_tracks")
+    lasts = [100, 100, int(loaded.find_element(By.ID, f"{source}-slider-min_tracks").get_attribute("max"))]
+    counts = {"passed": "passed", "clips-written": "clips_written", "below-target": "clips_below_target"}
+    if source == "drivetrack":
+        counts |= {f"release-{split}": f"release_{split}" for split in ("minival", "full_eval")}
+    funnel = ("never_visible", "flicker", "mask")
+    wanted = {f"{source}-value-{slider}": ["text"] for slider in sliders}
+    wanted |= {f"{source}-{name}": ["data-value"] for name in counts}
+    wanted |= {f"{source}-funnel-{name}": ["data-dropped"] for name in funnel}
+    now: list[int | None] = [None, None, None]
     for row in rows:
         # Independently of the page's data: fractions step by 0.01 from 0, min_tracks by 1 from 1.
         positions = [
@@ -322,26 +340,16 @@ def test_sliders_show_the_sweeps_counts(loaded, out, source, tmp_path):
             round(float(row[keys[1]]) * 100),
             int(row["min_tracks"]) - 1,
         ]
-        lasts = [
-            100,
-            100,
-            int(loaded.find_element(By.ID, f"{source}-slider-min_tracks").get_attribute("max")),
-        ]
-        for slider, key, index, last in zip(
-            ("flicker", "mask", "min_tracks"), keys, positions, lasts, strict=True
-        ):
-            assert move(loaded, source, slider, index, last) == row[key]
-        assert shown(loaded, f"{source}-passed") == row["passed"], row
-        assert shown(loaded, f"{source}-clips-written") == row["clips_written"], row
-        assert shown(loaded, f"{source}-below-target") == row["clips_below_target"], row
-        for name in ("never_visible", "flicker", "mask"):
-            cell = loaded.find_element(By.ID, f"{source}-funnel-{name}")
-            assert int(cell.get_attribute("data-dropped")) == row[f"dropped_{name}"], row
-        if source == "drivetrack":
-            for split in ("minival", "full_eval"):
-                assert shown(loaded, f"{source}-release-{split}") == row[f"release_{split}"], row
-        table = loaded.find_element(By.ID, f"{source}-table-body")
-        assert len(table.find_elements(By.CSS_SELECTOR, "tr.dropped")) == clips - row["clips_written"]
+        for slider, index, last, at in zip(sliders, positions, lasts, now, strict=True):
+            move(loaded, source, slider, index, last, at)
+        now = list(positions)
+        read = loaded.execute_script(READ_SHOWN, wanted, f"{source}-table-body")
+        assert [read[f"{source}-value-{slider}"][0] for slider in sliders] == [row[key] for key in keys]
+        for name, column in counts.items():
+            assert int(read[f"{source}-{name}"][0]) == row[column], (name, row)
+        for name in funnel:
+            assert int(read[f"{source}-funnel-{name}"][0]) == row[f"dropped_{name}"], row
+        assert read["dropped_rows"] == clips - row["clips_written"]
     assert len({row["passed"] for row in rows}) > 4
     assert len({row["clips_written"] for row in rows}) > 1
     assert severe(loaded) == []
@@ -371,7 +379,8 @@ def test_the_clip_table_shows_each_filters_drops_and_marks_clips_too_short(loade
     assert sum(verdicts[cells[heads.index("clip")]]["dropped"]["flicker"] for cells in rows) > 0
     note = loaded.find_element(By.ID, f"{source}-short-note")
     assert (note.get_attribute("data-value"), note.text) == ("0", "")  # 0.1 x T >= 1 on every clip
-    assert move(loaded, source, "flicker", 2, 100) == "0.02"
+    move(loaded, source, "flicker", 2, 100)
+    assert loaded.find_element(By.ID, f"{source}-value-flicker").text == "0.02"
     frames = {s["name"]: s for s in embedded(page)["sources"]}[source]["clips"]["frames"]
     short = sum(count < 50 for count in frames)
     assert short > 0

@@ -232,10 +232,11 @@ def test_validate_takes_one_clip_and_says_what_is_missing(reference_run, tmp_pat
 # ------------------------------------------------------------------------------------- progress
 
 
-def test_the_first_line_comes_before_the_work_and_finished_in_is_the_whole_command(tmp_path):
+def test_the_first_line_comes_before_the_work(tmp_path):
+    """A run without --input names its rules, then the sample world it is about to write; the run
+    is stopped there (the world's writing is not what this test is about)."""
     out = tmp_path / "out"
     env = dict(os.environ, PYTHONPATH=REPO)
-    started = time.monotonic()
     process = subprocess.Popen(
         [*PYTHON, "pipeline.run", "--source", "pstudio", "--output", str(out)],
         cwd=REPO,
@@ -244,17 +245,24 @@ def test_the_first_line_comes_before_the_work_and_finished_in_is_the_whole_comma
         text=True,
         env=env,
     )
-    first, second = process.stdout.readline(), process.stdout.readline()
-    sample_done = (out / "sample_input" / "pstudio").exists()
-    rest, _ = process.communicate(timeout=300)
-    wall = time.monotonic() - started
+    try:
+        first, second = process.stdout.readline(), process.stdout.readline()
+        sample_done = (out / "sample_input" / "pstudio").exists()
+    finally:
+        process.kill()
+        process.communicate(timeout=60)
     assert first.startswith("rules: refined (ours, measured better; docs/release.md): ")
     assert second.startswith(
         f"no --input given: using the embedded sample world in {out}/sample_input/pstudio"
     )
     assert not sample_done  # said before writing it
-    finished = float(re.search(r"finished in ([\d.]+) s", rest)[1])
-    assert finished >= 0.8 * wall
+
+
+def test_finished_in_is_the_whole_command(reference_run):
+    """'finished in' counts from the command's start, its imports included: at least 90% of the
+    wall its parent saw (the interpreter's own start, a fraction of a second, is all it leaves out)."""
+    finished = float(re.search(r"finished in ([\d.]+) s", reference_run.result("pstudio").stdout)[1])
+    assert finished >= 0.9 * reference_run.wall("pstudio")
 
 
 def test_units_are_reported_on_stdout_with_counts_elapsed_time_and_what_is_left(reference_run):
