@@ -366,34 +366,27 @@ def _preprocess(
             out[k, 8], out[k, 9] = opacity[i], cutoff[i]  # read here in index order, not gathered later
 
 
-@numba.njit(cache=True)
-def _depth_index_keys(depth, bits):
-    """[M] uint64: each depth's bits with its lowest ``bits`` replaced by its index."""
-    raw = depth.view(np.uint64)
-    keys = np.empty(depth.shape[0], np.uint64)
+def _depth_index_keys(depth: np.ndarray, bits: int) -> np.ndarray:
+    """[M] uint64: each depth's bits [M] with its lowest ``bits`` replaced by its index."""
     shift = np.uint64(bits)
-    for i in range(depth.shape[0]):
-        keys[i] = ((raw[i] >> shift) << shift) | np.uint64(i)
-    return keys
+    return ((depth.view(np.uint64) >> shift) << shift) | np.arange(len(depth), dtype=np.uint64)
 
 
-@numba.njit(cache=True)
-def _order_of_sorted_keys(keys, bits, depth):
-    """The indices held by sorted ``_depth_index_keys`` [M], each run of keys that agree above the
-    index bits (depths within ~2^-33 of each other, relatively) put in (depth, index) order."""
-    n, shift = keys.shape[0], np.uint64(bits)
-    order = np.empty(n, np.int64)
-    for i in range(n):
-        order[i] = np.int64(keys[i] & ((np.uint64(1) << shift) - np.uint64(1)))
-    first = 0
-    while first < n:
-        last = first + 1
-        while last < n and keys[last] >> shift == keys[first] >> shift:
-            last += 1
-        if last - first > 1:  # in index order so far: a stable sort by depth finishes it
-            run = order[first:last].copy()
-            order[first:last] = run[np.argsort(depth[run], kind="mergesort")]
-        first = last
+def _order_of_sorted_keys(keys: np.ndarray, bits: int, depth: np.ndarray) -> np.ndarray:
+    """The indices [M] held by sorted ``_depth_index_keys`` [M], each run of keys that agree above
+    the index bits (depths within ~2^-33 of each other, relatively) put in (depth, index) order."""
+    shift = np.uint64(bits)
+    order = (keys & ((np.uint64(1) << shift) - np.uint64(1))).astype(np.int64)
+    high = keys >> shift
+    tied = high[1:] == high[:-1]
+    if not tied.any():
+        return order
+    in_run = np.zeros(len(keys), bool)
+    in_run[1:] |= tied
+    in_run[:-1] |= tied
+    rows = np.flatnonzero(in_run)  # runs are contiguous and in key order: sorted back in place
+    members = order[rows]
+    order[rows] = members[np.lexsort((members, depth[members], high[rows]))]
     return order
 
 
