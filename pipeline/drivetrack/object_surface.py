@@ -51,19 +51,14 @@ def _surface_triangles(pixels, ranges, spacing, max_step, triangles):
         right = _position(pixels, pixels[k] + 1)
         down = _position(pixels, pixels[k] + width)
         diagonal = _position(pixels, pixels[k] + width + 1)
-        for kind, (a, b, c, kept) in enumerate(
-            (
-                (k, right, down, right >= 0 and down >= 0),
-                (right, diagonal, down, right >= 0 and down >= 0 and diagonal >= 0),
-                (k, diagonal, down, right < 0 and down >= 0 and diagonal >= 0),
-                (k, right, diagonal, right >= 0 and down < 0 and diagonal >= 0),
-            )
-        ):
-            if kept:
-                corners[kind, counts[kind], 0] = a
-                corners[kind, counts[kind], 1] = b
-                corners[kind, counts[kind], 2] = c
-                counts[kind] += 1
+        if right >= 0 and down >= 0:
+            counts[0] = _put(corners[0], counts[0], k, right, down)
+            if diagonal >= 0:
+                counts[1] = _put(corners[1], counts[1], right, diagonal, down)
+        elif diagonal >= 0 and down >= 0:
+            counts[2] = _put(corners[2], counts[2], k, diagonal, down)
+        elif diagonal >= 0 and right >= 0:
+            counts[3] = _put(corners[3], counts[3], k, right, diagonal)
     flat = ranges.ravel()
     count = 0
     for kind in range(4):
@@ -77,16 +72,28 @@ def _surface_triangles(pixels, ranges, spacing, max_step, triangles):
                 high = max(high, flat[corner])
                 beam = max(beam, spacing[corner // width])
             if high - low <= max_step * low * beam:
-                triangles[count] = corners[kind, m]
-                count += 1
+                count = _put(triangles, count, corners[kind, m, 0], corners[kind, m, 1], corners[kind, m, 2])
     return count
+
+
+@numba.njit(cache=True, nogil=True)
+def _put(rows, count, a, b, c):
+    """Writes (a, b, c) into row ``count`` of rows [R, 3]; the count after it."""
+    rows[count, 0], rows[count, 1], rows[count, 2] = a, b, c
+    return count + 1
 
 
 @numba.njit(cache=True, nogil=True)
 def _position(sorted_pixels, wanted):
     """Index of the wanted pixel in the sorted pixels [K], -1 where it is not one of them."""
-    at = np.searchsorted(sorted_pixels, wanted)
-    return at if at < len(sorted_pixels) and sorted_pixels[at] == wanted else -1
+    low, high = 0, len(sorted_pixels)
+    while low < high:  # the first position holding wanted or more
+        middle = (low + high) // 2
+        if sorted_pixels[middle] < wanted:
+            low = middle + 1
+        else:
+            high = middle
+    return low if low < len(sorted_pixels) and sorted_pixels[low] == wanted else -1
 
 
 def consistent_triangles(points: np.ndarray, normals: np.ndarray, triangles: np.ndarray) -> np.ndarray:

@@ -41,7 +41,7 @@ def _fit(points, query, neighbours, towards, tolerance, min_sine, normals):
             for c in range(3):
                 offsets[k, c] = points[neighbours[q, k], c] - query[q, c]
         length = np.sqrt(towards[q, 0] ** 2 + towards[q, 1] ** 2 + towards[q, 2] ** 2)
-        best = towards[q] / length
+        best_x, best_y, best_z = towards[q, 0] / length, towards[q, 1] / length, towards[q, 2] / length
         best_count, best_spread = -1, np.inf
         for i in range(count):
             ax, ay, az = offsets[i, 0], offsets[i, 1], offsets[i, 2]
@@ -64,13 +64,32 @@ def _fit(points, query, neighbours, towards, tolerance, min_sine, normals):
                         spread += distance * distance
                 if members > best_count or (members == best_count and spread < best_spread):
                     best_count, best_spread = members, spread
-                    best = np.array([nx, ny, nz])
-        normal = best
-        on_plane = np.abs(offsets @ best) < tolerance
-        if on_plane.sum() >= 3:  # refit on the plane's points and the query point itself
-            plane = np.vstack((np.zeros((1, 3)), offsets[on_plane]))
-            centred = plane - plane.sum(axis=0) / len(plane)
-            normal = np.linalg.eigh(centred.T @ centred)[1][:, 0].copy()
-        if normal[0] * towards[q, 0] + normal[1] * towards[q, 1] + normal[2] * towards[q, 2] < 0:
-            normal = -normal
-        normals[q] = normal
+                    best_x, best_y, best_z = nx, ny, nz
+        normal = np.empty(3)
+        normal[0], normal[1], normal[2] = best_x, best_y, best_z
+        # Written out where NumPy's array expressions would do (np.vstack, boolean indexing, sum(axis=...),
+        # np.abs): each costs seconds of compiling in every new process. The same values: the mean is
+        # summed in row order, as NumPy's sum over rows; only the two products stay BLAS's.
+        distances = offsets @ normal
+        members = 0
+        for k in range(count):
+            members += abs(distances[k]) < tolerance
+        if members >= 3:  # refit on the query point itself (row 0) and the plane's points
+            plane = np.zeros((members + 1, 3))
+            row = 1
+            for k in range(count):
+                if abs(distances[k]) < tolerance:
+                    for c in range(3):
+                        plane[row, c] = offsets[k, c]
+                    row += 1
+            for c in range(3):
+                total = 0.0
+                for r in range(members + 1):
+                    total += plane[r, c]
+                mean = total / (members + 1)
+                for r in range(members + 1):
+                    plane[r, c] -= mean
+            normal = np.linalg.eigh(plane.T @ plane)[1][:, 0].copy()
+        flip = normal[0] * towards[q, 0] + normal[1] * towards[q, 1] + normal[2] * towards[q, 2] < 0
+        for c in range(3):
+            normals[q, c] = -normal[c] if flip else normal[c]
