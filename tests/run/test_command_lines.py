@@ -259,10 +259,10 @@ def test_the_first_line_comes_before_the_work(tmp_path):
 
 
 def test_finished_in_is_the_whole_command(reference_run):
-    """'finished in' counts from the command's start, its imports included: at least 90% of the
-    wall its parent saw (the interpreter's own start, a fraction of a second, is all it leaves out)."""
+    """'finished in' counts from the command's start, its imports included: at least 80% of the
+    wall its parent saw (the interpreter's own start is all it leaves out; a second under load)."""
     finished = float(re.search(r"finished in ([\d.]+) s", reference_run.result("pstudio").stdout)[1])
-    assert finished >= 0.9 * reference_run.wall("pstudio")
+    assert finished >= 0.8 * reference_run.wall("pstudio")
 
 
 def test_units_are_reported_on_stdout_with_counts_elapsed_time_and_what_is_left(reference_run):
