@@ -85,7 +85,8 @@ def _put(rows, count, a, b, c):
 
 @numba.njit(cache=True, nogil=True)
 def _position(sorted_pixels, wanted):
-    """Index of the wanted pixel in the sorted pixels [K], -1 where it is not one of them."""
+    """Index of the wanted pixel in the sorted pixels [K], -1 where it is not one of them (a binary
+    search written out: np.searchsorted costs more than a second of compiling per process)."""
     low, high = 0, len(sorted_pixels)
     while low < high:  # the first position holding wanted or more
         middle = (low + high) // 2
