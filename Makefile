@@ -47,10 +47,16 @@ typecheck: setup
 
 # The suite on every core (at most 4 worker processes), one test file per worker so a file's
 # module-scoped runs happen once; `$(PY) -m pytest tests/<file>` runs one file in this process.
+# mypy runs beside the tests (a core they leave idle at times), its report printed after theirs;
+# either failing fails the target.
 test: setup
 	$(PY) -m ruff check pipeline tests benchmarks
-	$(PY) -m mypy
-	$(PY) -m pytest -q -n auto --maxprocesses=4 --dist loadfile
+	@report=$$(mktemp); \
+	echo "$(PY) -m mypy (beside the tests; its report follows theirs)"; \
+	$(PY) -m mypy >$$report 2>&1 & checker=$$!; \
+	$(PY) -m pytest -q -n auto --maxprocesses=4 --dist loadfile; tests=$$?; \
+	wait $$checker; typed=$$?; cat $$report; rm -f $$report; \
+	test $$tests = 0 && test $$typed = 0
 
 # bench: a few minutes (inputs as large per frame as the release's, fewer frames; units extrapolated),
 # one table at the end, also in out/bench/bench.json. bench-full: the full-size inputs (writing them
