@@ -1,4 +1,6 @@
-"""The CLI end to end on the sample world: outputs, determinism across runners, bad settings."""
+"""The CLI end to end on the sample world: outputs and bad settings. Clips across runners: the
+DirectRunner's worker processes in tests/pstudio/test_cli.py, a Dask cluster's (both sources) in
+tests/run/test_dask_runner.py."""
 
 import json
 import os
@@ -43,28 +45,6 @@ def test_run_writes_valid_clips_manifests_and_provenance(direct_run):
     audit = pq.read_table(os.path.join(out, "audit", "drivetrack"))
     assert {"visibility_flips", "mask_agreement", "pass_flicker", "output_index"} <= set(audit.column_names)
     assert (np.asarray(audit.column("output_index")) >= 0).sum() == record["summary"]["tracks_written"]
-
-
-def test_multiprocessing_runner_writes_identical_bytes(direct_run, sample_split, tmp_path):
-    out = str(tmp_path / "multi")
-    result = run_cli(
-        "--input",
-        sample_split[0],
-        "--output",
-        out,
-        "--runner",
-        "DirectRunner",
-        "--direct_running_mode=multi_processing",
-        "--direct_num_workers=2",
-    )
-    assert result.returncode == 0, result.stderr[-3000:]
-    assert npz_files(out) == npz_files(direct_run[0])
-    for name in npz_files(out):
-        with (
-            open(os.path.join(out, "drivetrack", name), "rb") as a,
-            open(os.path.join(direct_run[0], "drivetrack", name), "rb") as b,
-        ):
-            assert a.read() == b.read(), name
 
 
 def test_unknown_setting_is_refused_before_running(tmp_path):
