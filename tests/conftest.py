@@ -13,6 +13,7 @@ anything (``split_copy``, ``pstudio_links``). ``rm -rf .cache/samples`` drops ol
 from __future__ import annotations
 
 import fcntl
+import functools
 import hashlib
 import json
 import os
@@ -20,6 +21,7 @@ import pathlib
 import shutil
 import subprocess
 import time
+from collections.abc import Callable
 
 import cv2
 import numpy as np
@@ -88,18 +90,43 @@ def world() -> DrivingWorld:
     return DrivingWorld()
 
 
-@pytest.fixture(scope="session")
-def sample_split(world):
-    """(split folder, generator output) for the one-segment sample world; the folder is the shared
-    cache (never write into it: ``split_copy``), the output ``{"points": [40 x [64, 900, 3]]}``."""
+@functools.cache
+def driving_sample() -> tuple[str, dict]:
+    """``sample_split``'s value, written into the cache on first call in this process. The fixtures
+    that run on a sample call these when they run on it, not at their setup, so a worker needing
+    only the studio world does not wait while another writes the driving one (half a minute)."""
 
     def write(staging: str) -> None:
-        generated = write_split(os.path.join(staging, "split"), world=world)
+        generated = write_split(os.path.join(staging, "split"), world=DrivingWorld())
         np.save(os.path.join(staging, "points.npy"), np.stack(generated["points"]))
 
     folder = cached_sample("waymo", write)
     points = np.load(os.path.join(folder, "points.npy"))
     return os.path.join(folder, "split"), {"points": list(points)}
+
+
+@functools.cache
+def studio_sample() -> tuple[str, StudioWorld]:
+    """``pstudio_sample``'s value, written into the cache on first call in this process. The world is
+    cheap to build (about 10 ms) and deterministic, so a cache hit returns a fresh one equal to the
+    one written."""
+    studio = StudioWorld()
+    folder = cached_sample("pstudio", lambda staging: write_sequence(os.path.join(staging, "root"), studio))
+    return os.path.join(folder, "root"), studio
+
+
+# Source -> its sample's input root, written on first call.
+SAMPLE_INPUTS: dict[str, Callable[[], str]] = {
+    "drivetrack": lambda: driving_sample()[0],
+    "pstudio": lambda: studio_sample()[0],
+}
+
+
+@pytest.fixture(scope="session")
+def sample_split():
+    """(split folder, generator output) for the one-segment sample world (``world``); the folder is the
+    shared cache (never write into it: ``split_copy``), the output ``{"points": [40 x [64, 900, 3]]}``."""
+    return driving_sample()
 
 
 @pytest.fixture(scope="session")
@@ -128,11 +155,8 @@ def split_copy(sample_split, tmp_path):
 @pytest.fixture(scope="session")
 def pstudio_sample():
     """(root holding data/ and output/, the StudioWorld) for the one-sequence studio sample; the root
-    is the shared cache (never write into it: ``pstudio_links``). The world is cheap to build (about
-    10 ms) and deterministic, so a cache hit returns a fresh one equal to the one written."""
-    studio = StudioWorld()
-    folder = cached_sample("pstudio", lambda staging: write_sequence(os.path.join(staging, "root"), studio))
-    return os.path.join(folder, "root"), studio
+    is the shared cache (never write into it: ``pstudio_links``)."""
+    return studio_sample()
 
 
 @pytest.fixture
@@ -162,7 +186,7 @@ class ReferenceRuns:
 
     MULTI_PROCESSING = ("--direct_running_mode=multi_processing", "--direct_num_workers=2")
 
-    def __init__(self, factory: pytest.TempPathFactory, inputs: dict[str, str]):
+    def __init__(self, factory: pytest.TempPathFactory, inputs: dict[str, Callable[[], str]]):
         self._shared, self._inputs = shared_folder(factory), inputs
         self._made: dict[str, tuple[str, subprocess.CompletedProcess]] = {}
         self._walls: dict[str, float] = {}
@@ -188,7 +212,7 @@ class ReferenceRuns:
                 fcntl.flock(lock, fcntl.LOCK_EX)  # another worker making it: wait, then read it
                 if not record.exists():
                     shutil.rmtree(out, ignore_errors=True)  # a worker's run that failed
-                    given = ("--input", self._inputs[source], "--output", str(out), *options)
+                    given = ("--input", self._inputs[source](), "--output", str(out), *options)
                     started = time.monotonic()
                     result = run_pipeline(source, *given)
                     wall = time.monotonic() - started
@@ -205,8 +229,8 @@ class ReferenceRuns:
 
 
 @pytest.fixture(scope="session")
-def reference_run(tmp_path_factory, sample_split, pstudio_sample) -> ReferenceRuns:
-    return ReferenceRuns(tmp_path_factory, {"drivetrack": sample_split[0], "pstudio": pstudio_sample[0]})
+def reference_run(tmp_path_factory) -> ReferenceRuns:
+    return ReferenceRuns(tmp_path_factory, SAMPLE_INPUTS)
 
 
 class SampleReleaseRuns:
@@ -217,7 +241,7 @@ class SampleReleaseRuns:
     leaves them (a plain run writes them there once). ADT reads the excerpt (skip first when absent).
     Never write into the folder: copy it."""
 
-    def __init__(self, out: pathlib.Path, samples: dict[str, str]):
+    def __init__(self, out: pathlib.Path, samples: dict[str, Callable[[], str]]):
         self.out, self._samples = out, samples
         self._made: dict[str, object] = {}
 
@@ -225,7 +249,7 @@ class SampleReleaseRuns:
         if source not in self._made:
             if source in self._samples:
                 folder = os.path.join(self.out, "sample_input", source)
-                link_tree(self._samples[source], folder)
+                link_tree(self._samples[source](), folder)
                 open(os.path.join(folder, f".complete-v{SAMPLE_VERSIONS[source]}"), "w").close()
             args = golden.concrete(golden.release_args(source), str(self.out))
             self._made[source] = run_in_process(source, *args[2:])  # after --source <source>
@@ -233,6 +257,5 @@ class SampleReleaseRuns:
 
 
 @pytest.fixture(scope="session")
-def sample_release_runs(tmp_path_factory, sample_split, pstudio_sample) -> SampleReleaseRuns:
-    samples = {"drivetrack": sample_split[0], "pstudio": pstudio_sample[0]}
-    return SampleReleaseRuns(tmp_path_factory.mktemp("sample_release"), samples)
+def sample_release_runs(tmp_path_factory) -> SampleReleaseRuns:
+    return SampleReleaseRuns(tmp_path_factory.mktemp("sample_release"), SAMPLE_INPUTS)
