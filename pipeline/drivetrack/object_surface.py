@@ -60,12 +60,12 @@ def _surface_triangles(pixels, ranges, spacing, max_step, triangles):
         elif diagonal >= 0 and right >= 0:
             counts[3] = _put(corners[3], counts[3], k, right, diagonal)
     flat = ranges.ravel()
+    azimuth = 2.0 * np.pi / width
     count = 0
     for kind in range(4):
         for m in range(counts[kind]):
-            first = flat[pixels[corners[kind, m, 0]]]
-            low = high = first
-            beam = 2.0 * np.pi / width
+            low = high = flat[pixels[corners[kind, m, 0]]]
+            beam = azimuth
             for c in range(3):
                 corner = pixels[corners[kind, m, c]]
                 low = min(low, flat[corner])
