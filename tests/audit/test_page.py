@@ -301,13 +301,13 @@ def move(driver, source: str, slider: str, index: int, last: int, now: int | Non
         driver.find_element(By.ID, f"{source}-slider-{slider}").send_keys(keys)
 
 
-# What the page shows, read from its document in one call: element id -> [attribute or "text", ...].
+# What the page shows, read from its document in one call: element id -> its attribute, or "text".
 READ_SHOWN = """
 const [wanted, dropped] = arguments;
 const read = {};
-for (const [id, fields] of Object.entries(wanted)) {
+for (const [id, field] of Object.entries(wanted)) {
   const element = document.getElementById(id);
-  read[id] = fields.map(field => field === "text" ? element.textContent : element.getAttribute(field));
+  read[id] = field === "text" ? element.textContent : element.getAttribute(field);
 }
 read.dropped_rows = document.querySelectorAll("#" + dropped + " tr.dropped").length;
 return read;
@@ -329,9 +329,9 @@ def test_sliders_show_the_sweeps_counts(loaded, out, source, tmp_path):
     if source == "drivetrack":
         counts |= {f"release-{split}": f"release_{split}" for split in ("minival", "full_eval")}
     funnel = ("never_visible", "flicker", "mask")
-    wanted = {f"{source}-value-{slider}": ["text"] for slider in sliders}
-    wanted |= {f"{source}-{name}": ["data-value"] for name in counts}
-    wanted |= {f"{source}-funnel-{name}": ["data-dropped"] for name in funnel}
+    wanted = {f"{source}-value-{slider}": "text" for slider in sliders}
+    wanted |= {f"{source}-{name}": "data-value" for name in counts}
+    wanted |= {f"{source}-funnel-{name}": "data-dropped" for name in funnel}
     now: list[int | None] = [None, None, None]
     for row in rows:
         # Independently of the page's data: fractions step by 0.01 from 0, min_tracks by 1 from 1.
@@ -344,11 +344,11 @@ def test_sliders_show_the_sweeps_counts(loaded, out, source, tmp_path):
             move(loaded, source, slider, index, last, at)
         now = list(positions)
         read = loaded.execute_script(READ_SHOWN, wanted, f"{source}-table-body")
-        assert [read[f"{source}-value-{slider}"][0] for slider in sliders] == [row[key] for key in keys]
+        assert [read[f"{source}-value-{slider}"] for slider in sliders] == [row[key] for key in keys]
         for name, column in counts.items():
-            assert int(read[f"{source}-{name}"][0]) == row[column], (name, row)
+            assert int(read[f"{source}-{name}"]) == row[column], (name, row)
         for name in funnel:
-            assert int(read[f"{source}-funnel-{name}"][0]) == row[f"dropped_{name}"], row
+            assert int(read[f"{source}-funnel-{name}"]) == row[f"dropped_{name}"], row
         assert read["dropped_rows"] == clips - row["clips_written"]
     assert len({row["passed"] for row in rows}) > 4
     assert len({row["clips_written"] for row in rows}) > 1

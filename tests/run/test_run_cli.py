@@ -10,11 +10,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from pipeline.validate import main as validate_main
-from tests.support.cli import run_in_process, run_pipeline
-
-
-def run_cli(*args):
-    return run_pipeline("drivetrack", *args)
+from tests.support.cli import run_in_process
 
 
 def npz_files(folder):
