@@ -15,6 +15,8 @@ from __future__ import annotations
 import fcntl
 import functools
 import hashlib
+import importlib
+import importlib.metadata
 import json
 import os
 import pathlib
@@ -22,30 +24,30 @@ import shutil
 import subprocess
 import time
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
-import cv2
 import numpy as np
-import open3d
-import pyarrow
 import pytest
-import scipy
-import trimesh
 
 import pipeline.samples
-from pipeline.samples import dynamic3dgs_files, waymo_world
-from pipeline.samples.driving_world import DrivingWorld
-from pipeline.samples.dynamic3dgs_files import write_sequence
-from pipeline.samples.studio_world import StudioWorld
-from pipeline.samples.waymo_world import write_split
 from pipeline.samples.write_once import write_once
-from tests.support import golden, stress_worlds
 from tests.support.cli import REPO, run_in_process, run_pipeline
-from tests.support.stress_worlds import write_stress_split
 
+if TYPE_CHECKING:
+    from pipeline.samples.driving_world import DrivingWorld
+    from pipeline.samples.studio_world import StudioWorld
+
+# The sample writers and the libraries they use are imported when a fixture first writes or reads a
+# sample, not here: pytest's main process imports this file before it starts the workers.
 SAMPLE_CACHE = os.environ.get("TAPVID3D_SAMPLE_CACHE") or os.path.join(REPO, ".cache", "samples")
 CACHE_LAYOUT = "1"  # bump when what the fixtures below keep in a cache folder changes
-# The version a run without --input marks its written sample world with, per source.
-SAMPLE_VERSIONS = {"drivetrack": waymo_world.SAMPLE_VERSION, "pstudio": dynamic3dgs_files.SAMPLE_VERSION}
+# The module whose SAMPLE_VERSION a run without --input marks its written sample world with, per source.
+SAMPLE_WRITERS = {
+    "drivetrack": "pipeline.samples.waymo_world",
+    "pstudio": "pipeline.samples.dynamic3dgs_files",
+}
+# The distributions that encode and ray cast the samples' files.
+SAMPLE_LIBRARIES = ("numpy", "opencv-python-headless", "open3d", "pyarrow", "scipy", "trimesh")
 
 
 def sample_version(sources: tuple[str, ...] = ()) -> str:
@@ -55,8 +57,8 @@ def sample_version(sources: tuple[str, ...] = ()) -> str:
     generators = sorted(pathlib.Path(pipeline.samples.__file__).parent.glob("*.py"))
     for path in generators + [pathlib.Path(source) for source in sources]:
         digest.update(path.name.encode() + b"\0" + path.read_bytes() + b"\0")
-    for module in (np, cv2, open3d, pyarrow, scipy, trimesh):
-        digest.update(f"{module.__name__} {module.__version__}\0".encode())
+    for library in SAMPLE_LIBRARIES:
+        digest.update(f"{library} {importlib.metadata.version(library)}\0".encode())
     return digest.hexdigest()[:12]
 
 
@@ -87,6 +89,8 @@ def link_tree(source: str, target: str) -> None:
 
 @pytest.fixture(scope="session")
 def world() -> DrivingWorld:
+    from pipeline.samples.driving_world import DrivingWorld
+
     return DrivingWorld()
 
 
@@ -95,6 +99,8 @@ def driving_sample() -> tuple[str, dict]:
     """``sample_split``'s value, written into the cache on first call in this process. The fixtures
     that run on a sample call these when they run on it, not at their setup, so a worker needing
     only the studio world does not wait while another writes the driving one (half a minute)."""
+    from pipeline.samples.driving_world import DrivingWorld
+    from pipeline.samples.waymo_world import write_split
 
     def write(staging: str) -> None:
         generated = write_split(os.path.join(staging, "split"), world=DrivingWorld())
@@ -110,6 +116,9 @@ def studio_sample() -> tuple[str, StudioWorld]:
     """``pstudio_sample``'s value, written into the cache on first call in this process. The world is
     cheap to build (about 10 ms) and deterministic, so a cache hit returns a fresh one equal to the
     one written."""
+    from pipeline.samples.dynamic3dgs_files import write_sequence
+    from pipeline.samples.studio_world import StudioWorld
+
     studio = StudioWorld()
     folder = cached_sample("pstudio", lambda staging: write_sequence(os.path.join(staging, "root"), studio))
     return os.path.join(folder, "root"), studio
@@ -134,10 +143,11 @@ def stress_split():
     """``split(name)``: the split folder of a world of ``tests/support/stress_worlds.py`` (one segment,
     ``stress_worlds.SEGMENT``), written once into the shared cache on first use (never write into
     it)."""
+    from tests.support import stress_worlds
 
     def split(name: str) -> str:
         def write(staging: str) -> None:
-            write_stress_split(os.path.join(staging, "split"), name)
+            stress_worlds.write_stress_split(os.path.join(staging, "split"), name)
 
         return os.path.join(cached_sample(f"waymo-stress-{name}", write, (stress_worlds.__file__,)), "split")
 
@@ -250,7 +260,10 @@ class SampleReleaseRuns:
             if source in self._samples:
                 folder = os.path.join(self.out, "sample_input", source)
                 link_tree(self._samples[source](), folder)
-                open(os.path.join(folder, f".complete-v{SAMPLE_VERSIONS[source]}"), "w").close()
+                version = importlib.import_module(SAMPLE_WRITERS[source]).SAMPLE_VERSION
+                open(os.path.join(folder, f".complete-v{version}"), "w").close()
+            from tests.support import golden
+
             args = golden.concrete(golden.release_args(source), str(self.out))
             self._made[source] = run_in_process(source, *args[2:])  # after --source <source>
         return self._made[source]

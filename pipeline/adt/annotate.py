@@ -124,9 +124,7 @@ def annotate_fetched(
     name = sequence_name(units[0].sequence)
     with contextlib.ExitStack() as stack:
         try:
-            download = plan_download(
-                read_url_file(input_root), name, required_files(settings.with_skeleton)
-            )
+            download = plan_download(read_url_file(input_root), name, required_files(settings.with_skeleton))
             folder = stack.enter_context(fetch_sequence(download, scratch_folder(settings), http))
         except Exception as error:  # noqa: BLE001 - the sequence's failure, each unit's
             for unit in units:

@@ -223,10 +223,7 @@ def survival_figure(clips: list[AuditTable], source: Source, config: RunConfig, 
         ax.set_ylim(0, 1.02)
         ax.grid(alpha=0.3)
         ax.legend()
-    figure.suptitle(
-        f"{source.name}: survival per filter "
-        f"({sum(c.stats.count for c in clips)} candidates)"
-    )
+    figure.suptitle(f"{source.name}: survival per filter ({sum(c.stats.count for c in clips)} candidates)")
     figure.tight_layout()
     figure.savefig(path, dpi=110)
     plt.close(figure)
@@ -256,9 +253,7 @@ def numeric_statistics(clips: list[AuditTable]) -> dict[str, np.ndarray]:
         parts = [np.asarray(named[name]) for named in columns]
         if all(p.dtype.kind in "fiu" for p in parts) and name not in ("gaussian_index", "object_id"):
             result[name] = np.concatenate(parts).astype(np.float64)
-    result["flip_fraction"] = np.concatenate(
-        [c.stats.visibility_flips / max(c.num_frames, 1) for c in clips]
-    )
+    result["flip_fraction"] = np.concatenate([c.stats.visibility_flips / max(c.num_frames, 1) for c in clips])
     return result
 
 

@@ -16,6 +16,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from pipeline.core.kernel_arrays import read_only
+
 MAX_AXIS_CELLS = 1 << 16  # points spread wider than this many cells along an axis: no prefilter
 NEIGHBOURS = np.stack(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1], indexing="ij"), axis=-1).reshape(-1, 3)
 
@@ -33,7 +35,10 @@ def _nearest(centres, candidates, points, out_distance, out_index):
             squared = d0 * d0 + d1 * d1 + d2 * d2
             if squared < best[p]:
                 best[p], out_index[p] = squared, k
-    out_distance[:] = np.sqrt(best)
+    # Element by element: assigning an array to a slice would compile numba's shape-mismatch error
+    # message (about 4 s on a first run), for no other effect.
+    for p in range(points.shape[0]):
+        out_distance[p] = np.sqrt(best[p])
 
 
 @numba.njit(cache=True)
@@ -77,7 +82,7 @@ def nearest_centres(
     in ``candidates`` [F] no farther than ``within``: (distance [P], position in ``candidates``
     [P]); inf and -1 where none is."""
     points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
-    centres = np.ascontiguousarray(centres)
+    centres = read_only(centres)
     candidates = np.ascontiguousarray(candidates, dtype=np.int64)
     distance = np.full(len(points), np.inf)
     index = np.full(len(points), -1, np.int64)

@@ -40,6 +40,7 @@ import dataclasses
 import numba
 import numpy as np
 
+from pipeline.core.kernel_arrays import read_only
 from pipeline.pstudio.records import GaussianConstants
 
 TILE = 16  # pixels per side of the square tiles splats are binned into
@@ -433,7 +434,7 @@ def project_splats(
         float64. constants: ``gaussian_constants`` of the N Gaussians.
       w2c: [4, 4] world-to-camera (OpenCV axes). fx_fy_cx_cy: [4].
     """
-    means = np.ascontiguousarray(means)
+    means = read_only(means)
     w2c = np.ascontiguousarray(w2c, dtype=np.float64)
     intrinsics = np.asarray(fx_fy_cx_cy, dtype=np.float64)
     wanted = wanted_blocks(points_uv, width, height)
@@ -507,7 +508,7 @@ def preprocess(
     _preprocess(
         candidates,
         means,
-        np.ascontiguousarray(quaternions),
+        read_only(quaternions),
         c.scales,
         c.opacity,
         c.reach,

@@ -18,8 +18,6 @@ import subprocess
 import sys
 from collections.abc import Callable
 
-from pipeline.runner.command import main as run_main
-
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
@@ -35,6 +33,8 @@ def run_pipeline(source: str, *args: str) -> subprocess.CompletedProcess:
 
 def run_in_process(source: str, *args: str) -> subprocess.CompletedProcess:
     """``run_pipeline`` without the subprocess: the same exit code, stdout and stderr."""
+    from pipeline.runner.command import main as run_main
+
     return call_main(run_main, ["--source", source, *args])
 
 
