@@ -163,17 +163,10 @@ def render_depth_at(
         limit[point_tile] = np.inf
     else:
         np.maximum.at(limit, point_tile, np.asarray(limits, dtype=np.float64).reshape(-1)[inside])
-    starts, packed = _tile_lists(
-        splats.xy,
-        splats.extent,
-        splats.conic,
-        splats.opacity,
-        splats.cutoff,
-        splats.depth,
-        tiles_x,
-        tiles_y,
-        limit,
-    )
+    # Contiguous copies (``project_splats``' fields are column slices): one compiled type of the kernel.
+    columns = (splats.xy, splats.extent, splats.conic, splats.opacity, splats.cutoff, splats.depth)
+    contiguous = [np.ascontiguousarray(column) for column in columns]
+    starts, packed = _tile_lists(*contiguous, tiles_x, tiles_y, limit)
     order = np.argsort(point_tile, kind="stable")
     tiles, point_starts = np.unique(point_tile[order], return_index=True)
     point_starts = np.append(point_starts, len(order)).astype(np.int64)

@@ -471,7 +471,7 @@ def cull(
     w2c, intrinsics, width, height = view
     c = constants
     flags = np.empty(len(means), np.bool_)
-    xs, ys, zs = np.ascontiguousarray(means.T)  # each contiguous, as the vectorised bounds want them
+    xs, ys, zs = np.array(means.T, order="C")  # copies, each contiguous, as the vectorised bounds want them
     _candidates(
         xs,
         ys,
