@@ -50,6 +50,45 @@ SAMPLE_WRITERS = {
 SAMPLE_LIBRARIES = ("numpy", "opencv-python-headless", "open3d", "pyarrow", "scipy", "trimesh")
 
 
+# The files that take longest (ten seconds and more each, most for few tests), longest first: xdist
+# hands out whole files (``--dist loadfile``) in the order of the collection (``--no-loadscope-reorder``),
+# so these start early and the workers finish together, on the many short files after them.
+LONG_FILES_FIRST = (
+    "tests/run/test_command_lines.py",
+    "tests/drivetrack/test_bad_input.py",
+    "tests/audit/test_page.py",
+    "tests/drivetrack/test_truth.py",
+    "tests/run/test_closed_output.py",
+    "tests/bench/test_toy_bench.py",
+    "tests/run/test_dask_runner.py",
+    "tests/run/test_release.py",
+    "tests/io/test_remote_storage.py",
+    "tests/adt/test_download_faults.py",
+    "tests/run/test_queries_from.py",
+    "tests/run/test_resume.py",
+    "tests/run/test_bad_output.py",
+    "tests/drivetrack/test_refined_visibility.py",
+    "tests/audit/test_release_reference.py",
+    "tests/export/test_depth_export.py",
+    "tests/adt/test_fetched.py",
+    "tests/drivetrack/test_camera_model.py",
+    "tests/audit/test_sweep.py",
+    "tests/drivetrack/test_reanchor.py",
+)
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """``LONG_FILES_FIRST`` in its order, then the other files, most tests first (xdist's own order)."""
+    missing = [name for name in LONG_FILES_FIRST if not os.path.exists(os.path.join(REPO, name))]
+    if missing:
+        raise pytest.UsageError(f"LONG_FILES_FIRST names files that do not exist: {', '.join(missing)}")
+    files = [item.nodeid.split("::")[0] for item in items]
+    counts = {name: files.count(name) for name in set(files)}
+    rank = {name: position for position, name in enumerate(LONG_FILES_FIRST)}
+    order = {name: (rank.get(name, len(rank)), -counts[name], name) for name in counts}
+    items.sort(key=lambda item: order[item.nodeid.split("::")[0]])
+
+
 def sample_version(sources: tuple[str, ...] = ()) -> str:
     """12 hex digits of sha256 over the generators' source (and ``sources``, more files a sample's
     writer reads), the libraries' versions and the layout."""
