@@ -22,7 +22,6 @@ import os
 import pathlib
 import shutil
 import subprocess
-import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
@@ -31,7 +30,7 @@ import pytest
 
 import pipeline.samples
 from pipeline.samples.write_once import write_once
-from tests.support.cli import REPO, run_in_process, run_pipeline
+from tests.support.cli import REPO, run_in_process, run_pipeline_timed
 
 if TYPE_CHECKING:
     from pipeline.samples.driving_world import DrivingWorld
@@ -262,9 +261,7 @@ class ReferenceRuns:
                 if not record.exists():
                     shutil.rmtree(out, ignore_errors=True)  # a worker's run that failed
                     given = ("--input", self._inputs[source](), "--output", str(out), *options)
-                    started = time.monotonic()
-                    result = run_pipeline(source, *given)
-                    wall = time.monotonic() - started
+                    result, wall = run_pipeline_timed(source, *given)
                     assert result.returncode == 0, result.stderr[-3000:]
                     record.write_text(json.dumps([result.args, 0, result.stdout, result.stderr, wall]))
             *completed, self._walls[name] = json.loads(record.read_text())
@@ -272,7 +269,8 @@ class ReferenceRuns:
         return self._made[name]
 
     def wall(self, source: str) -> float:
-        """Seconds from that run's launch to its exit, as its parent saw them."""
+        """Seconds from that run's launch until its last line reached its parent (its own end, the
+        interpreter's shutdown left out)."""
         self._run(source)
         return self._walls[f"reference_direct_{source}"]
 

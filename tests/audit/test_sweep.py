@@ -52,10 +52,7 @@ def test_sweep_predicts_a_rerun_at_other_thresholds(pstudio_sample, pstudio_run,
     grid = ["--grid", "pstudio.mask_min_agreement=0.75,0.9", "--grid", "flicker.max_fraction=0.05,0.1"]
     report_dir = tmp_path / "report"
     assert (
-        audit_main(
-            ["sweep", str(pstudio_run), "--source", "pstudio", *grid, "--out", str(report_dir)]
-        )
-        == 0
+        audit_main(["sweep", str(pstudio_run), "--source", "pstudio", *grid, "--out", str(report_dir)]) == 0
     )
     rows = pq.read_table(report_dir / "sweep.parquet").to_pylist()
     (row,) = [

@@ -159,6 +159,4 @@ def test_a_sequences_cameras_share_one_read_and_make_the_same_clips(clips, pstud
         assert together.images_jpeg == alone.images_jpeg
         for field in ("tracks_xyz", "visibility", "queries_xyt", "extrinsics_w2c"):
             np.testing.assert_array_equal(getattr(together, field), getattr(alone, field))
-        np.testing.assert_array_equal(
-            together.track_stats.mask_agreement, alone.track_stats.mask_agreement
-        )
+        np.testing.assert_array_equal(together.track_stats.mask_agreement, alone.track_stats.mask_agreement)

@@ -357,9 +357,7 @@ def test_the_sweep_counts_surviving_release_clips_as_a_rerun_does(
     assert first[PARKED]["passed"] < 500 <= first[LEAD]["passed"]
     report = tmp_path / "report"
     grid = ["--grid", "min_tracks=1,500"]
-    assert (
-        audit_main(["sweep", out, "--source", "drivetrack", *grid, "--out", str(report)]) == 0
-    )
+    assert audit_main(["sweep", out, "--source", "drivetrack", *grid, "--out", str(report)]) == 0
     markdown = (report / "report.md").read_text()
     assert "| 500 |" in markdown
     assert "| 1 of 1 | 0 of 4 |" in markdown

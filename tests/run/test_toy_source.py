@@ -41,9 +41,7 @@ def test_a_toy_source_runs_validates_sweeps_and_compares(toy, tmp_path, capsys):
     grid = ["--grid", "flicker.max_fraction=0,0.5"]
     assert sweep_main([str(out), "--source", "toy", *grid]) == 0
     assert "| 0.5 |" in (out / "sweep_toy" / "report.md").read_text()
-    assert (
-        sweep_main([str(out), "--source", "toy", "--grid", "pstudio.mask_min_agreement=1"]) == 2
-    )
+    assert sweep_main([str(out), "--source", "toy", "--grid", "pstudio.mask_min_agreement=1"]) == 2
     assert compare_main([str(out), str(out), "--out", str(tmp_path / "self")]) == 0
     (row,) = json.loads((tmp_path / "self.json").read_text())["clips"]
     assert row["source"] == "toy" and row["aj_none"] == 1.0

@@ -16,6 +16,9 @@ import logging
 import os
 import subprocess
 import sys
+import tempfile
+import threading
+import time
 from collections.abc import Callable
 
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -29,6 +32,34 @@ def run_pipeline(source: str, *args: str) -> subprocess.CompletedProcess:
         text=True,
         timeout=600,
     )
+
+
+def run_pipeline_timed(source: str, *args: str) -> tuple[subprocess.CompletedProcess, float]:
+    """``run_pipeline``, and the seconds from its launch until its stdout's last line arrived (the
+    command's own end, before the interpreter's shutdown; the whole wall when it printed nothing)."""
+    started = time.monotonic()
+    with tempfile.TemporaryFile("w+") as errors:
+        process = subprocess.Popen(
+            [sys.executable, "-m", "pipeline.run", "--source", source, *args],
+            cwd=REPO,
+            stdout=subprocess.PIPE,
+            stderr=errors,
+            text=True,
+        )
+        watchdog = threading.Timer(600, process.kill)  # run_pipeline's timeout
+        watchdog.start()
+        lines, last = [], None
+        try:
+            assert process.stdout is not None
+            for line in process.stdout:
+                lines.append(line)
+                last = time.monotonic() - started
+            code = process.wait()
+        finally:
+            watchdog.cancel()
+        errors.seek(0)
+        completed = subprocess.CompletedProcess(process.args, code, "".join(lines), errors.read())
+    return completed, time.monotonic() - started if last is None else last
 
 
 def run_in_process(source: str, *args: str) -> subprocess.CompletedProcess:
