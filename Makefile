@@ -54,7 +54,7 @@ test: setup
 	$(PY) -m ruff check pipeline tests benchmarks
 	@report=$$(mktemp); \
 	echo "$(PY) -m mypy (beside the tests, at a lower priority; its report follows theirs)"; \
-	nice -n 10 $(PY) -m mypy >$$report 2>&1 & checker=$$!; \
+	nice -n 19 $(PY) -m mypy >$$report 2>&1 & checker=$$!; \
 	PYTHONDONTWRITEBYTECODE= $(PY) -m pytest -q -n auto --maxprocesses=4 --dist loadfile --no-loadscope-reorder; tests=$$?; \
 	wait $$checker; typed=$$?; cat $$report; rm -f $$report; \
 	test $$tests = 0 && test $$typed = 0
