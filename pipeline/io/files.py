@@ -14,17 +14,26 @@ import os
 import socket
 import time
 import uuid
-
-from apache_beam.io.filesystem import BeamIOError, CompressionTypes
-from apache_beam.io.filesystems import FileSystems
+from typing import TYPE_CHECKING
 
 from pipeline.core.errors import InputError
+
+if TYPE_CHECKING:
+    from apache_beam.io.filesystems import FileSystems
 
 PARTIAL = ".partial-"
 # Longest file name written; the temporary adds its prefix and suffix to it (255 is the usual limit).
 MAX_NAME_BYTES = 180
 # A temporary written from another machine counts as abandoned once this old.
 REMOTE_GRACE_SECONDS = 3600.0
+
+
+def filesystems() -> type[FileSystems]:
+    """Beam's FileSystems, imported on first use: importing Beam takes about a second, which a command
+    that writes only local files (``write_atomic``, ``remove_quietly``) does not pay."""
+    from apache_beam.io.filesystems import FileSystems
+
+    return FileSystems
 
 
 def is_local(path: str) -> bool:
@@ -62,9 +71,11 @@ def write_atomic(path: str, data: bytes) -> None:
                 out.write(data)
             os.replace(temporary, path)
         else:
-            with FileSystems.create(temporary, compression_type=CompressionTypes.UNCOMPRESSED) as out:
+            from apache_beam.io.filesystem import CompressionTypes
+
+            with filesystems().create(temporary, compression_type=CompressionTypes.UNCOMPRESSED) as out:
                 out.write(data)
-            FileSystems.rename([temporary], [path])
+            filesystems().rename([temporary], [path])
     except OSError as error:
         remove_quietly([temporary])
         # Name the file (or the folder) the caller asked for, not the hidden temporary.
@@ -77,7 +88,11 @@ def write_atomic(path: str, data: bytes) -> None:
 
 def open_binary(path: str):
     """A seekable binary stream of the file (for readers that stream: Parquet, zip)."""
-    return FileSystems.open(path, compression_type=CompressionTypes.UNCOMPRESSED)
+    if is_local(path):
+        return open(path, "rb")
+    from apache_beam.io.filesystem import CompressionTypes
+
+    return filesystems().open(path, compression_type=CompressionTypes.UNCOMPRESSED)
 
 
 def read_input(path: str, max_bytes: int | None = None) -> bytes:
@@ -86,7 +101,7 @@ def read_input(path: str, max_bytes: int | None = None) -> bytes:
     try:
         return read_bytes(path, max_bytes)
     except Exception as error:  # noqa: BLE001 - any filesystem's not-found becomes InputError
-        if not FileSystems.exists(path):
+        if not (os.path.exists(path) if is_local(path) else filesystems().exists(path)):
             raise InputError(f"missing file {path}") from error
         raise InputError(f"cannot read {path}: {error}") from error
 
@@ -106,13 +121,15 @@ def read_bytes(path: str, max_bytes: int | None = None) -> bytes:
 
 def file_size(path: str) -> int | None:
     """Size in bytes, or None when the file does not exist."""
-    matches = FileSystems.match([path])[0].metadata_list
+    if is_local(path):
+        return os.path.getsize(path) if os.path.isfile(path) else None
+    matches = filesystems().match([path])[0].metadata_list
     return matches[0].size_in_bytes if matches else None
 
 
 def list_files(pattern: str) -> list[str]:
     """Paths matching a glob, sorted; hidden partial files never match ``*.npz``."""
-    result = FileSystems.match([pattern])[0]
+    result = filesystems().match([pattern])[0]
     return sorted(m.path for m in result.metadata_list)
 
 
@@ -125,12 +142,12 @@ def remove_quietly(paths: list[str]) -> int:
             if is_local(path):
                 os.remove(path)
             else:
-                FileSystems.delete([path])
+                filesystems().delete([path])
             removed += 1
         except (FileNotFoundError, NotADirectoryError):  # gone, or its folder never was one
             continue
-        except BeamIOError:
-            if FileSystems.exists(path):
+        except OSError:  # Beam's BeamIOError is an IOError
+            if is_local(path) or filesystems().exists(path):
                 raise
     return removed
 
