@@ -12,6 +12,7 @@ anything (``split_copy``, ``pstudio_links``). ``rm -rf .cache/samples`` drops ol
 
 from __future__ import annotations
 
+import collections
 import fcntl
 import functools
 import hashlib
@@ -81,8 +82,7 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     missing = [name for name in LONG_FILES_FIRST if not os.path.exists(os.path.join(REPO, name))]
     if missing:
         raise pytest.UsageError(f"LONG_FILES_FIRST names files that do not exist: {', '.join(missing)}")
-    files = [item.nodeid.split("::")[0] for item in items]
-    counts = {name: files.count(name) for name in set(files)}
+    counts = collections.Counter(item.nodeid.split("::")[0] for item in items)
     rank = {name: position for position, name in enumerate(LONG_FILES_FIRST)}
     order = {name: (rank.get(name, len(rank)), -counts[name], name) for name in counts}
     items.sort(key=lambda item: order[item.nodeid.split("::")[0]])

@@ -1,4 +1,5 @@
-"""Atomic writes, bounded reads and safe deletes, through Beam's FileSystems (local, GCS, S3, HDFS).
+"""Atomic writes, bounded reads and safe deletes: local files through the os module, others (GCS, S3,
+HDFS) and folder listings through Beam's FileSystems.
 
 A file is written to a hidden temporary beside it, ``.<name>.partial-<host>-<pid>-<random>``,
 then moved into place: ``os.replace`` on a local disk (atomic, no moment without the file),
@@ -38,6 +39,11 @@ def filesystems() -> type[FileSystems]:
 
 def is_local(path: str) -> bool:
     return "://" not in path
+
+
+def exists(path: str) -> bool:
+    """Whether the file (or folder) exists, on a local disk or any Beam filesystem."""
+    return os.path.exists(path) if is_local(path) else filesystems().exists(path)
 
 
 def temporary_path(path: str) -> str:
@@ -101,7 +107,7 @@ def read_input(path: str, max_bytes: int | None = None) -> bytes:
     try:
         return read_bytes(path, max_bytes)
     except Exception as error:  # noqa: BLE001 - any filesystem's not-found becomes InputError
-        if not (os.path.exists(path) if is_local(path) else filesystems().exists(path)):
+        if not exists(path):
             raise InputError(f"missing file {path}") from error
         raise InputError(f"cannot read {path}: {error}") from error
 

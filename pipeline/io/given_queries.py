@@ -16,7 +16,7 @@ import numpy as np
 
 from pipeline.core.errors import InputError
 from pipeline.io.clip_reader import read_clip_file
-from pipeline.io.files import filesystems
+from pipeline.io.files import exists
 from pipeline.io.http import HttpConfig, HttpError, is_http, join, shared_client, shown
 from pipeline.io.npz_reader import NpzError
 
@@ -65,7 +65,7 @@ def given_queries(
         found = _remote_queries(join(root, f"{source}/{clip}.npz"), http or HttpConfig())
         return None if found is None else found.copy()
     for path in (f"{root}/{source}/{clip}.npz", f"{root}/{clip}.npz"):
-        if filesystems().exists(path):
+        if exists(path):
             return _read_queries(path)
     return None
 
