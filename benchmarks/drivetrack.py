@@ -26,8 +26,16 @@ camera's unit yields several clips and each side camera's a few (the release's F
 average 6.3 clips, every unit 3.3: its side units 1.8).
 
 Rules: the units run under the release's rules (``rules=release``: what regenerating the release
-costs); each 1-worker unit runs once more under the refined rules (``rules=refined``, a plain run's,
-with the refined visibility) and its time is printed beside the unit's (``UnitSetup.variants``).
+costs); each 1-worker unit runs once more under the refined rules (``rules=refined``, a plain run's:
+the refined visibility and undistorted frames), and once more with the refined visibility alone
+(Waymo's frames kept, ``drivetrack.undistort_frames=false``), each time printed beside the unit's
+(``UnitSetup.variants``).
+
+Warm-up: each process runs its unit once before the timed runs (``extra["warm_up"]``), so that the
+timed runs are a worker's steady state, as in a run of many units: what only the first unit of a
+process pays (numba's cache loads, about 0.5 s; under the refined rules also open3d's import, 1-1.6
+s with the packages it imports) is printed apart and not counted (the extrapolation would carry it
+6.6 times over).
 
 Floor (``floor``): the columns the units read of every component file of the segment, streamed
 with pyarrow 8 rows at a time as the reader does; the group cameras' JPEGs decoded to BGR
@@ -138,7 +146,11 @@ def prepare(workdir: str, size: str) -> UnitSetup:
         ),
         size=size,
         extrapolate_frames=CAMERAS * FULL["frames"] if size == "default" else None,
-        variants={"the refined rules": ["rules=refined"]},
+        variants={
+            "the refined rules": ["rules=refined"],
+            "the refined visibility alone": ["rules=refined", "drivetrack.undistort_frames=false"],
+        },
+        extra={"warm_up": True},
         notes=[
             f"measured on a {sizes['frames']}-frame segment with the full segment's sensors and image "
             f"sizes; the {FULL['frames']}-frame segment is {CAMERAS} x {FULL['frames']} camera frames x "
@@ -205,26 +217,9 @@ def _description(folder: str, sizes: dict, written: float) -> list[str]:
 
 
 def measure_fixed_cost(spec: dict, config) -> dict:
-    """Called by ``benchmarks.worker`` before the runs: numba's first dispatch of the camera model
-    and of the occlusion and depth lookups (loading them from its cache), once per worker process
-    like the imports, so not a unit's cost (reported, not counted; the extrapolation would carry it
-    6.6 times over). The first camera's records are read first, untimed, to call the camera model
-    with the types a unit calls it with. first_calls_s / first_calls_cpu_s."""
-    from pipeline.drivetrack.annotate import load_units, unit_camera
-    from pipeline.drivetrack.settings import DriveTrackConfig
-    from pipeline.drivetrack.visibility import camera_occluded_lidar, nearest_depth_max4
-
-    segment, camera = spec["unit"][0]
-    (unit,) = load_units(spec["input_root"], segment, [camera])
-    rng = np.random.default_rng(0)
-    size = np.array([unit.calibration.width, unit.calibration.height], np.float64)
-    world = unit.frames.world_from_vehicle_at_exposure[0][:3, 3] + rng.normal(0, 20.0, (64, 3))
-    pixels, depth = rng.uniform(0, size, (64, 2)), rng.uniform(5.0, 50.0, 64)
-    wall, cpu = time.perf_counter(), time.process_time()
-    unit_camera(unit).project(0, world)
-    camera_occluded_lidar(pixels, depth, config.section(DriveTrackConfig).occlusion_margin)
-    nearest_depth_max4(pixels, depth, pixels[:4], int(size[0]), int(size[1]))
-    return {"first_calls_s": time.perf_counter() - wall, "first_calls_cpu_s": time.process_time() - cpu}
+    """Nothing apart: the unit's warm-up run (``extra["warm_up"]``) pays what only a worker's first
+    unit pays (numba's cache loads, open3d's import under the refined rules), before the timed runs."""
+    return {}
 
 
 def floor(spec: dict) -> dict:

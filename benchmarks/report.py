@@ -247,6 +247,12 @@ def _print_unit(setup: UnitSetup, one: list[UnitRun], f: dict, where: str) -> No
     )
     if setup.extrapolate_frames:
         _print_extrapolation(first, f)
+    if "first_unit_extra_cpu_s" in first:
+        print(
+            f"  the first unit of each process, {first['first_unit_cpu_s']:.2f} s CPU "
+            f"({_first_unit_extra(one):+.2f} s over the timed run's: imports on first use, numba's cache "
+            "loads), run before the timed runs, not counted"
+        )
     if "first_calls_s" in first:
         print(
             f"  numba's first calls, {1000 * first['first_calls_s']:.0f} ms, once per worker process "
@@ -256,6 +262,11 @@ def _print_unit(setup: UnitSetup, one: list[UnitRun], f: dict, where: str) -> No
     max_rss = f["peak_rss_gib"]
     verdict = f"   target <= {target} GiB: {'met' if max_rss <= target else 'MISSED'}" if target else ""
     print(f"  peak memory of the unit's process (max RSS, its VmHWM): {max_rss:.2f} GiB{verdict}")
+
+
+def _first_unit_extra(runs: list[UnitRun]) -> float:
+    """Mean CPU seconds a process's first (warm-up) unit took over a timed run."""
+    return fmean(run.result["first_unit_extra_cpu_s"] for run in runs)
 
 
 def _print_variants(setup: UnitSetup, runs: Runs) -> None:
@@ -274,6 +285,11 @@ def _print_variants(setup: UnitSetup, runs: Runs) -> None:
             f"CPU = {fmean(pairs):.2f} x the unit's CPU (each run over its unit's: "
             f"{', '.join(f'{ratio:.2f}' for ratio in pairs)}); peak memory "
             f"{max(run.max_rss for run in variant_runs) / GIB:.2f} GiB"
+            + (
+                f"; its first unit {_first_unit_extra(variant_runs):+.2f} s CPU, not counted"
+                if "first_unit_extra_cpu_s" in variant_runs[0].result
+                else ""
+            )
         )
 
 

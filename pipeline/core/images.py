@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import simplejpeg
 
 from pipeline.core.errors import InputError
 
@@ -66,6 +67,13 @@ def check_jpeg(
 ) -> np.ndarray:
     """The decoded image ([H, W] or [H, W, 3] uint8, as ``flags`` ask) of ``data``; InputError unless
     it is a complete JPEG of ``width`` x ``height`` pixels."""
+    check_jpeg_header(data, width, height, what)
+    return decode_image(data, width, height, what, noun="JPEG", flags=flags)
+
+
+def check_jpeg_header(data: bytes, width: int, height: int, what: str) -> None:
+    """InputError unless ``data`` starts and ends as a JPEG and its frame header says ``width`` x
+    ``height`` pixels."""
     if not isinstance(data, bytes) or len(data) < 4:
         raise InputError(f"{what}: missing or empty JPEG")
     if data[:2] != b"\xff\xd8" or data.rstrip(b"\x00")[-2:] != b"\xff\xd9":
@@ -75,4 +83,16 @@ def check_jpeg(
         raise InputError(f"{what}: corrupt JPEG (no frame header)")
     if size != (height, width):
         raise InputError(f"{what}: JPEG is {size[1]}x{size[0]}, calibration says {width}x{height}")
-    return decode_image(data, width, height, what, noun="JPEG", flags=flags)
+
+
+def decode_jpeg_bgrx(data: bytes, out: np.ndarray, what: str) -> None:
+    """A JPEG of out's size decoded straight into out [H, W, 4] uint8 (blue, green, red, 255): the
+    pixels of ``cv2.imdecode(..., IMREAD_COLOR)`` with the fourth channel, without a colour pass or
+    a fresh array (libjpeg-turbo through simplejpeg). InputError unless it is a complete JPEG of
+    that size; as OpenCV, recoverable damage in the data is decoded as it comes."""
+    height, width = out.shape[:2]
+    check_jpeg_header(data, width, height, what)
+    try:
+        simplejpeg.decode_jpeg(data, colorspace="BGRX", buffer=out, strict=False)
+    except ValueError as error:
+        raise InputError(f"{what}: corrupt JPEG (cannot be decoded: {error})") from None

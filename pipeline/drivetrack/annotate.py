@@ -16,17 +16,15 @@ from __future__ import annotations
 import logging
 from typing import TYPE_CHECKING
 
-import cv2
 import numpy as np
 
 from pipeline.core.images import check_jpeg
 from pipeline.core.outcomes import NotMade, UnitClips
 from pipeline.drivetrack.camera_model import (
+    Undistortion,
     UnitCamera,
     camera_from_world,
     frame_poses,
-    undistort_image,
-    undistortion_maps,
 )
 from pipeline.drivetrack.lidar import CameraPass, LidarEvidence, gather_lidar_cameras
 from pipeline.drivetrack.objects import select_objects
@@ -47,14 +45,13 @@ def stored_frames(unit: UnitInput, frames: list[int], undistorted: bool) -> dict
     """The JPEG written for each of ``frames`` (unit frame indices), checked: Waymo's, or undistorted
     (``undistorts``)."""
     calibration = unit.calibration
-    maps = undistortion_maps(calibration) if undistorted else None
+    undistortion = Undistortion(calibration) if undistorted else None
     stored: dict[int, bytes] = {}
     for t in frames:
         what = f"camera_image/{unit.segment} camera {unit.camera} frame {unit.frames.timestamps[t]}"
         jpeg = unit.frames.jpegs[t]
-        if maps is not None:  # one colour decode both checks the frame and feeds the undistortion
-            image = check_jpeg(jpeg, calibration.width, calibration.height, what, cv2.IMREAD_COLOR)
-            stored[t] = undistort_image(image, maps)
+        if undistortion is not None:  # one colour decode both checks the frame and feeds the undistortion
+            stored[t] = undistortion.jpeg(jpeg, what)
         else:
             check_jpeg(jpeg, calibration.width, calibration.height, what)
             stored[t] = jpeg

@@ -46,6 +46,7 @@ import numpy as np
 
 from pipeline.core.errors import InputError
 from pipeline.core.geometry import CV_FROM_FLU, invert_se3, rigid_transform_problem, transform_points
+from pipeline.core.images import decode_jpeg_bgrx
 from pipeline.drivetrack.records import CameraCalibration, CameraFrames, UnitInput
 
 GLOBAL_SHUTTER = 5
@@ -348,24 +349,32 @@ def camera_from_world(frames: CameraFrames, calibration: CameraCalibration) -> n
 JPEG_QUALITY = 95
 
 
-def undistortion_maps(calibration: CameraCalibration) -> tuple[np.ndarray, np.ndarray]:
-    """OpenCV remap tables [H, W] (float32): the sensor pixel read for each stored pixel."""
-    fx, fy, cx, cy = calibration.fx_fy_cx_cy
-    # OpenCV puts pixel centres at integers, Waymo and TAP-Vid at +0.5: the principal point moved
-    # by -0.5 gives the same maps in OpenCV's convention, on both sides of the remap.
-    matrix = np.array([[fx, 0.0, cx - 0.5], [0.0, fy, cy - 0.5], [0.0, 0.0, 1.0]])
-    size = (calibration.width, calibration.height)
-    return cv2.initUndistortRectifyMap(matrix, calibration.distortion, None, matrix, size, cv2.CV_32FC1)
+class Undistortion:
+    """One camera's frames undistorted to its pinhole intrinsics and JPEG-encoded (``jpeg``).
 
-
-def undistort_image(image: np.ndarray, maps: tuple[np.ndarray, np.ndarray]) -> bytes:
-    """A frame [H, W, 3] uint8 undistorted through ``maps`` (black where the sensor saw nothing),
-    JPEG-encoded.
-
-    The frame is remapped with a fourth, opaque channel: OpenCV's bilinear remap has vector code
+    maps: OpenCV remap tables [H, W] (float32), the sensor pixel read for each stored pixel. A frame
+    is decoded with a fourth, opaque channel and remapped so: OpenCV's bilinear remap has vector code
     for 1- and 4-channel images and a scalar loop for 3 (about half the time at 1920x1280), and
-    computes each channel alone, so the first three channels are the 3-channel remap's pixels;
-    the JPEG encoder drops the fourth. Same bytes (tests/drivetrack/test_camera_model.py)."""
-    padded = cv2.cvtColor(image, cv2.COLOR_BGR2BGRA)
-    stored = cv2.remap(padded, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-    return cv2.imencode(".jpg", stored, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])[1].tobytes()
+    computes each channel alone, so the first three channels are the 3-channel remap's pixels; the
+    JPEG encoder drops the fourth. Same bytes (tests/drivetrack/test_camera_model.py). The two
+    4-channel images are kept from frame to frame: a fresh 10 MB array each time costs its page
+    faults."""
+
+    def __init__(self, calibration: CameraCalibration):
+        fx, fy, cx, cy = calibration.fx_fy_cx_cy
+        # OpenCV puts pixel centres at integers, Waymo and TAP-Vid at +0.5: the principal point moved
+        # by -0.5 gives the same maps in OpenCV's convention, on both sides of the remap.
+        matrix = np.array([[fx, 0.0, cx - 0.5], [0.0, fy, cy - 0.5], [0.0, 0.0, 1.0]])
+        size = (calibration.width, calibration.height)
+        distortion = calibration.distortion
+        self.maps = cv2.initUndistortRectifyMap(matrix, distortion, None, matrix, size, cv2.CV_32FC1)
+        self._sensor = np.empty((calibration.height, calibration.width, 4), np.uint8)
+        self._stored = np.empty_like(self._sensor)
+
+    def jpeg(self, data: bytes, what: str) -> bytes:
+        """The JPEG ``data`` of a frame, checked (InputError naming ``what``: ``images.check_jpeg_header``)
+        and undistorted (black where the sensor saw nothing), JPEG-encoded."""
+        decode_jpeg_bgrx(data, self._sensor, what)
+        stored = self._stored
+        cv2.remap(self._sensor, *self.maps, cv2.INTER_LINEAR, dst=stored, borderMode=cv2.BORDER_CONSTANT)
+        return cv2.imencode(".jpg", stored, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])[1].tobytes()

@@ -5,15 +5,19 @@ included, and its variant's line), with no change to ``benchmarks/``."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import subprocess
 import sys
+import time
 
 import pytest
 
 from pipeline.sources import PLUGINS_ENV
 from tests.support.cli import REPO
+
+FIRST_USE_CPU_S = 0.25
 
 
 def test_the_toy_is_benchmarked_through_its_own_entry(tmp_path):
@@ -46,3 +50,37 @@ def test_the_toy_is_benchmarked_through_its_own_entry(tmp_path):
     for key in ("ms_per_frame", "peak_rss_gib", "speedup", "speedup_cpu", "floor_cpu_s", "floor_ratio"):
         assert toy[key] > 0, (key, toy[key])
     assert every["cpu_hours"] == pytest.approx(toy["cpu_hours"])
+
+
+def test_a_warm_up_run_takes_what_only_a_processs_first_unit_pays_out_of_the_timed_run(tmp_path):
+    """With ``warm_up`` in the spec (DriveTrack's setup asks for it), the unit runs once before the
+    timed run: a cost its first call pays once per process (here 0.25 s of CPU, standing for an
+    import made on first use) is in the warm-up's time and not in the unit's; the warm-up writes
+    into a folder of its own, removed after it."""
+    from benchmarks import worker
+    from pipeline import sources
+    from tests.support import toy_bench, toy_source
+
+    def first_use_costs(input_root, unit, config):
+        if not paid:
+            started = time.process_time()
+            while time.process_time() - started < FIRST_USE_CPU_S:
+                pass
+            paid.append(True)
+        return toy_source.annotate(input_root, unit, config)
+
+    paid: list[bool] = []
+    sources.register(dataclasses.replace(toy_source.TOY, annotate_group=sources.one_by_one(first_use_costs)))
+    try:
+        root = toy_source.write_sample(str(tmp_path / "sample"))
+        output = str(tmp_path / "out")
+        spec = {"source": "toy", "input_root": root, "unit": [["walk"]], "overrides": [], "output": output}
+        result = worker.unit_work(dict(spec, warm_up=True), toy_bench)
+    finally:
+        sources.unregister("toy")
+    assert result["first_unit_cpu_s"] >= FIRST_USE_CPU_S
+    assert result["work_cpu_s"] < FIRST_USE_CPU_S / 2 and result["annotate_cpu_s"] < FIRST_USE_CPU_S / 2
+    extra = result["first_unit_cpu_s"] - result["work_cpu_s"]
+    assert result["first_unit_extra_cpu_s"] == pytest.approx(extra)
+    assert result["tracks_written"] == 3
+    assert sorted(os.listdir(tmp_path)) == ["out", "sample"]

@@ -12,7 +12,7 @@ import pytest
 
 from pipeline.drivetrack import columns as C
 from pipeline.drivetrack.annotate import unit_camera
-from pipeline.drivetrack.camera_model import JPEG_QUALITY, UnitCamera, undistort_image, undistortion_maps
+from pipeline.drivetrack.camera_model import JPEG_QUALITY, Undistortion, UnitCamera
 from pipeline.drivetrack.records import CameraCalibration, CameraFrames
 from pipeline.export.invariants import check_arrays, quality_findings
 from pipeline.export.npz_writer import clip_arrays
@@ -139,7 +139,7 @@ def test_frames_projected_together_are_each_as_projected_alone(sample_split):
 
 def test_undistortion_maps_read_the_sensor_pixel_of_each_stored_pixel(sample_split):
     calibration = drivetrack_input(sample_split[0], SEGMENT, 3).calibration
-    map_x, map_y = undistortion_maps(calibration)
+    map_x, map_y = Undistortion(calibration).maps
     rows, cols = np.mgrid[0 : calibration.height : 7, 0 : calibration.width : 11]
     fx, fy, cx, cy = calibration.fx_fy_cx_cy
     # the ray of each stored pixel's centre (c + 0.5, r + 0.5), through the sensor's lens
@@ -151,17 +151,23 @@ def test_undistortion_maps_read_the_sensor_pixel_of_each_stored_pixel(sample_spl
 
 
 def test_undistorted_frame_has_the_bytes_of_the_three_channel_remap(sample_split):
-    """``undistort_image`` remaps with a fourth channel (OpenCV's fast path): the JPEG is the one
-    a plain 3-channel remap and encode give, on a textured frame with saturated edges."""
+    """``Undistortion.jpeg`` decodes into a fourth channel and remaps so (OpenCV's fast path), into
+    images it keeps from frame to frame: each JPEG is the one OpenCV's plain decode, 3-channel remap
+    and encode give, on textured frames with saturated edges, whatever frame came before."""
     calibration = drivetrack_input(sample_split[0], SEGMENT, 2).calibration
-    maps = undistortion_maps(calibration)
+    undistortion = Undistortion(calibration)
     rng = np.random.default_rng(5)
-    image = rng.integers(0, 256, (calibration.height, calibration.width, 3), np.uint8)
-    image = cv2.GaussianBlur(image, (0, 0), 1.5)
-    image[:, : calibration.width // 8] = (0, 255, 255)
-    plain = cv2.remap(image, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-    expected = cv2.imencode(".jpg", plain, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])[1].tobytes()
-    assert undistort_image(image, maps) == expected
+    frames = []
+    for colour in ((0, 255, 255), (255, 0, 40)):
+        image = rng.integers(0, 256, (calibration.height, calibration.width, 3), np.uint8)
+        image = cv2.GaussianBlur(image, (0, 0), 1.5)
+        image[:, : calibration.width // 8] = colour
+        frames.append(cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 90])[1].tobytes())
+    for data in frames + frames[::-1]:
+        image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+        plain = cv2.remap(image, *undistortion.maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+        expected = cv2.imencode(".jpg", plain, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])[1].tobytes()
+        assert undistortion.jpeg(data, "frame") == expected
 
 
 @pytest.fixture(scope="module")
