@@ -26,8 +26,6 @@ import time
 from collections.abc import Mapping
 from typing import TYPE_CHECKING
 
-from apache_beam.io.filesystems import FileSystems
-
 import pipeline
 from pipeline import sources
 from pipeline.core.outcomes import ClipReport, Failure, UnitOutcome
@@ -41,7 +39,16 @@ from pipeline.export.layout import (
     temporary_patterns,
 )
 from pipeline.io.clip_reader import DEFAULT_LIMITS
-from pipeline.io.files import PARTIAL, is_abandoned, read_bytes, remove_quietly, write_atomic, writer_pid
+from pipeline.io.files import (
+    PARTIAL,
+    exists,
+    filesystems,
+    is_abandoned,
+    read_bytes,
+    remove_quietly,
+    write_atomic,
+    writer_pid,
+)
 from pipeline.settings.fields import settings_items
 
 if TYPE_CHECKING:
@@ -178,7 +185,7 @@ def _clip_is_intact(output: str, source: str, clip: str, digest: str, export_dep
     companions = [audit_path(output, source, clip)]
     if export_depth:
         companions.append(depth_path(output, source, clip))
-    if not all(FileSystems.exists(path) for path in companions):
+    if not all(exists(path) for path in companions):
         return False
     try:
         data = read_bytes(clip_path(output, source, clip), DEFAULT_LIMITS.max_file_bytes)
@@ -262,7 +269,7 @@ def remove_partial_files(output: str, source: str, include_own: bool = False) ->
     now = time.time()
     doomed = [
         match.path
-        for result in FileSystems.match(patterns)
+        for result in filesystems().match(patterns)
         for match in result.metadata_list
         if is_abandoned(match.path, match.last_updated_in_seconds, now)
         or (include_own and writer_pid(match.path) == os.getpid())
