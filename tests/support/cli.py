@@ -24,13 +24,17 @@ from collections.abc import Callable
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
+RUN_TIMEOUT_S = 600
+
+
+def pipeline_command(source: str, *args: str) -> list[str]:
+    """The command line of ``python -m pipeline.run --source <source> <args>`` in this interpreter."""
+    return [sys.executable, "-m", "pipeline.run", "--source", source, *args]
+
+
 def run_pipeline(source: str, *args: str) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-m", "pipeline.run", "--source", source, *args],
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        timeout=600,
+        pipeline_command(source, *args), cwd=REPO, capture_output=True, text=True, timeout=RUN_TIMEOUT_S
     )
 
 
@@ -40,13 +44,9 @@ def run_pipeline_timed(source: str, *args: str) -> tuple[subprocess.CompletedPro
     started = time.monotonic()
     with tempfile.TemporaryFile("w+") as errors:
         process = subprocess.Popen(
-            [sys.executable, "-m", "pipeline.run", "--source", source, *args],
-            cwd=REPO,
-            stdout=subprocess.PIPE,
-            stderr=errors,
-            text=True,
+            pipeline_command(source, *args), cwd=REPO, stdout=subprocess.PIPE, stderr=errors, text=True
         )
-        watchdog = threading.Timer(600, process.kill)  # run_pipeline's timeout
+        watchdog = threading.Timer(RUN_TIMEOUT_S, process.kill)
         watchdog.start()
         lines, last = [], None
         try:
