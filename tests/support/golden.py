@@ -2,11 +2,17 @@
 
 ``sample_runs/<source>.json``: a plain run on the source's sample (DriveTrack and Panoptic Studio
 given no ``--input``: their embedded sample worlds; ADT on the real excerpt), its command-line
-arguments (``OUT`` for the output folder), per clip its frame count, track count and the sha256 of
-its bytes, and the versions of the libraries that decide those bytes. ``sample_release.json``: per
-source, the release run of the samples' splits file (what ``make demo`` runs) and each release
-clip's verdict, with its track count when written. ``tests/run/test_golden.py`` compares a fresh
-run with them.
+arguments (``OUT`` for the output folder), per clip its frame count and track count, the sha256 of
+each clip's bytes per sample input (``sha256``: the input's digest -> clip -> sha256), and the
+versions of the libraries that decide those bytes. A sample world is written by ray casting
+(open3d's Embree), whose last bits depend on the CPU's instruction set: the world one machine writes
+may differ from another's, and with it every clip's bytes (the pipeline's own arithmetic does not:
+the same world gives the same bytes on every CPU). So the hashes are kept per input, each machine's
+``--write`` adding its own, and a fresh run's are compared with those of the input it read.
+
+``sample_release.json``: per source, the release run of the samples' splits file (what ``make
+demo`` runs) and each release clip's verdict, with its track count when written.
+``tests/run/test_golden.py`` compares a fresh run with them.
 
 A change that alters clip bytes updates the fixtures in the same commit::
 
@@ -96,28 +102,60 @@ def python_version() -> str:
     return f"{sys.version_info.major}.{sys.version_info.minor}"
 
 
-def clips_of(out: str, source: str) -> dict[str, dict]:
-    """Clip file name -> frames, tracks, sha256, for every clip of ``source`` a run wrote in ``out``."""
+def clips_of(out: str, source: str) -> tuple[dict[str, dict], dict[str, str]]:
+    """(clip file name -> frames and tracks, clip file name -> sha256), for every clip of ``source`` a
+    run wrote in ``out``."""
     folder = os.path.join(out, source)
-    found = {}
+    counts, hashes = {}, {}
     for name in sorted(os.listdir(folder)) if os.path.isdir(folder) else []:
         if name.endswith(".npz"):
             path = os.path.join(folder, name)
             clip = pipeline.clips.open(path)
             with open(path, "rb") as handle:
-                digest = hashlib.sha256(handle.read()).hexdigest()
-            found[name] = {"frames": clip.num_frames, "tracks": clip.num_tracks, "sha256": digest}
-    return found
+                hashes[name] = hashlib.sha256(handle.read()).hexdigest()
+            counts[name] = {"frames": clip.num_frames, "tracks": clip.num_tracks}
+    return counts, hashes
+
+
+def input_digest(out: str, source: str) -> str:
+    """16 hex digits of sha256 over the files of the input the run in ``out`` read (its provenance's
+    ``input``), by path relative to it; hidden files (a sample's completion marker) aside."""
+    with open(os.path.join(out, f"run_{source}.json")) as handle:
+        root = json.load(handle)["input"]
+    digest = hashlib.sha256()
+    for folder, names, files in sorted(os.walk(root)):
+        names.sort()
+        for name in sorted(file for file in files if not file.startswith(".")):
+            path = os.path.join(folder, name)
+            with open(path, "rb") as handle:
+                content = hashlib.sha256(handle.read()).hexdigest()
+            digest.update(f"{os.path.relpath(path, root)}\0{content}\0".encode())
+    return digest.hexdigest()[:16]
 
 
 def sample_record(out: str, source: str) -> dict:
-    """What ``sample_runs/<source>.json`` holds for the run in ``out``."""
+    """What ``sample_runs/<source>.json`` holds for the run in ``out`` (its hashes under its input's
+    digest)."""
+    counts, hashes = clips_of(out, source)
     return {
         "args": sample_args(source),
-        "clips": clips_of(out, source),
+        "clips": counts,
+        "sha256": {input_digest(out, source): hashes},
         "python": python_version(),
         "versions": versions(source),
     }
+
+
+def merged(old: dict | None, new: dict) -> dict:
+    """``new``, keeping ``old``'s hashes of other inputs when they were made with the same Python and
+    library versions and the same clips (another machine's sample world)."""
+    if old is None or (old.get("python"), old.get("versions"), old.get("clips")) != (
+        new["python"],
+        new["versions"],
+        new["clips"],
+    ):
+        return new
+    return new | {"sha256": old.get("sha256", {}) | new["sha256"]}
 
 
 def verdicts_of(out: str, source: str) -> dict[str, dict]:
@@ -166,13 +204,23 @@ def changes(old: dict | None, new: dict, what: str) -> list[str]:
             lines.append(f"{what}: clip {name} changed: {diff}")
     for key in sorted((set(old) | set(new)) - {"clips"}):
         before, after = old.get(key), new.get(key)
-        if isinstance(before, dict) and isinstance(after, dict):  # versions: one line per library
+        if isinstance(before, dict) and isinstance(after, dict):  # versions, hashes: one line per entry
             for name in sorted(set(before) | set(after)):
                 if before.get(name) != after.get(name):
-                    lines.append(f"{what}: {key} {name} {before.get(name)} -> {after.get(name)}")
+                    was, now = (_brief_hashes(value.get(name)) for value in (before, after))
+                    lines.append(f"{what}: {key} {name} {was} -> {now}")
         elif before != after:
             lines.append(f"{what}: {key} {before} -> {after}")
     return lines
+
+
+def _brief_hashes(value):
+    """An entry of ``versions`` as it is, one of ``sha256`` (clip -> hash) as its clips' short hashes."""
+    if isinstance(value, dict):
+        return (
+            "{" + ", ".join(f"{name[-24:]}: {_short(digest)}" for name, digest in sorted(value.items())) + "}"
+        )
+    return value
 
 
 def _brief(entry: dict) -> str:
@@ -227,7 +275,9 @@ def main(argv: list[str] | None = None) -> int:
         shutil.rmtree(scratch, ignore_errors=True)
     lines, writes = [], {}
     for source, (sample, _) in made.items():
-        lines += changes(read(sample_path(source)), sample, f"sample_runs/{source}.json")
+        recorded = read(sample_path(source))
+        sample = merged(recorded, sample)
+        lines += changes(recorded, sample, f"sample_runs/{source}.json")
         writes[sample_path(source)] = dumps(sample)
     old_release = read(RELEASE_PATH) or {}
     release = dict(old_release) | {source: record for source, (_, record) in made.items()}
