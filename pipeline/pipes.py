@@ -1,5 +1,8 @@
-"""How every ``python -m pipeline...`` command ends when its output goes away (``| head``) or Ctrl-C
-stops it: quietly, with the shell's statuses (141 for a closed output, 130 for Ctrl-C), no traceback.
+"""How every ``python -m pipeline...`` command ends when its output goes away (``| head``), Ctrl-C or
+SIGTERM stops it: quietly, with the shell's statuses (141 for a closed output, 130 for Ctrl-C, 143
+for SIGTERM), no traceback. SIGTERM (a cluster's scheduler, ``kill``, a container stopping) stops the
+command as Ctrl-C does: a KeyboardInterrupt in the main thread, so every clean-up that Ctrl-C runs
+(temporaries, a download's scratch folder) runs; ``TERMINATED`` says which of the two it was.
 
 Python ignores SIGPIPE, so a write to a pipe whose reader exited raises BrokenPipeError, perhaps
 only at the interpreter's last flush; and a command printing nothing for a while (a long run) would
@@ -14,6 +17,7 @@ import _thread
 import contextlib
 import os
 import select
+import signal
 import stat
 import sys
 import threading
@@ -22,7 +26,9 @@ from typing import NoReturn
 
 # Statuses a command ends with at once (its other threads left as they are): Ctrl-C, a closed
 # output, and a run that stopped itself (``pipeline.run``: units failing alike).
-STOPPED, INTERRUPTED, OUTPUT_CLOSED = 4, 130, 141
+STOPPED, INTERRUPTED, OUTPUT_CLOSED, SIGTERM_STATUS = 4, 130, 141, 143
+# Set once SIGTERM arrived: the KeyboardInterrupt that stops the command is its, not a Ctrl-C's.
+TERMINATED = threading.Event()
 # Set once the reader of the command's stdout or stderr is gone (a closed pipe).
 READER_GONE = threading.Event()
 # Set (under the lock) once the command has ended: the watcher then leaves the main thread alone.
@@ -75,10 +81,27 @@ def _flush() -> None:
         stream.flush()
 
 
+def stop_on_sigterm() -> None:
+    """From now on, SIGTERM stops the main thread as Ctrl-C does (``TERMINATED`` set)."""
+
+    def terminate(signum, frame) -> None:
+        TERMINATED.set()
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, terminate)
+
+
+def interrupted_status() -> tuple[int, str]:
+    """The status and the word for a command stopped by a KeyboardInterrupt: 143 ``terminated`` after
+    SIGTERM, else 130 ``interrupted`` (Ctrl-C)."""
+    return (SIGTERM_STATUS, "terminated") if TERMINATED.is_set() else (INTERRUPTED, "interrupted")
+
+
 def _ending(main: Callable[[], int]) -> int:
-    """``main()``'s status, flushed; 141 for a closed output, 130 for Ctrl-C."""
+    """``main()``'s status, flushed; 141 for a closed output, 130 for Ctrl-C, 143 for SIGTERM."""
     try:
         watch_output_pipes()
+        stop_on_sigterm()
         status = main()
         _flush()
         return status
@@ -87,15 +110,17 @@ def _ending(main: Callable[[], int]) -> int:
     except KeyboardInterrupt:
         if READER_GONE.is_set():
             return OUTPUT_CLOSED
+        status, word = interrupted_status()
         with contextlib.suppress(OSError):
-            print("interrupted", file=sys.stderr)
-        return INTERRUPTED
+            print(word, file=sys.stderr)
+        return status
 
 
 def run_command(main: Callable[[], int], stop: Callable[[], None] | None = None) -> NoReturn:
-    """``sys.exit(main())`` for a command: a closed output ends it with 141 and Ctrl-C with 130 (one
-    line on stderr), without a traceback. ``stop`` runs before such an exit (``pipeline.run`` kills
-    its worker processes), which then happens at once, without waiting for other threads."""
+    """``sys.exit(main())`` for a command: a closed output ends it with 141, Ctrl-C with 130 and
+    SIGTERM with 143 (one line on stderr), without a traceback. ``stop`` runs before such an exit
+    (``pipeline.run`` kills its worker processes), which then happens at once, without waiting for
+    other threads."""
     try:
         status = _ending(main)
         with _FINISHING:
@@ -103,7 +128,7 @@ def run_command(main: Callable[[], int], stop: Callable[[], None] | None = None)
     except KeyboardInterrupt:  # the watcher's, sent while the command was ending
         status = OUTPUT_CLOSED
         _FINISHED.set()
-    if status not in (STOPPED, INTERRUPTED, OUTPUT_CLOSED):
+    if status not in (STOPPED, INTERRUPTED, OUTPUT_CLOSED, SIGTERM_STATUS):
         sys.exit(status)
     if status == OUTPUT_CLOSED or READER_GONE.is_set():
         silence_output()

@@ -111,6 +111,10 @@ class Source(Generic[U]):
       wraps its per-unit function with ``one_by_one``.
     sample_input: folder -> input root of the embedded sample world written (once) there;
       raises NoSample when the source has none.
+    has_sample: False for a source without an embedded sample world: a run without ``--input`` is
+      refused before any work, with ``sample_input``'s NoSample message.
+    reclaim_scratch: config -> bytes freed: delete what killed workers left in the source's scratch
+      folder (a run stopped by Ctrl-C or SIGTERM calls it once its worker processes are gone).
     mask_min_agreement: config -> the mask filter's threshold for this source's clips.
     sweepable: config keys of this source's filter thresholds (``pipeline.audit sweep``).
     group_of: unit -> the key of the units annotated together, in one worker, when inputs they
@@ -130,6 +134,8 @@ class Source(Generic[U]):
     group_of: Callable[[U], str] | None = None
     settings: type | None = None
     bench: str = ""
+    has_sample: bool = True
+    reclaim_scratch: Callable[[RunConfig], int] | None = None
 
     @property
     def bench_module(self) -> str:

@@ -7,8 +7,9 @@ from __future__ import annotations
 import operator
 
 from pipeline.adt.annotate import annotate_group
+from pipeline.adt.download import reclaim_scratch
 from pipeline.adt.settings import AdtConfig
-from pipeline.adt.units import SequenceChunk, list_units
+from pipeline.adt.units import SequenceChunk, list_units, scratch_folder
 from pipeline.samples.adt_excerpt import no_sample_message
 from pipeline.sources import NoSample, Source
 
@@ -25,6 +26,8 @@ SOURCE: Source[SequenceChunk] = Source(
     sample_input=sample_input,
     mask_min_agreement=lambda config: config.section(AdtConfig).mask_min_agreement,
     sweepable=("adt.mask_min_agreement",),
+    has_sample=False,
+    reclaim_scratch=lambda config: reclaim_scratch(scratch_folder(config.section(AdtConfig))),
     settings=AdtConfig,
     group_of=operator.attrgetter("group"),
 )

@@ -1,6 +1,6 @@
-"""``python -m pipeline.audit compare REF NEW_DIR [--clips LIST] [--out PREFIX]``: TAPVid-3D metrics of
-NEW against REF, scored as tapnet's ``tapvid3d/evaluation/evaluate_model.py`` scores them, and each
-clip's agreement with REF.
+"""``python -m pipeline.audit compare REF NEW_DIR [--clips LIST] [--out PREFIX] [--jobs N] [--set K=V]``:
+TAPVid-3D metrics of NEW against REF, scored as tapnet's ``tapvid3d/evaluation/evaluate_model.py``
+scores them, and each clip's agreement with REF.
 
 REF is a folder, or a base URL (``gs://``, ``http(s)://``, e.g. the release's bucket,
 ``https://storage.googleapis.com/dm-tapnet/tapvid3d/release_files/v1.0``). Clips are matched by
@@ -13,262 +13,107 @@ those two is scored); tracks correspond by index. Per clip: 3D-AJ and APD under 
 (not a tapnet metric); and its agreement (``pipeline/audit/agreement.py``): the share of equal query
 frames, the visibility agreement, the median and 95th percentile of the track distance (mm), and
 whether it agrees fully (``--agree-mm``). Over HTTP only the members scored are read, by Range
-requests (``pipeline.io.http``): a clip's frames never, but the start of its first JPEG, for the
-frame size; ``fetched_bytes`` counts each clip's bytes received. A reference without frames or
-intrinsics (the release's ADT and Panoptic Studio files hold annotations only) takes them from NEW's
-clip of the same video. As in tapnet:
+requests (``pipeline.io.http``), ``--jobs`` clips at a time: a clip's frames never, but the start of
+its first JPEG, for the frame size; ``fetched_bytes`` counts each clip's bytes received. As in tapnet:
 
-- a REF clip whose prediction is missing, unreadable, refused or of another shape counts with
-  every metric 0 (status ``zero``, named with the reason); under per-trajectory rescaling, so does
-  a clip whose REF query frames are no frame indices;
+- a REF clip whose prediction is missing, unreadable, refused or of another shape counts with every
+  metric 0 (status ``zero``); a release clip the run did not make is left out (``not_made``: its
+  verdict says why; REF is not fetched for it);
 - per source, each metric is the plain mean over its clips, whatever their length (a NaN metric,
   from a REF clip with no visible point, makes the mean NaN); ``all`` is the mean of the source means.
 
-The median error is averaged over the clips whose prediction was read. A REF clip that cannot be
-read (tapnet's evaluator would stop there) is named and left out of the means (status
-``ref_error``), and so is one REF does not hold (HTTP 404: status ``not_in_ref``). Writes
-``PREFIX.md`` and ``PREFIX.json`` (default prefix ``NEW_DIR/compare``); when NEW_DIR is a release
-run, each of its verdict rows gains the clip's ``agreement``.
-Nothing is unpickled and every size is bounded (``pipeline.io.clip_reader``): a prediction's
-members may hold no more than REF's T frames and N tracks need. The frame size that sets the
-evaluation scale comes from REF's first JPEG header.
+A clip REF does not hold (HTTP 404, or absent from a local REF) is ``not_in_ref``, left out of the
+means; one whose REF file cannot be read (tapnet's evaluator would stop there) is ``ref_error``, left
+out too. Writes ``PREFIX.md`` and ``PREFIX.json`` (default prefix ``NEW_DIR/compare``) and, when
+NEW_DIR is a release run, each verdict row's ``agreement``, all together or not at all
+(``pipeline.io.file_set``). A compare never erases an earlier finding it could not replace: a clip it
+could not read from REF keeps the earlier report's row (``carried``) and its verdict keeps the
+agreement of the last compare that scored it, with that compare's reference and time. After
+``max_failures_in_a_row`` clips in a row failed alike (a dead server) it stops, writes what it found,
+and says so.
 
-Each clip counted as 0 or left out is named on stderr (``not scored: <source>/<clip>: <why>``).
-Exit status: 0 when at least one prediction was scored (the means are tapnet's when the report
-has no ``ref_error``); 1 when nothing could be scored (no REF clip, or no prediction scored);
-2 on bad arguments, a missing folder, an unreadable ``--clips`` list or a report that cannot be
-written.
+Exit status: 0 every requested clip was scored, counted 0 or is absent from REF, and one at least
+was scored; 1 a REF clip could not be read (the last line says how many; a rerun completes them), or
+none was scored; 2
+bad arguments, a missing folder, an unreadable ``--clips`` list or outputs that cannot be written; 4 it
+stopped itself (``max_failures_in_a_row``); 130 Ctrl-C (nothing written).
 """
 
 from __future__ import annotations
 
-import contextlib
+import concurrent.futures
 import dataclasses
-import enum
 import json
 import math
 import os
 import re
 import sys
-from collections.abc import Mapping
-from typing import Any, ClassVar, TypeAlias
-
-import numpy as np
+import threading
+import time
+from collections.abc import Callable, Mapping
+from typing import Any
 
 from pipeline import sources as registry
-from pipeline.audit.agreement import AGREE_MM, Agreement, agreement
-from pipeline.audit.metrics import (
-    SCALINGS,
-    eval_intrinsics,
-    median_error,
-    query_frame_indices,
-    tapvid3d_metrics,
+from pipeline.audit.agreement import AGREE_MM
+from pipeline.audit.compare_rows import (
+    Carried,
+    ClipRow,
+    CompareReport,
+    RefUnread,
+    Scored,
+    Status,
+    Zero,
+    carried_row,
+    markdown,
+    summarise,
 )
-from pipeline.audit.verdict_rows import ClipAgreement, add_agreement, release_clip_keys
+from pipeline.audit.scoring import read_reference, score_pair
+from pipeline.audit.verdict_rows import ClipAgreement, amended_verdicts, read_verdicts, release_clip_keys
 from pipeline.commandline import StrictParser
-from pipeline.io.clip_reader import (
-    DEFAULT_LIMITS,
-    ReadLimits,
-    add_limit_argument,
-    first_frame_size,
-    limits_from,
-    member_caps,
-    read_clip_archive,
-)
-from pipeline.io.files import is_local, list_files, read_bytes, write_atomic
-from pipeline.io.http import HttpClient, HttpError, is_http, join, open_remote, shown
-from pipeline.io.npz_reader import NpzArchive, NpzError
+from pipeline.core.outcomes import failure_cause
+from pipeline.export.layout import release_verdicts_path
+from pipeline.io.clip_reader import DEFAULT_LIMITS, ReadLimits, add_limit_argument, limits_from
+from pipeline.io.file_set import complete_commits, output_lock, reclaim_temporaries, write_together
+from pipeline.io.files import is_local, list_files, read_bytes
+from pipeline.io.http import HttpClient, HttpConfig, is_http, join, shown
+from pipeline.settings.fields import SettingsError, not_in_clips, with_overrides
+from pipeline.settings.run_config import MAX_FAILURES_IN_A_ROW
 
-NUMERIC_KEYS = ("queries_xyt", "tracks_XYZ", "visibility", "fx_fy_cx_cy")
-REQUIRED_KEYS = ("queries_xyt", "tracks_XYZ", "visibility")
-PREDICTION_KEYS = ("tracks_XYZ", "visibility")
-TAPNET_KEYS = (*(f"{key}_{scaling}" for scaling in SCALINGS for key in ("aj", "apd")), "oa")
-SUMMARY_KEYS = (*TAPNET_KEYS, "median_error_m")
-AGREEMENT_KEYS = ("query_frames_equal", "visibility", "median_mm", "p95_mm")
-COUNT_KEYS = ("clips", "zero", "ref_errors", "not_in_ref", "agree", "fetched_bytes")
+__all__ = ["Status", "compare_dirs", "main", "read_reference"]
+
 CLIP_ENTRY = re.compile(r"[^/\s]+/[^/\s]+\.npz")
 MAX_LIST_BYTES = 16 << 20
-
-
-class ClipError(Exception):
-    """A clip that cannot be read or scored, with the reason."""
-
-
-class Status(enum.Enum):
-    """What became of a benchmark clip; the value names it in the report."""
-
-    SCORED = "scored"
-    ZERO = "zero"
-    REF_ERROR = "ref_error"
-    NOT_IN_REF = "not_in_ref"
+MAX_REPORT_BYTES = 256 << 20
+DEFAULT_JOBS = 8
+MAX_JOBS = 64
+NOT_REACHED = "not compared: the compare stopped first"
 
 
 @dataclasses.dataclass(frozen=True)
-class Scores:
-    """A clip's tapnet metrics, or their means: 3D-AJ and APD under each rescaling (``aj``, ``apd``:
-    scaling of ``SCALINGS`` -> value) and OA; and the median 3D error in metres (not a tapnet metric;
-    NaN where none was measured). ``note`` says when per-trajectory counted 0."""
+class CompareSettings:
+    """What ``--set`` changes for a compare: the run's rules for transfers and for stopping.
 
-    aj: Mapping[str, float]
-    apd: Mapping[str, float]
-    oa: float
-    median_error_m: float
-    note: str = ""
+    max_failures_in_a_row: the compare stops (exit status 4) once this many clips in a row could not
+      be read from REF for the same cause (a dead server); 0: never.
+    http: how every transfer behaves (retries, deadline, stall rule), as in a run.
+    """
 
-    def tapnet(self) -> dict[str, float]:
-        """``TAPNET_KEYS`` -> value."""
-        values: dict[str, float] = {}
-        for scaling in SCALINGS:
-            values |= {f"aj_{scaling}": self.aj[scaling], f"apd_{scaling}": self.apd[scaling]}
-        return values | {"oa": self.oa}
-
-
-# A clip counted as tapnet's ``evaluate_model.py`` counts one it cannot score: every metric 0.
-ZERO_SCORES = Scores(dict.fromkeys(SCALINGS, 0.0), dict.fromkeys(SCALINGS, 0.0), 0.0, math.nan)
-
-
-def _named(source: str, clip: str, frames: int, tracks: int, fetched_bytes: int | None) -> dict[str, Any]:
-    """The first fields of a row whose REF clip was read."""
-    return {"source": source, "clip": clip, "frames": frames, "tracks": tracks} | _fetched(fetched_bytes)
-
-
-def _fetched(fetched_bytes: int | None) -> dict[str, int]:
-    return {} if fetched_bytes is None else {"fetched_bytes": fetched_bytes}
+    max_failures_in_a_row: int = not_in_clips(MAX_FAILURES_IN_A_ROW, "[0, 1000000]")
+    http: HttpConfig = dataclasses.field(default_factory=HttpConfig)
 
 
 @dataclasses.dataclass(frozen=True)
-class RefUnread:
-    """A benchmark clip left out of the means: REF cannot be read (``REF_ERROR``) or holds no such clip
-    (``NOT_IN_REF``: HTTP 404); ``error`` says why, ``fetched_bytes`` counts the bytes received over
-    HTTP (None for a REF that is not)."""
+class Benchmark:
+    """The clips to score, in order (``<source>/<clip>.npz``), REF's path of each it holds, NEW's
+    clips, REF's clips when it can be listed (None over HTTP), how many of NEW's clips ``--clips``
+    left out, and why a release run made no clip of a name (its verdict's reason)."""
 
-    source: str
-    clip: str
-    status: Status
-    error: str
-    fetched_bytes: int | None = None
-
-    def as_row(self) -> dict[str, Any]:
-        """The clip's row of the report."""
-        row = {"source": self.source, "clip": self.clip, "status": self.status.value, "error": self.error}
-        return row | _fetched(self.fetched_bytes)
-
-
-@dataclasses.dataclass(frozen=True)
-class Zero:
-    """A benchmark clip whose prediction is missing, unreadable, refused or of another shape: counted
-    with every metric 0 (``ZERO_SCORES``); ``error`` says why. ``frames``, ``tracks``: REF's T and N."""
-
-    source: str
-    clip: str
-    frames: int
-    tracks: int
-    error: str
-    fetched_bytes: int | None = None
-    status: ClassVar[Status] = Status.ZERO
-    scores: ClassVar[Scores] = ZERO_SCORES
-
-    def as_row(self) -> dict[str, Any]:
-        """The clip's row of the report."""
-        named = _named(self.source, self.clip, self.frames, self.tracks, self.fetched_bytes)
-        scores = self.scores.tapnet() | {"median_error_m": self.scores.median_error_m}
-        return named | {"status": self.status.value, "error": self.error} | scores
-
-
-@dataclasses.dataclass(frozen=True)
-class Scored:
-    """A prediction scored against REF: its scores, its agreement with REF and whether that is full
-    (within the report's agree_mm); ``camera_note`` says when REF's frame size or intrinsics came
-    from NEW's clip. ``frames``, ``tracks``: REF's T and N."""
-
-    source: str
-    clip: str
-    frames: int
-    tracks: int
-    scores: Scores
-    agreement: Agreement
-    agrees: bool
-    camera_note: str = ""
-    fetched_bytes: int | None = None
-    status: ClassVar[Status] = Status.SCORED
-
-    @property
-    def note(self) -> str:
-        """The scores' note and the camera's, either, or none."""
-        return "; ".join(text for text in (self.scores.note, self.camera_note) if text)
-
-    def as_row(self) -> dict[str, Any]:
-        """The clip's row of the report: the metrics per rescaling (OA after the median's, the scores'
-        note after per-trajectory's), the median error, the agreement, ``agrees``, then a camera note
-        alone."""
-        row = _named(self.source, self.clip, self.frames, self.tracks, self.fetched_bytes)
-        row["status"] = self.status.value
-        for scaling in SCALINGS:
-            row |= {f"aj_{scaling}": self.scores.aj[scaling], f"apd_{scaling}": self.scores.apd[scaling]}
-            if scaling == "median":
-                row["oa"] = self.scores.oa
-            if scaling == "per_trajectory" and self.scores.note:
-                row["note"] = self.note
-        row["median_error_m"] = self.scores.median_error_m
-        row |= {key: getattr(self.agreement, key) for key in AGREEMENT_KEYS}
-        row["agrees"] = self.agrees
-        return row | ({"note": self.note} if self.camera_note and not self.scores.note else {})
-
-
-ClipRow: TypeAlias = RefUnread | Zero | Scored
-
-
-@dataclasses.dataclass(frozen=True)
-class SourceMeans:
-    """One source's line of the report, or ``all``'s: the clips counted by tapnet (scored and zero),
-    those zero, those left out (ref_errors, not_in_ref), those that agree fully, the bytes fetched over
-    HTTP, and the means of the counted clips' scores."""
-
-    source: str
-    clips: int
-    zero: int
-    ref_errors: int
-    not_in_ref: int
-    agree: int
-    fetched_bytes: int
-    means: Scores
-
-    def as_row(self) -> dict[str, Any]:
-        """The source's row of the report."""
-        counts = {key: getattr(self, key) for key in COUNT_KEYS}
-        return {
-            "source": self.source,
-            **counts,
-            **self.means.tapnet(),
-            "median_error_m": self.means.median_error_m,
-        }
-
-
-@dataclasses.dataclass(frozen=True)
-class CompareReport:
-    """NEW_DIR's clips against REF's: REF as shown, NEW_DIR, agree_mm, a row per benchmark clip (in
-    the benchmark's order), a ``SourceMeans`` per source then ``all``'s, and NEW's clips not in the
-    benchmark."""
-
-    ref: str
-    new: str
-    agree_mm: float
-    clips: list[ClipRow]
-    sources: list[SourceMeans]
-    only_in_new: list[str]
-
-    def to_json(self) -> dict[str, Any]:
-        """The report as ``PREFIX.json`` holds it (strict JSON: NaN as None)."""
-        return json_ready(
-            {
-                "ref": self.ref,
-                "new": self.new,
-                "agree_mm": self.agree_mm,
-                "clips": [row.as_row() for row in self.clips],
-                "sources": [row.as_row() for row in self.sources],
-                "only_in_new": self.only_in_new,
-            }
-        )
+    keys: list[str]
+    ref: Mapping[str, str]
+    new: Mapping[str, str]
+    listed: frozenset[str] | None
+    not_requested: int
+    not_made: Mapping[str, str]
 
 
 def clip_keys(root: str) -> dict[str, str]:
@@ -288,292 +133,22 @@ def read_clip_list(path: str) -> list[str]:
     return list(dict.fromkeys(entries))
 
 
-def check_numbers(path: str, arrays: dict[str, np.ndarray], keys: tuple[str, ...]) -> None:
-    """ClipError when one of ``keys`` holds bytes (no arithmetic applies to them)."""
-    strings = [key for key in keys if arrays[key].dtype.kind == "S"]
-    if strings:
-        raise ClipError(f"{path}: {strings} hold bytes, not numbers")
+def not_made_by_run(new_dir: str) -> dict[str, str]:
+    """``<source>/<clip>.npz`` -> the verdict's reason, for each release clip a release run in
+    ``new_dir`` did not write."""
+    found = {}
+    for source in registry.names():
+        for row in read_verdicts(new_dir, source) or []:
+            if row.verdict.status != "written":
+                found[f"{source}/{row.verdict.clip}.npz"] = f"{row.verdict.status}: {row.verdict.reason}"
+    return found
 
 
-def read_reference(
-    path: str, limits: ReadLimits, client: HttpClient | None = None
-) -> tuple[dict[str, np.ndarray], tuple[int, int] | None]:
-    """REF's numeric arrays, checked to be a clip's queries [N, 3], tracks [T, N, 3], visibility
-    [T, N] and intrinsics [4] when it has them, and its frame (height, width) from the first JPEG's
-    header (None when it holds no frames). Over HTTP (``client``) only those members and the start
-    of the first JPEG are fetched; HttpError when the file cannot be (kind not_found: REF has none)."""
-    try:
-        if is_http(path):
-            with open_remote(client or HttpClient(), path, limits.max_file_bytes) as remote:
-                return _reference(NpzArchive(remote, shown(path)), limits)
-        return _reference(NpzArchive(read_bytes(path, limits.max_file_bytes), path), limits)
-    except NpzError as error:
-        raise ClipError(str(error)) from error
-    except OSError as error:
-        raise ClipError(f"{path}: cannot be read ({error.strerror or error})") from error
-
-
-def _reference(
-    archive: NpzArchive, limits: ReadLimits
-) -> tuple[dict[str, np.ndarray], tuple[int, int] | None]:
-    path = archive.name
-    missing = [key for key in REQUIRED_KEYS if key not in archive.keys]
-    if missing:
-        raise ClipError(f"{path}: missing {missing}")
-    arrays = read_clip_archive(archive, limits, tuple(key for key in NUMERIC_KEYS if key in archive.keys))
-    check_numbers(path, arrays, tuple(arrays))
-    tracks, visible = arrays["tracks_XYZ"], arrays["visibility"]
-    if tracks.ndim != 3 or tracks.shape[2] != 3 or visible.shape != tracks.shape[:2]:
-        raise ClipError(
-            f"{path}: tracks_XYZ {tracks.shape} and visibility {visible.shape} are not [T, N, 3], [T, N]"
-        )
-    if "fx_fy_cx_cy" in arrays and arrays["fx_fy_cx_cy"].shape != (4,):
-        raise ClipError(f"{path}: fx_fy_cx_cy has shape {arrays['fx_fy_cx_cy'].shape}, not [4]")
-    size = first_frame_size(archive, limits)
-    if size is None and "images_jpeg_bytes" in archive.keys:
-        raise ClipError(f"{path}: no readable JPEG header in the first frame")
-    return arrays, size
-
-
-OPTIONAL_PREDICTION_KEYS = ("queries_xyt", "fx_fy_cx_cy")
-
-
-def read_prediction(
-    path: str, num_frames: int, num_tracks: int, limits: ReadLimits
-) -> tuple[dict[str, np.ndarray], tuple[int, int] | None]:
-    """NEW's ``tracks_XYZ`` and ``visibility``, each refused before reading when it claims more than
-    REF's T frames and N tracks need; ClipError saying why they cannot be read. Also, where they can
-    be read within the same bounds (else they are left out), its queries and intrinsics and its first
-    frame's size (None without)."""
-    caps = member_caps(num_frames, num_tracks, limits)
-    why = f"REF's clip has T = {num_frames} frames and N = {num_tracks} tracks"
-    try:
-        archive = NpzArchive(read_bytes(path, limits.max_file_bytes), path)
-        missing = [key for key in PREDICTION_KEYS if key not in archive.keys]
-        if missing:
-            raise ClipError(f"{path}: missing {missing}")
-        arrays = {key: archive.read(key, caps[key], why) for key in PREDICTION_KEYS}
-    except OSError as error:
-        raise ClipError(f"{path}: cannot be read ({error.strerror or error})") from error
-    except NpzError as error:
-        raise ClipError(str(error)) from error
-    check_numbers(path, arrays, PREDICTION_KEYS)
-    for key in OPTIONAL_PREDICTION_KEYS:
-        with contextlib.suppress(NpzError, KeyError):
-            optional = archive.read(key, caps[key], why)
-            if optional.dtype.kind in "fiu":
-                arrays[key] = optional
-    try:
-        size = first_frame_size(archive, limits)
-    except NpzError:
-        size = None
-    return arrays, size
-
-
-def compare_clip(ref: dict[str, np.ndarray], new: dict[str, np.ndarray], height: int, width: int) -> Scores:
-    """Scores of NEW's tracks [T, N, 3] / visibility [T, N] against REF's (REF's queries and
-    intrinsics); ClipError when the shapes differ."""
-    gt_tracks, pred_tracks = ref["tracks_XYZ"], new["tracks_XYZ"]
-    gt_visible, pred_visible = ref["visibility"].astype(bool), new["visibility"].astype(bool)
-    if gt_tracks.shape != pred_tracks.shape or gt_visible.shape != pred_visible.shape:
-        raise ClipError(
-            f"shapes differ: REF tracks {gt_tracks.shape} visibility {gt_visible.shape}, "
-            f"NEW tracks {pred_tracks.shape} visibility {pred_visible.shape}"
-        )
-    num_frames, num_tracks = gt_visible.shape
-    queries = ref["queries_xyt"]
-    query_frames = (
-        query_frame_indices(queries[:, 2], num_frames) if queries.shape == (num_tracks, 3) else None
-    )
-    intrinsics = eval_intrinsics(ref["fx_fy_cx_cy"], height, width)
-    aj: dict[str, float] = {}
-    apd: dict[str, float] = {}
-    oa, note = math.nan, ""
-    for scaling in SCALINGS:
-        if scaling == "per_trajectory" and query_frames is None:
-            aj[scaling] = apd[scaling] = 0.0
-            note = "REF query frames are not frame indices: per_trajectory counted as 0"
-            continue
-        scores = tapvid3d_metrics(
-            gt_tracks, gt_visible, pred_tracks, pred_visible, intrinsics, query_frames, scaling
-        )
-        aj[scaling], apd[scaling] = scores["average_jaccard"], scores["average_pts_within"]
-        if scaling == "median":
-            oa = scores["occlusion_accuracy"]
-    return Scores(aj, apd, oa, median_error(gt_tracks, gt_visible, pred_tracks), note)
-
-
-def score_pair(
-    key: str,
-    ref_path: str | None,
-    new_path: str | None,
-    limits: ReadLimits = DEFAULT_LIMITS,
-    client: HttpClient | None = None,
-    agree_mm: float = AGREE_MM,
-) -> ClipRow:
-    """One benchmark clip's row: ``Scored`` (``agrees``: fully, within ``agree_mm``), ``Zero`` (the
-    prediction is missing, unreadable or of another shape) or ``RefUnread`` (REF unreadable, or
-    holding no such clip: HTTP 404); over HTTP, with the bytes fetched."""
-    source, clip = key.split("/")
-    before = client.fetched if client is not None else 0
-
-    def fetched() -> int | None:
-        return client.fetched - before if client is not None else None
-
-    try:
-        if ref_path is None:
-            raise ClipError("not in REF")
-        ref, size = read_reference(ref_path, limits, client)
-    except HttpError as error:
-        status = Status.NOT_IN_REF if error.kind == "not_found" else Status.REF_ERROR
-        return RefUnread(source, clip, status, f"{error.url}: {error}", fetched())
-    except ClipError as error:
-        return RefUnread(source, clip, Status.REF_ERROR, str(error), fetched())
-    num_frames, num_tracks = ref["visibility"].shape
-    fetched_bytes = fetched()
-    if new_path is None:
-        return Zero(source, clip, num_frames, num_tracks, "no prediction file", fetched_bytes)
-    try:
-        new, new_size = read_prediction(new_path, num_frames, num_tracks, limits)
-        ref, size, note = _with_camera(ref, size, new, new_size)
-        scores = compare_clip(ref, new, *size)
-    except ClipError as error:
-        return Zero(source, clip, num_frames, num_tracks, str(error), fetched_bytes)
-    measured = agreement(ref, new)
-    return Scored(
-        source, clip, num_frames, num_tracks, scores, measured, measured.agrees(agree_mm), note, fetched_bytes
-    )
-
-
-def _with_camera(
-    ref: dict[str, np.ndarray],
-    size: tuple[int, int] | None,
-    new: dict[str, np.ndarray],
-    new_size: tuple[int, int] | None,
-) -> tuple[dict[str, np.ndarray], tuple[int, int], str]:
-    """REF with intrinsics, its frame size, and a note when either came from NEW's clip (the
-    release's ADT and Panoptic Studio files hold annotations only); ClipError when neither has them."""
-    taken = []
-    if size is None:
-        size = new_size
-        taken.append("frame size")
-    if "fx_fy_cx_cy" not in ref:
-        if "fx_fy_cx_cy" not in new or new["fx_fy_cx_cy"].shape != (4,):
-            raise ClipError("neither clip holds intrinsics (fx_fy_cx_cy)")
-        ref = {**ref, "fx_fy_cx_cy": new["fx_fy_cx_cy"]}
-        taken.append("intrinsics")
-    if size is None:
-        raise ClipError("neither clip holds frames to read the frame size from")
-    note = f"{' and '.join(taken)} from the regenerated clip (the reference holds none)" if taken else ""
-    return ref, size, note
-
-
-def plain_mean(values: list[float]) -> float:
-    """np.mean of ``values`` (a NaN propagates, as in tapnet's averages); NaN when empty."""
-    return float(np.mean(values)) if values else math.nan
-
-
-def mean_scores(counted: list[Scores], measured: list[Scores]) -> Scores:
-    """Each tapnet metric's plain mean over ``counted``, the median error's over ``measured``."""
-    return Scores(
-        {scaling: plain_mean([scores.aj[scaling] for scores in counted]) for scaling in SCALINGS},
-        {scaling: plain_mean([scores.apd[scaling] for scores in counted]) for scaling in SCALINGS},
-        plain_mean([scores.oa for scores in counted]),
-        plain_mean([scores.median_error_m for scores in measured]),
-    )
-
-
-def mean_row(rows: list[ClipRow], source: str) -> SourceMeans:
-    """Means over the clips of ``rows`` counted by tapnet (scored and zero); the median error over
-    the scored ones."""
-    counted = [row for row in rows if not isinstance(row, RefUnread)]
-    scored = [row for row in counted if isinstance(row, Scored)]
-    return SourceMeans(
-        source,
-        clips=len(counted),
-        zero=len(counted) - len(scored),
-        ref_errors=sum(row.status is Status.REF_ERROR for row in rows),
-        not_in_ref=sum(row.status is Status.NOT_IN_REF for row in rows),
-        agree=sum(row.agrees for row in scored),
-        fetched_bytes=sum(row.fetched_bytes or 0 for row in rows),
-        means=mean_scores([row.scores for row in counted], [row.scores for row in scored]),
-    )
-
-
-def summarise(rows: list[ClipRow]) -> list[SourceMeans]:
-    """One row per source (the registry's order, tapnet's for the built-in sources; then others
-    sorted), then ``all``: the mean of the source means (as tapnet's ``main``) over the sources with a
-    counted clip."""
-    present = {row.source for row in rows}
-    order = registry.names()
-    sources = [s for s in order if s in present] + sorted(present - set(order))
-    per_source = [mean_row([row for row in rows if row.source == source], source) for source in sources]
-    counts = {key: sum(getattr(row, key) for row in per_source) for key in COUNT_KEYS}
-    means = mean_scores(
-        [row.means for row in per_source if row.clips],
-        [row.means for row in per_source if row.clips > row.zero],
-    )
-    return [*per_source, SourceMeans("all", **counts, means=means)]
-
-
-def json_ready(value):
-    """``value`` with every non-finite float replaced by None (strict JSON has no NaN)."""
-    if isinstance(value, dict):
-        return {key: json_ready(item) for key, item in value.items()}
-    if isinstance(value, list):
-        return [json_ready(item) for item in value]
-    return None if isinstance(value, float) and not math.isfinite(value) else value
-
-
-def _cell(value) -> str:
-    return f"{value:.4f}" if isinstance(value, float) else str(value)
-
-
-def markdown(report: CompareReport) -> str:
-    """The report as markdown: per-source table, per-clip table, clips only in NEW."""
-    header = " | ".join(SUMMARY_KEYS)
-    agree = " | ".join(AGREEMENT_KEYS)
-    lines = [
-        f"# TAPVid-3D metrics of `{report.new}` against `{report.ref}`",
-        "",
-        "aj/apd = 3D-AJ/APD under median, per-trajectory and no rescaling; oa = occlusion accuracy "
-        "(= visibility agreement); means over clips as tapnet's evaluate_model.py, a clip whose "
-        "prediction is missing or unreadable counting 0 (status zero); median_error_m = unscaled "
-        "median 3D error over REF-visible points (not a tapnet metric; scored clips only). Agreement "
-        f"per clip: query_frames_equal and visibility are shares of equal query frames and visibility "
-        f"values, median_mm and p95_mm the track distance; agree: clips with all of them equal and "
-        f"p95_mm <= {report.agree_mm:g} mm. fetched_bytes: bytes received over HTTP.",
-        "",
-        f"| source | clips | zero | ref_errors | not_in_ref | agree | fetched_bytes | {header} |",
-        "|" + "---|" * (7 + len(SUMMARY_KEYS)),
-    ]
-    for means in report.sources:
-        row = means.as_row()
-        cells = [row["source"], *(row[key] for key in COUNT_KEYS), *(row[key] for key in SUMMARY_KEYS)]
-        lines.append("| " + " | ".join(_cell(c) for c in cells) + " |")
-    lines += [
-        "",
-        f"| source | clip | status | frames | tracks | fetched_bytes | {header} | {agree} | agrees | error |",
-    ]
-    lines.append("|" + "---|" * (9 + len(SUMMARY_KEYS) + len(AGREEMENT_KEYS)))
-    for clip in report.clips:
-        row = clip.as_row()
-        named = ("source", "clip", "status", "frames", "tracks", "fetched_bytes")
-        cells = [row.get(key, "") for key in (*named, *SUMMARY_KEYS, *AGREEMENT_KEYS, "agrees")]
-        why = row.get("error", row.get("note", ""))
-        lines.append("| " + " | ".join(_cell(c) for c in [*cells, why]) + " |")
-    if report.only_in_new:
-        lines += [
-            "",
-            f"only_in_new (not scored): {len(report.only_in_new)} clip(s): " + ", ".join(report.only_in_new),
-        ]
-    return "\n".join(lines) + "\n"
-
-
-def benchmark_clips(ref_dir: str, new_dir: str, clips: list[str] | None) -> tuple[list[str], dict[str, str]]:
-    """The clips to score (``<source>/<clip>.npz``, in order) and REF's path of each: ``clips``, else
-    REF's own (sorted), else, for a REF that cannot be listed (HTTP), the release clips of NEW_DIR's
-    verdicts; ValueError when there is no way to know them."""
+def benchmark_clips(ref_dir: str, new_dir: str, clips: list[str] | None) -> Benchmark:
+    """The clips to score: ``clips``, else REF's own (sorted), else, for a REF that cannot be listed
+    (HTTP), the release clips of NEW_DIR's verdicts; ValueError when there is no way to know them."""
+    new = clip_keys(new_dir)
+    not_made = not_made_by_run(new_dir)
     if is_http(ref_dir):
         keys = clips if clips is not None else release_clip_keys(new_dir)
         if keys is None:
@@ -581,9 +156,91 @@ def benchmark_clips(ref_dir: str, new_dir: str, clips: list[str] | None) -> tupl
                 f"{shown(ref_dir)} cannot be listed: give --clips, or compare a --release run "
                 "(its verdicts name the release's clips)"
             )
-        return keys, {key: join(ref_dir, key) for key in keys}
-    ref = clip_keys(ref_dir)
-    return (sorted(ref) if clips is None else clips), ref
+        ref = {key: join(ref_dir, key) for key in keys}
+        return Benchmark(keys, ref, new, None, len(new.keys() - set(keys)) if clips else 0, not_made)
+    listed = clip_keys(ref_dir)
+    keys = sorted(listed) if clips is None else clips
+    left_out = len((new.keys() & listed.keys()) - set(keys))
+    return Benchmark(keys, listed, new, frozenset(listed), left_out, not_made)
+
+
+class ClipScorer:
+    """Scores benchmark clips ``jobs`` at a time, each worker thread with its own HTTP client (its
+    bytes counted per clip), notes printed once; ``cancel`` ends every transfer in flight."""
+
+    def __init__(self, bench: Benchmark, at: str, limits: ReadLimits, agree_mm: float, http: HttpConfig):
+        self.bench, self.at, self.limits, self.agree_mm, self.http = bench, at, limits, agree_mm, http
+        self.cancel = threading.Event()
+        self._local = threading.local()
+        self._noted: set[str] = set()
+        self._lock = threading.Lock()
+
+    def _note(self, text: str) -> None:
+        with self._lock:
+            if text not in self._noted:
+                self._noted.add(text)
+                print(f"note: {text}", file=sys.stderr)
+
+    def client(self) -> HttpClient:
+        if not hasattr(self._local, "client"):
+            self._local.client = HttpClient(self.http, self._note, self.cancel)
+        return self._local.client
+
+    def score(self, key: str) -> ClipRow:
+        ref = self.bench.ref.get(key)
+        client = self.client() if ref is not None and is_http(ref) else None
+        new = self.bench.new.get(key)
+        return score_pair(
+            key, ref, new, self.at, self.limits, client, self.agree_mm, self.bench.not_made.get(key, "")
+        )
+
+
+@dataclasses.dataclass(frozen=True)
+class Scoring:
+    """The rows found (in the benchmark's order; a clip not reached has none) and, when the stop rule
+    ended the compare, why."""
+
+    rows: dict[str, ClipRow]
+    stopped: str = ""
+
+
+def score_clips(scorer: ClipScorer, jobs: int, max_failures_in_a_row: int) -> Scoring:
+    """Every benchmark clip scored, ``jobs`` at a time, until ``max_failures_in_a_row`` clips in a row
+    (as they finish) could not be read from REF for one cause (0: never stop). Ctrl-C cancels the
+    transfers in flight and is raised again."""
+    bench = scorer.bench
+    # A release clip the run did not make is known without reading REF: found first, whatever stops.
+    found: dict[str, ClipRow] = {key: scorer.score(key) for key in bench.keys if _not_made(bench, key)}
+    keys = [key for key in bench.keys if key not in found]
+    streak: tuple[str, int] = ("", 0)
+    stopped, finished = "", False
+    pool = concurrent.futures.ThreadPoolExecutor(max_workers=jobs, thread_name_prefix="compare")
+    try:
+        futures = {pool.submit(scorer.score, key): key for key in keys}
+        for future in concurrent.futures.as_completed(futures):
+            row = future.result()
+            found[futures[future]] = row
+            if not (isinstance(row, RefUnread) and row.status is Status.REF_ERROR):
+                streak = ("", 0)
+                continue
+            cause = failure_cause(row.error)
+            streak = (cause, streak[1] + 1 if streak[0] == cause else 1)
+            if max_failures_in_a_row and streak[1] >= max_failures_in_a_row:
+                stopped = (
+                    f"the last {streak[1]} clips failed alike ({row.error}; "
+                    f"max_failures_in_a_row={max_failures_in_a_row})"
+                )
+                break
+        finished = not stopped
+    finally:
+        if not finished:  # stopped, or Ctrl-C: the clips in flight end at their next read, unrecorded
+            scorer.cancel.set()
+        pool.shutdown(wait=finished, cancel_futures=True)
+    return Scoring({key: found[key] for key in bench.keys if key in found}, stopped)
+
+
+def _not_made(bench: Benchmark, key: str) -> bool:
+    return key in bench.not_made and key not in bench.new
 
 
 def compare_dirs(
@@ -592,22 +249,130 @@ def compare_dirs(
     limits: ReadLimits = DEFAULT_LIMITS,
     clips: list[str] | None = None,
     agree_mm: float = AGREE_MM,
-    client: HttpClient | None = None,
+    settings: CompareSettings | None = None,
+    jobs: int = 1,
+    earlier: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> CompareReport:
-    """The full report of NEW_DIR's clips against REF's (``benchmark_clips``, in their
-    order: each mean sums its clips in that order, as tapnet sums a split's); REF over HTTP through
-    ``client`` (one with the default policy when None)."""
-    benchmark, ref = benchmark_clips(ref_dir, new_dir, clips)
-    new = clip_keys(new_dir)
-    if client is None and is_http(ref_dir):
-        client = HttpClient(note=lambda text: print(text, file=sys.stderr))
-    rows = [score_pair(key, ref.get(key), new.get(key), limits, client, agree_mm) for key in benchmark]
-    only_in_new = sorted(new.keys() - set(benchmark))
-    return CompareReport(shown(ref_dir), new_dir, agree_mm, rows, summarise(rows), only_in_new)
+    """The report of NEW_DIR's clips against REF's (``benchmark_clips``, in their order: each mean sums
+    its clips in that order, as tapnet sums a split's), scored ``jobs`` at a time under ``settings``;
+    a clip REF could not give takes its row in ``earlier`` (``<source>/<clip>.npz`` -> an earlier
+    report's row, against this REF) when there is one (``compare_and_stop`` also says whether the
+    stop rule ended it)."""
+    return compare_and_stop(ref_dir, new_dir, limits, clips, agree_mm, settings, jobs, earlier)[0]
 
 
-def main(argv: list[str] | None = None) -> int:
-    """The ``compare`` subcommand; exit status as the module doc says."""
+def compare_and_stop(
+    ref_dir: str,
+    new_dir: str,
+    limits: ReadLimits = DEFAULT_LIMITS,
+    clips: list[str] | None = None,
+    agree_mm: float = AGREE_MM,
+    settings: CompareSettings | None = None,
+    jobs: int = 1,
+    earlier: Mapping[str, Mapping[str, Any]] | None = None,
+) -> tuple[CompareReport, str]:
+    """``compare_dirs``'s report, and why the stop rule ended it ("" when it did not)."""
+    settings = settings or CompareSettings()
+    bench = benchmark_clips(ref_dir, new_dir, clips)
+    at = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+    scorer = ClipScorer(bench, at, limits, agree_mm, settings.http)
+    scoring = score_clips(scorer, jobs, settings.max_failures_in_a_row)
+    rows: list[ClipRow] = []
+    for key in bench.keys:
+        source, clip = key.split("/")
+        row = scoring.rows.get(key) or RefUnread(source, clip, Status.REF_ERROR, NOT_REACHED, at)
+        if isinstance(row, RefUnread) and row.status is Status.REF_ERROR and earlier and key in earlier:
+            row = carried_row(earlier[key], row.error) or row
+        rows.append(row)
+    only_in_new = None if bench.listed is None else sorted(bench.new.keys() - bench.listed)
+    if bench.listed is None and clips is None:
+        only_in_new = sorted(bench.new.keys() - set(bench.keys))
+    report = CompareReport(
+        shown(ref_dir), new_dir, agree_mm, at, rows, summarise(rows), only_in_new, bench.not_requested
+    )
+    return report, scoring.stopped
+
+
+def earlier_rows(prefix: str, ref_dir: str) -> dict[str, dict[str, Any]]:
+    """``<source>/<clip>.npz`` -> row of the report at ``PREFIX.json`` when it was made against REF
+    (as shown); empty when there is none or it cannot be read."""
+    try:
+        report = json.loads(read_bytes(f"{prefix}.json", MAX_REPORT_BYTES))
+    except (OSError, ValueError):
+        return {}
+    if not isinstance(report, dict) or report.get("ref") != shown(ref_dir):
+        return {}
+    rows = report.get("clips")
+    if not isinstance(rows, list):
+        return {}
+    return {
+        f"{row['source']}/{row['clip']}": row
+        for row in rows
+        if isinstance(row, dict) and isinstance(row.get("source"), str) and isinstance(row.get("clip"), str)
+    }
+
+
+def agreement_entry(row: ClipRow, agree_mm: float, ref: str) -> ClipAgreement:
+    """A verdict row's agreement from a clip's row: its status, REF and when; the agreement and two of
+    tapnet's metrics when scored, else why not."""
+    if isinstance(row, Scored):
+        measured = row.agreement
+        return ClipAgreement(
+            row.status.value,
+            agree_mm,
+            ref=ref,
+            compared_at=row.at,
+            clip_sha256=row.clip_sha256,
+            query_frames_equal=_plain(measured.query_frames_equal),
+            visibility=_plain(measured.visibility),
+            median_mm=_plain(measured.median_mm),
+            p95_mm=_plain(measured.p95_mm),
+            agrees=row.agrees,
+            aj_median=_plain(row.scores.aj["median"]),
+            oa=_plain(row.scores.oa),
+        )
+    assert not isinstance(row, Carried)  # an earlier compare's finding: its verdict keeps its own entry
+    return ClipAgreement(row.status.value, agree_mm, row.error, ref=ref, compared_at=row.at)
+
+
+def _plain(value: float) -> float | None:
+    """A JSON value: NaN as None."""
+    return None if math.isnan(value) else value
+
+
+def write_outputs(report: CompareReport, prefix: str, new_dir: str) -> list[str]:
+    """``PREFIX.md``, ``PREFIX.json`` and the verdicts of a release run in NEW_DIR amended with this
+    compare's findings, written together; the verdict files amended. OSError when they cannot be."""
+    findings = {
+        f"{row.source}/{row.clip}": agreement_entry(row, report.agree_mm, report.ref)
+        for row in report.clips
+        if not isinstance(row, Carried)
+    }
+    with output_lock(new_dir):
+        verdicts = amended_verdicts(new_dir, findings)
+        files = {
+            f"{prefix}.md": markdown(report).encode(),
+            f"{prefix}.json": json.dumps(report.to_json(), indent=1, allow_nan=False).encode(),
+            **{release_verdicts_path(new_dir, source): data for source, data in verdicts.items()},
+        }
+        write_together(files, new_dir if verdicts else _folder(prefix))
+    return [release_verdicts_path(new_dir, source) for source in verdicts]
+
+
+def _folder(path: str) -> str:
+    return path.rpartition("/")[0] or "."
+
+
+def tidy(new_dir: str, prefix: str) -> None:
+    """Finish what an earlier compare killed while writing left (its commit, its temporaries)."""
+    folders = tuple(dict.fromkeys((new_dir, _folder(prefix))))
+    for folder in folders:
+        complete_commits(folder, folders)
+    paths = [f"{prefix}.md", f"{prefix}.json", *(release_verdicts_path(new_dir, s) for s in registry.names())]
+    reclaim_temporaries(paths)
+
+
+def command_parser() -> StrictParser:
     parser = StrictParser(prog="python -m pipeline.audit compare", description=__doc__)
     parser.add_argument(
         "ref_dir",
@@ -624,14 +389,44 @@ def main(argv: list[str] | None = None) -> int:
         help="a clip agrees fully when its query frames and visibility are REF's and the 95th "
         "percentile of its track distance is at most this (millimetres; default %(default)s)",
     )
+    parser.add_argument(
+        "--jobs",
+        type=int,
+        default=DEFAULT_JOBS,
+        help=f"clips read and scored at a time (1 to {MAX_JOBS}; default %(default)s)",
+    )
+    parser.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="max_failures_in_a_row=N or http.<field>=VALUE (retries, backoff_s, deadline_s, stall_s, "
+        "stall_bytes_per_s), as in a run (docs/configuration.md)",
+    )
     add_limit_argument(parser)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """The ``compare`` subcommand; exit status as the module doc says."""
+    parser = command_parser()
     args = parser.parse_args(argv)
+    problems = []
     try:
         limits = limits_from(args.limit)
     except ValueError as error:
-        parser.error(str(error))
+        problems.append(str(error))
+    try:
+        settings = with_overrides(CompareSettings(), args.overrides)
+    except SettingsError as error:
+        problems += error.problems
     if not args.agree_mm >= 0:
-        parser.error(f"--agree-mm {args.agree_mm}: must be a number of millimetres >= 0")
+        problems.append(f"--agree-mm {args.agree_mm}: must be a number of millimetres >= 0")
+    if not 1 <= args.jobs <= MAX_JOBS:
+        problems.append(f"--jobs {args.jobs}: must be 1 to {MAX_JOBS}")
+    if problems:
+        parser.error("; ".join(problems))
     for folder in (args.ref_dir, args.new_dir):
         if is_local(folder) and not os.path.isdir(folder):
             print(f"compare: {folder} is not a folder", file=sys.stderr)
@@ -642,77 +437,99 @@ def main(argv: list[str] | None = None) -> int:
         print(f"compare: cannot use --clips {args.clips}: {error}", file=sys.stderr)
         return 2
     ref_dir = args.ref_dir if is_http(args.ref_dir) else args.ref_dir.rstrip("/")
-    new_dir = args.new_dir.rstrip("/")
+    new_dir = _absolute(args.new_dir.rstrip("/"))
+    prefix = _absolute(args.out) if args.out else f"{new_dir}/compare"
     try:
-        report = compare_dirs(ref_dir, new_dir, limits, clips, args.agree_mm)
+        tidy(new_dir, prefix)
+        report, stopped = compare_and_stop(
+            ref_dir, new_dir, limits, clips, args.agree_mm, settings, args.jobs, earlier_rows(prefix, ref_dir)
+        )
     except ValueError as error:
         print(f"compare: {error}", file=sys.stderr)
         return 2
-    text = markdown(report)
-    print(text, end="")
-    prefix = args.out or f"{new_dir}/compare"
-    try:
-        write_atomic(f"{prefix}.md", text.encode())
-        write_atomic(f"{prefix}.json", json.dumps(report.to_json(), indent=1, allow_nan=False).encode())
-        agreements = {f"{row.source}/{row.clip}": agreement_entry(row, args.agree_mm) for row in report.clips}
-        updated = add_agreement(new_dir, agreements)
     except OSError as error:
-        print(f"compare: cannot write the report {prefix}.md/.json: {error}", file=sys.stderr)
+        print(f"compare: cannot tidy {new_dir}: {error}", file=sys.stderr)
         return 2
-    return _closing(report, args.ref_dir, updated)
+    return closing(report, prefix, new_dir, stopped, lambda: write_outputs(report, prefix, new_dir))
 
 
-def agreement_entry(row: ClipRow, agree_mm: float) -> ClipAgreement:
-    """A verdict row's agreement from a clip's row: its status, the agreement and two of tapnet's
-    metrics when scored, else why not."""
-    if isinstance(row, Scored):
-        measured = row.agreement
-        return ClipAgreement(
-            row.status.value,
-            agree_mm,
-            query_frames_equal=_plain(measured.query_frames_equal),
-            visibility=_plain(measured.visibility),
-            median_mm=_plain(measured.median_mm),
-            p95_mm=_plain(measured.p95_mm),
-            agrees=row.agrees,
-            aj_median=_plain(row.scores.aj["median"]),
-            oa=_plain(row.scores.oa),
-        )
-    return ClipAgreement(row.status.value, agree_mm, row.error)
+def _absolute(path: str) -> str:
+    return os.path.abspath(path) if is_local(path) else path
 
 
-def _plain(value: float) -> float | None:
-    """A JSON value: NaN as None."""
-    return None if math.isnan(value) else value
-
-
-def _closing(report: CompareReport, ref_dir: str, updated: list[str]) -> int:
-    """The lines after the report (clips not scored, bytes fetched, verdicts updated); the status."""
+def closing(
+    report: CompareReport, prefix: str, new_dir: str, stopped: str, write: Callable[[], list[str]]
+) -> int:
+    """Print the report and the clips not scored; write the outputs (``write``) unless this compare
+    found nothing; the last lines say what it could not do. The exit status."""
     rows = report.clips
-    for row in rows:
-        where = f"{row.source}/{row.clip}"
-        if isinstance(row, Zero):
-            print(f"not scored: {where}: {row.error} (counted as 0)", file=sys.stderr)
-        elif isinstance(row, RefUnread) and row.status is Status.REF_ERROR:
-            print(
-                f"not scored: {where}: {row.error} (REF unreadable: left out of the means; tapnet's "
-                "evaluator would stop here)",
-                file=sys.stderr,
-            )
-        elif isinstance(row, RefUnread):
-            print(f"not scored: {where}: not in REF ({row.error}): left out of the means", file=sys.stderr)
+    if not rows:
+        print(f"no REF clip to score in {report.ref}", file=sys.stderr)
+        return 1
+    # What this compare learnt from REF (a clip the run did not make is known without reading it).
+    found = [row for row in rows if row.status in (Status.SCORED, Status.ZERO, Status.NOT_IN_REF)]
+    found = [row for row in found if not isinstance(row, Carried)]
+    print(markdown(report), end="")
+    _not_scored(rows)
     total = report.sources[-1]
-    if is_http(ref_dir) and rows:
+    if is_http(report.ref):
         print(
             f"fetched {total.fetched_bytes:,} bytes over HTTP for {len(rows)} clip(s), "
             f"{total.fetched_bytes / len(rows):,.0f} a clip"
         )
-    if updated:
-        print(f"agreement added to the verdicts in {', '.join(updated)}")
-    if not rows:
-        print(f"no REF clip to score in {shown(ref_dir)}", file=sys.stderr)
+    if found:
+        try:
+            updated = write()
+        except OSError as error:
+            print(f"compare: cannot write the report {prefix}.md/.json: {error}", file=sys.stderr)
+            return 2
+        if updated:
+            print(f"agreement added to the verdicts in {', '.join(updated)}")
+        print(f"report in {prefix}.md and {prefix}.json")
+    unread = sum(row.status is Status.REF_ERROR for row in rows)
+    carried = sum(isinstance(row, Carried) for row in rows)
+    kept = f"; earlier findings kept for {carried}" if carried else ""
+    written = "" if found else "; nothing written: the earlier report and verdicts are as they were"
+    if stopped:
+        print(
+            f"stopped: {stopped}; {len(found)} of {len(rows)} clip(s) compared{written}: mend the cause "
+            "and rerun to complete",
+            file=sys.stderr,
+        )
+        return 4
+    if unread + carried:
+        print(
+            f"{unread + carried} of {len(rows)} clip(s) could not be read from REF{kept}{written}; "
+            "rerun to complete them",
+            file=sys.stderr,
+        )
         return 1
-    if not any(isinstance(row, Scored) for row in rows):
-        print(f"none of the {len(rows)} prediction(s) could be scored", file=sys.stderr)
+    if not any(row.status is Status.SCORED for row in rows):
+        print(f"none of the {len(rows)} clip(s) could be scored", file=sys.stderr)
         return 1
     return 0
+
+
+def _not_scored(rows: list[ClipRow]) -> None:
+    """One line on stderr per clip counted 0 or left out, with why; one for those not reached."""
+    reached = [row for row in rows if not (isinstance(row, RefUnread) and row.error == NOT_REACHED)]
+    if len(reached) < len(rows):
+        print(f"not scored: {len(rows) - len(reached)} clip(s) {NOT_REACHED}", file=sys.stderr)
+    for row in reached:
+        where = f"{row.source}/{row.clip}"
+        if isinstance(row, Carried):
+            earlier = row.row.get("compared_at")
+            print(
+                f"not scored: {where}: {row.error} (REF unreadable; the finding of {earlier} kept)",
+                file=sys.stderr,
+            )
+        elif isinstance(row, Zero) and row.status is Status.NOT_MADE:
+            print(f"not scored: {where}: {row.error} (left out of the means)", file=sys.stderr)
+        elif isinstance(row, Zero):
+            print(f"not scored: {where}: {row.error} (counted as 0)", file=sys.stderr)
+        elif isinstance(row, RefUnread) and row.status is Status.REF_ERROR:
+            print(
+                f"not scored: {where}: {row.error} (REF unreadable: left out of the means)", file=sys.stderr
+            )
+        elif isinstance(row, RefUnread):
+            print(f"not scored: {where}: not in REF ({row.error}): left out of the means", file=sys.stderr)

@@ -48,7 +48,7 @@ td.short { color: #b06000; font-weight: bold; }
 SCRIPT = r"""
 "use strict";
 const DATA = JSON.parse(document.getElementById("audit-data").textContent);
-const SPLITS = ["minival", "full_eval"];
+const SPLITS = ["minival", "full_test"];
 const FILTERS = ["never_visible", "flicker", "mask"];
 const KEPT = "#3b7dd8", DROPPED = "#e0a0a0", PAGE_ROWS = 50;
 const fmt = (n) => n.toLocaleString("en-US");
@@ -80,7 +80,7 @@ function decode(text, Type) {
 function recount(src, kf, km, mt) {
   const c = src.clips, p = src.pairs, n = c.clip.length;
   const r = { candidates: 0, dropped: { never_visible: 0, flicker: 0, mask: 0 }, passed: 0,
-    clips_written: 0, clips_below_target: 0, tracks_written: 0, release: { minival: 0, full_eval: 0 } };
+    clips_written: 0, clips_below_target: 0, tracks_written: 0, release: { minival: 0, full_test: 0 } };
   for (let i = 0; i < n; i++) {
     let alive = 0, flicker = 0, mask = 0;
     for (let j = p.offsets[i]; j < p.offsets[i + 1]; j++) {
@@ -347,12 +347,14 @@ function buildAgreement(src) {
   const summary = src.agreement;
   if (!summary) return "";
   const counts = el("table", { class: "clips" }, el("tr", {}, ...["split", "release clips", "scored",
-    "agree fully", "not in reference"].map((h) => el("th", { text: h }))));
+    "agree fully", "not in reference", "not made"].map((h) => el("th", { text: h }))));
   for (const row of summary.splits) counts.append(el("tr", {}, ...[row.split, row.clips, row.scored,
-    row.agree, row.not_in_ref].map((t) => el("td", { text: String(t) }))));
+    row.agree, row.not_in_ref, row.not_made].map((t) => el("td", { text: String(t) }))));
+  const earlier = summary.earlier ? `; ${summary.earlier} clip(s) keep an earlier compare's finding` : "";
   const parts = [el("h3", { text: "agreement with the reference (audit compare)" }),
     el("p", { class: "note", text: "Agree fully: the same query frames and visibility as the " +
-      `reference, tracks within ${summary.agree_mm} mm at the 95th percentile.` }), counts];
+      `reference, tracks within ${summary.agree_mm} mm at the 95th percentile. Last compare: ` +
+      `${summary.last_ref} at ${summary.last_at}${earlier}.` }), counts];
   if (summary.least.length) {
     const columns = ["query_frames_equal", "visibility", "median_mm", "p95_mm"];
     const least = el("table", { class: "clips" }, el("tr", {}, ...["clip", "split", ...columns].map(

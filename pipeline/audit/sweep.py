@@ -260,11 +260,14 @@ def numeric_statistics(clips: list[AuditTable]) -> dict[str, np.ndarray]:
 @dataclasses.dataclass(frozen=True)
 class SweepRow:
     """One combination of thresholds: config key -> value (as given; the run's own as text), its
-    totals and, on the run's own row when the run left its summary, whether they reproduce it."""
+    totals, where it comes from (``run``: the run's own thresholds; ``grid``; ``run = grid``: the
+    run's own, which the grid also names) and, on the run's own row when the run left its summary,
+    whether they reproduce it."""
 
     values: dict[str, str]
     result: Totals
     matches_run: bool | None = None
+    origin: str = "grid"
 
 
 def report_markdown(
@@ -292,13 +295,15 @@ def report_markdown(
             "",
         ]
     header = (
-        keys + ["candidates"] + [f"dropped: {n}" for n in FILTER_ORDER] + ["passed", "clips", "below target"]
+        ["thresholds", *keys, "candidates"]
+        + [f"dropped: {n}" for n in FILTER_ORDER]
+        + ["passed", "clips", "below target"]
     )
     header += [f"release {split}" for split in SPLITS] if named is not None else []
     lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for row in rows:
         r = row.result
-        cells: list[object] = [*(row.values[k] for k in keys), r.candidates]
+        cells: list[object] = [row.origin, *(row.values[k] for k in keys), r.candidates]
         cells += [*(r.dropped[n] for n in FILTER_ORDER), r.passed, r.clips_written, r.clips_below_target]
         if named is not None and r.release is not None:
             cells += [f"{r.release[split]} of {named[split]}" for split in SPLITS]
@@ -442,9 +447,12 @@ def sweep(args: argparse.Namespace) -> int:
     keys = list(grid)
     own = evaluate(clips, source, base, splits)
     matches = matches_run(own, run_summary) if run_summary is not None else None
-    rows = [SweepRow({k: _current(base, k) for k in keys}, own, matches)]
+    rows = [SweepRow({k: _current(base, k) for k in keys}, own, matches, "run")]
     for values in itertools.product(*grid.values()) if keys else []:
         config = with_overrides(base, [f"{k}={v}" for k, v in zip(keys, values, strict=True)])
+        if config == base:  # the run's own combination: its row says so, once
+            rows[0] = dataclasses.replace(rows[0], origin="run = grid")
+            continue
         rows.append(SweepRow(dict(zip(keys, values, strict=True)), evaluate(clips, source, config, splits)))
     report = args.out or sweep_folder(output, args.source)
     os.makedirs(report, exist_ok=True)
@@ -478,7 +486,8 @@ def matches_run(result: Totals, summary: dict) -> bool:
 
 def _rows_parquet(rows: list[SweepRow]) -> bytes:
     """The table of combinations: a column per swept key, then the totals (``report_markdown``'s)."""
-    columns: dict[str, list] = {key: [row.values[key] for row in rows] for key in rows[0].values}
+    columns: dict[str, list] = {"thresholds": [row.origin for row in rows]}
+    columns |= {key: [row.values[key] for row in rows] for key in rows[0].values}
     columns["candidates"] = [row.result.candidates for row in rows]
     for name in FILTER_ORDER:
         columns[f"dropped_{name}"] = [row.result.dropped[name] for row in rows]

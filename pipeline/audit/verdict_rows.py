@@ -1,6 +1,10 @@
 """A release run's verdict rows (``<out>/release_<source>.jsonl``) as the audit commands read them,
 and as ``audit compare`` amends them: the release clips to score when the reference cannot be
-listed, and each clip's agreement with the reference, added to its row and summed up per split."""
+listed, and each clip's agreement with the reference, added to its row and summed up per split.
+
+A row's agreement is the finding of the last compare that scored its clip (its reference, time and
+the SHA-256 of the clip file it scored): a compare that could not read the clip from the reference
+leaves it as it was, and a rerun of the run keeps it while the clip's file is the one scored."""
 
 from __future__ import annotations
 
@@ -13,9 +17,10 @@ from typing import Any
 from pipeline import sources
 from pipeline.core.outcomes import FILTER_ORDER
 from pipeline.export.layout import release_verdicts_path
-from pipeline.io.files import read_bytes, write_atomic
-from pipeline.runner.splits import SPLITS
-from pipeline.runner.verdicts import STATUSES, Verdict
+from pipeline.io.file_set import settle
+from pipeline.io.files import read_bytes
+from pipeline.runner.splits import SPLIT_ALIASES, SPLITS
+from pipeline.runner.verdicts import STATUSES, Verdict, verdict_lines
 
 MAX_VERDICT_BYTES = 256 << 20
 # The fields of a verdict row (``pipeline.runner.verdicts.Verdict``) the audit commands read.
@@ -26,14 +31,18 @@ AGREEMENT_FIELDS = ("query_frames_equal", "visibility", "median_mm", "p95_mm", "
 
 @dataclasses.dataclass(frozen=True)
 class ClipAgreement:
-    """A verdict row's ``agreement``, from ``audit compare``: the clip's compare status (scored; zero:
-    no clip of ours to score; ref_error; not_in_ref) and agree_mm; when scored, the agreement's
-    measures (None where NaN), whether it agrees fully, and two of tapnet's metrics (aj_median, oa);
-    else ``error``: why not."""
+    """A verdict row's ``agreement``, from ``audit compare``: the clip's compare status (scored; zero
+    and not_made: no clip of ours to score; not_in_ref; ref_error), agree_mm, the reference (as
+    shown), when, and the SHA-256 of the clip file scored; when scored, the agreement's measures (None
+    where NaN), whether it agrees fully, and two of tapnet's metrics (aj_median, oa); else ``error``:
+    why not."""
 
     status: str
     agree_mm: float
     error: str = ""
+    ref: str = ""
+    compared_at: str = ""
+    clip_sha256: str = ""
     query_frames_equal: float | None = None
     visibility: float | None = None
     median_mm: float | None = None
@@ -46,24 +55,46 @@ class ClipAgreement:
     def scored(self) -> bool:
         return self.status == "scored"
 
+    @property
+    def definitive(self) -> bool:
+        """Whether the entry is a finding (anything but a reference that could not be read)."""
+        return self.status != "ref_error"
+
     def to_json(self) -> dict[str, Any]:
         """The entry as a verdict row holds it: the measures when scored, else the error."""
-        entry = {"status": self.status, "agree_mm": self.agree_mm}
+        entry = {
+            "status": self.status,
+            "agree_mm": self.agree_mm,
+            "ref": self.ref,
+            "compared_at": self.compared_at,
+        }
         if self.scored:
-            return entry | {key: getattr(self, key) for key in AGREEMENT_FIELDS}
+            return (
+                entry
+                | {"clip_sha256": self.clip_sha256}
+                | {key: getattr(self, key) for key in AGREEMENT_FIELDS}
+            )
         return entry | {"error": self.error}
 
     @classmethod
     def from_json(cls, entry: Mapping[str, Any]) -> ClipAgreement:
         """The entry a verdict row holds (``to_json``'s)."""
-        measures = {key: entry.get(key) for key in AGREEMENT_FIELDS if key != "agrees"}
+        measures = {key: entry.get(key) for key in AGREEMENT_FIELDS if key not in ("agrees",)}
         return cls(
             entry["status"],
             entry["agree_mm"],
-            entry.get("error", ""),
+            str(entry.get("error", "")),
+            str(entry.get("ref", "")),
+            str(entry.get("compared_at", "")),
+            str(entry.get("clip_sha256", "")),
             agrees=bool(entry.get("agrees")),
             **measures,
         )
+
+    def kept_over(self, earlier: ClipAgreement | None) -> ClipAgreement:
+        """This compare's entry, or ``earlier`` when this one found nothing (the reference could not be
+        read) and ``earlier`` is a finding."""
+        return earlier if earlier is not None and earlier.definitive and not self.definitive else self
 
 
 @dataclasses.dataclass(frozen=True)
@@ -80,7 +111,9 @@ class VerdictRow:
 
 
 def read_verdicts(output: str, source: str) -> list[VerdictRow] | None:
-    """The verdict rows of ``source`` in ``output``, None when the run wrote none."""
+    """The verdict rows of ``source`` in ``output``, None when the run wrote none (a commit a killed
+    command left is completed first: ``pipeline.io.file_set``)."""
+    settle(output)
     path = release_verdicts_path(output, source)
     if not os.path.exists(path) and "://" not in output:
         return None
@@ -88,6 +121,7 @@ def read_verdicts(output: str, source: str) -> list[VerdictRow] | None:
     for number, line in enumerate(read_bytes(path, MAX_VERDICT_BYTES).decode().splitlines(), 1):
         try:
             row = json.loads(line)
+            row["split"] = SPLIT_ALIASES.get(row["split"], row["split"])  # an older run's full_eval
             if row["status"] not in STATUSES or row["split"] not in SPLITS:
                 raise ValueError(f"status {row['status']!r}, split {row['split']!r}")
             missing = [key for key in ROW_FIELDS if key not in row] + [
@@ -114,23 +148,23 @@ def release_clip_keys(output: str) -> list[str] | None:
     return keys if found else None
 
 
-def add_agreement(output: str, agreements: Mapping[str, ClipAgreement]) -> list[str]:
-    """Rewrite each verdict file of ``output`` with the agreement of every clip in ``agreements``
-    (``<source>/<clip>.npz`` -> what ``audit compare`` found); the files rewritten. A row of a clip
-    not in ``agreements`` keeps no agreement."""
-    updated = []
+def amended_verdicts(output: str, agreements: Mapping[str, ClipAgreement]) -> dict[str, bytes]:
+    """source -> its verdict file's new bytes, for each source with verdicts in ``output``: each row
+    of a clip in ``agreements`` (``<source>/<clip>.npz`` -> what this compare found) takes it, unless
+    the compare found nothing and the row holds a finding (``ClipAgreement.kept_over``); every other
+    row is kept as it is."""
+    amended = {}
     for source in sources.names():
         verdicts = read_verdicts(output, source)
         if verdicts is None:
             continue
-        rows = [
-            VerdictRow(row.verdict, agreements.get(f"{source}/{row.verdict.clip}.npz")) for row in verdicts
-        ]
-        text = "".join(json.dumps(row.to_json(), sort_keys=True) + "\n" for row in rows)
-        path = release_verdicts_path(output, source)
-        write_atomic(path, text.encode())
-        updated.append(path)
-    return updated
+        rows = []
+        for row in verdicts:
+            found = agreements.get(f"{source}/{row.verdict.clip}.npz")
+            rows.append(row if found is None else VerdictRow(row.verdict, found.kept_over(row.agreement)))
+        agreements_now = {row.verdict.clip: row.agreement.to_json() for row in rows if row.agreement}
+        amended[source] = verdict_lines([row.verdict for row in rows], agreements_now)
+    return amended
 
 
 LEAST_SHOWN = 5
@@ -140,13 +174,14 @@ LEAST_FIELDS = ("query_frames_equal", "visibility", "median_mm", "p95_mm")
 @dataclasses.dataclass(frozen=True)
 class SplitAgreement:
     """Of one split's (or ``all``'s) release clips: how many, those scored against the reference,
-    those that agree fully, those the reference does not hold."""
+    those that agree fully, those the reference does not hold, those the run did not make."""
 
     split: str
     clips: int
     scored: int
     agree: int
     not_in_ref: int
+    not_made: int
 
 
 @dataclasses.dataclass(frozen=True)
@@ -164,17 +199,24 @@ class LeastAgreeing:
 @dataclasses.dataclass(frozen=True)
 class AgreementSummary:
     """A release run's agreement with the reference: agree_mm, a ``SplitAgreement`` per split then
-    ``all``, and the ``LEAST_SHOWN`` least-agreeing scored clips."""
+    ``all``, the ``LEAST_SHOWN`` least-agreeing scored clips, the last compare (its reference and
+    time) and how many clips keep the finding of an earlier one."""
 
     agree_mm: float
     splits: tuple[SplitAgreement, ...]
     least: tuple[LeastAgreeing, ...]
+    last_ref: str = ""
+    last_at: str = ""
+    earlier: int = 0
 
     def to_json(self) -> dict[str, Any]:
         return {
             "agree_mm": self.agree_mm,
             "splits": [dataclasses.asdict(row) for row in self.splits],
             "least": [dataclasses.asdict(row) for row in self.least],
+            "last_ref": self.last_ref,
+            "last_at": self.last_at,
+            "earlier": self.earlier,
         }
 
 
@@ -197,6 +239,7 @@ def agreement_summary(rows: list[VerdictRow]) -> AgreementSummary | None:
                 sum(entry.scored for entry in entries),
                 sum(entry.agrees for entry in entries),
                 sum(entry.status == "not_in_ref" for entry in entries),
+                sum(entry.status == "not_made" for entry in entries),
             )
         )
     short = [(verdict, entry) for verdict, entry in compared if entry.scored and not entry.agrees]
@@ -205,7 +248,9 @@ def agreement_summary(rows: list[VerdictRow]) -> AgreementSummary | None:
         LeastAgreeing(verdict.clip, verdict.split, *(getattr(entry, key) for key in LEAST_FIELDS))
         for verdict, entry in short[:LEAST_SHOWN]
     )
-    return AgreementSummary(compared[0][1].agree_mm, tuple(per_split), least)
+    last = max((entry for _, entry in compared), key=lambda entry: entry.compared_at)
+    earlier = sum(entry.compared_at != last.compared_at for _, entry in compared)
+    return AgreementSummary(last.agree_mm, tuple(per_split), least, last.ref, last.compared_at, earlier)
 
 
 def _number(value: float | None) -> float:
@@ -217,10 +262,13 @@ def agreement_lines(summary: AgreementSummary) -> list[str]:
     lines = [
         f"  agreement with the reference (audit compare; agree fully: the same query frames and "
         f"visibility, tracks within {summary.agree_mm:g} mm at p95):",
-        f"  {'split':<10}{'clips':>7}{'scored':>8}{'agree fully':>13}{'not in reference':>18}",
+        f"  last compare: {summary.last_ref or 'a reference'} at {summary.last_at or 'an unknown time'}"
+        + (f"; {summary.earlier} clip(s) keep an earlier compare's finding" if summary.earlier else ""),
+        f"  {'split':<10}{'clips':>7}{'scored':>8}{'agree fully':>13}{'not in reference':>18}"
+        f"{'not made':>10}",
     ]
     for row in summary.splits:
-        counts = f"{row.clips:>7}{row.scored:>8}{row.agree:>13}{row.not_in_ref:>18}"
+        counts = f"{row.clips:>7}{row.scored:>8}{row.agree:>13}{row.not_in_ref:>18}{row.not_made:>10}"
         lines.append(f"  {row.split:<10}{counts}")
     if summary.least:
         lines.append("  least agreeing (query frames equal, visibility, median mm, p95 mm):")

@@ -24,11 +24,15 @@ def reason_kind(reason: str) -> str:
     return _NUMBER.sub("N", _NAMED.sub(lambda m: f"{m[1]} X{m[2] or ''}", reason))
 
 
+_DETAIL = re.compile(r"\s*\([^()]*\)")
+
+
 def failure_cause(error: str) -> str:
     """The cause of a failure's error line, for telling alike failures: its last part (after the
-    last ``": "``, past the exception's name and the unit, file and group it names), names and
-    numbers folded (``reason_kind``)."""
-    return reason_kind(error.rsplit(": ", 1)[-1])
+    last ``": "``, past the exception's name and the unit, file and group it names), without its
+    parenthesised details (``connection refused (the host refused 3 s ago; ...)`` is ``connection
+    refused``), names and numbers folded (``reason_kind``)."""
+    return reason_kind(_DETAIL.sub("", error.rsplit(": ", 1)[-1]))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -116,6 +120,7 @@ class UnitOutcome:
     not_made: clip name -> why no clip (``UnitClips.not_made``; on a release run, its names only).
     resumed: an earlier run had finished it with the same settings; nothing was redone.
     seconds: wall time of its annotation, filtering and writing (0 when resumed).
+    notes: what its annotation could not do as asked, one line each (``core.progress.note``).
     """
 
     name: str
@@ -124,6 +129,7 @@ class UnitOutcome:
     not_made: Mapping[str, str] = dataclasses.field(default_factory=dict)
     resumed: bool = False
     seconds: float = 0.0
+    notes: tuple[str, ...] = ()
 
     @property
     def failed(self) -> bool:

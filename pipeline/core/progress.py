@@ -1,9 +1,12 @@
-"""What a worker says while it runs: nothing, unless the run asked for ``--verbose``.
+"""What a worker says while it runs: nothing, unless the run asked for ``--verbose``; and the notes it
+leaves for the user.
 
 The main process reports every unit as its checkpoint appears (``pipeline/runner/monitor.py``), on
 every runner; a worker's own lines (``progress``) and Beam's log records are for ``--verbose`` runs only. The
 setting travels to worker processes in the environment (``VERBOSE_ENV``); the worker processes the
-DirectRunner starts inherit a silenced stderr (``workers_silenced``).
+DirectRunner starts inherit a silenced stderr (``workers_silenced``). A note (``note``: what the run
+could not do as asked, such as a server that ignores Range requests) is taken by the unit that made
+it (``take_notes``), travels in its checkpoint, and the main process prints each once.
 """
 
 from __future__ import annotations
@@ -19,6 +22,22 @@ from typing import TextIO
 VERBOSE_ENV = "TAPVID3D_VERBOSE"
 # Loggers that speak on a worker: Beam's own, and the GCP client's import warning.
 NOISY_LOGGERS = ("apache_beam", "root", "apitools", "google", "urllib3", "distributed", "numba")
+
+
+# The notes this process made since the last unit took them, in order, each once.
+_notes: dict[str, None] = {}
+
+
+def note(text: str) -> None:
+    """Leave ``text`` (one line) for the user: the unit being annotated takes it (``take_notes``)."""
+    _notes[text] = None
+
+
+def take_notes() -> tuple[str, ...]:
+    """The notes made since the last call, in order; forgotten here."""
+    taken = tuple(_notes)
+    _notes.clear()
+    return taken
 
 
 def verbose() -> bool:

@@ -1,5 +1,5 @@
-"""The ``minival`` / ``full_test`` split manifests (``full_test`` is what the release's splits JSON
-calls ``full_eval``: every clip not in minival).
+"""The ``minival`` / ``full_test`` split manifests (``full_test``, every clip not in minival, is what
+the release's splits JSON calls ``full_eval``).
 
 With the release's membership (its splits JSON) and clip names that match it, membership follows
 it; otherwise ``minival`` is a deterministic draw of ``per_source`` clips per source (ordered by a
@@ -27,7 +27,7 @@ def split_clips(
 
     Args:
       clips: source -> clip file names (``<clip>.npz``).
-      membership: source -> clip name (no ``.npz``) -> ``minival`` or ``full_eval``, the release's.
+      membership: source -> clip name (no ``.npz``) -> ``minival`` or ``full_test``, the release's.
       only_named: list only the clips ``membership`` names (a release run).
     """
     minival, full_test = [], []

@@ -16,12 +16,16 @@ import numpy as np
 from pipeline.core.images import jpeg_size
 from pipeline.io.files import read_bytes
 from pipeline.io.http import HttpClient, is_http, open_remote, shown
-from pipeline.io.npz_reader import NpzArchive, NpzError, SeekableFile
+from pipeline.io.npz_reader import NPY_HEADER_BYTES, NpzArchive, NpzError, SeekableFile
 
 FRAMES = "images_jpeg_bytes"
 CLIP_KEYS = (FRAMES, "queries_xyt", "tracks_XYZ", "visibility", "fx_fy_cx_cy", "extrinsics_w2c")
 # Widest element a member may use per value (float64, int64): the cap is values x this.
 MAX_ITEM_BYTES = 8
+# A remote clip's members to be read are fetched together (a few requests in all) when they come to at
+# most this by its directory (a release clip's tracks and visibility: 1-10 MB); beyond, member by member,
+# each after its header's checks.
+MERGED_FETCH_BYTES = 16 << 20
 
 
 @dataclasses.dataclass(frozen=True)
@@ -111,6 +115,7 @@ def read_clip_archive(
     """``read_clip_bytes`` of an opened archive."""
     name = archive.name
     present = [key for key in keys if key in archive.keys]
+    archive.prefetch(dict.fromkeys(present), MERGED_FETCH_BYTES)
     num_frames, num_tracks = clip_dimensions(archive, present)
     if num_frames > limits.max_frames or num_tracks > limits.max_tracks:
         raise NpzError(
@@ -144,6 +149,7 @@ def first_frame_size(archive: NpzArchive, limits: ReadLimits = DEFAULT_LIMITS) -
     frame (a remote clip's other frames are never fetched); None when it has no readable one."""
     if FRAMES not in archive.keys:
         return None
+    archive.prefetch({FRAMES: FRAME_HEAD_BYTES}, FRAME_HEAD_BYTES + NPY_HEADER_BYTES)
     header = archive.header(FRAMES)
     if header.dtype.kind != "S" or len(header.shape) != 1 or not header.shape[0]:
         return None

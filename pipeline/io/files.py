@@ -158,18 +158,19 @@ def remove_quietly(paths: list[str]) -> int:
     return removed
 
 
-def writer_pid(path: str) -> int | None:
-    """The process id of the temporary's writer when it ran on this host, else None."""
-    writer = path.rpartition(PARTIAL)[2].rsplit("-", 2)
+def writer_pid(path: str, marker: str = PARTIAL) -> int | None:
+    """The process id of the temporary's writer when it ran on this host, else None (``marker``: what
+    precedes the writer in the name)."""
+    writer = path.rpartition(marker)[2].rsplit("-", 2)
     if len(writer) == 3 and writer[0] == writer_host() and writer[1].isdigit():
         return int(writer[1])
     return None
 
 
-def is_abandoned(path: str, modified: float, now: float | None = None) -> bool:
+def is_abandoned(path: str, modified: float, now: float | None = None, marker: str = PARTIAL) -> bool:
     """Whether a temporary's writer is gone: on this host, its process no longer exists; from
     another host (or a name without a writer), it is older than REMOTE_GRACE_SECONDS."""
-    pid = writer_pid(path)
+    pid = writer_pid(path, marker)
     if pid is not None:
         return not _process_alive(pid)
     return (time.time() if now is None else now) - modified > REMOTE_GRACE_SECONDS

@@ -37,6 +37,7 @@ from typing import BinaryIO
 import requests
 import urllib3
 
+from pipeline.core.progress import note
 from pipeline.settings.fields import not_in_clips
 
 RETRY_STATUSES = frozenset({429, 500, 502, 503, 504})
@@ -110,7 +111,8 @@ def one_line(text: object) -> str:
 class HttpError(Exception):
     """A transfer that failed for good. ``str()`` is the cause in one line, without the URL; ``url``
     is the URL as it may be shown; ``kind`` one of not_found, refused, unreachable, status,
-    timed_out, broken, truncated, size, too_large, stalled, deadline, unsupported; ``status`` the
+    timed_out, broken, truncated, size, too_large, stalled, deadline, unsupported, protocol (the
+    server answered something other than what was asked: never retried), cancelled; ``status`` the
     last HTTP status, if any."""
 
     def __init__(self, cause: str, url: str, kind: str, status: int | None = None):
@@ -133,11 +135,19 @@ class FileClock:
     """One file's time: its deadline and its stall rule, over every request and wait made for it.
 
     ``got(n)`` counts bytes received; ``check()`` raises HttpError (kind deadline or stalled) once
-    the file is out of time; ``read_timeout()`` bounds one socket read so that a silent connection
-    is noticed in time; ``wait(s)`` sleeps between tries (Ctrl-C ends it)."""
+    the file is out of time, or (kind cancelled) once ``cancel`` is set; ``read_timeout()`` bounds one
+    socket read so that a silent connection is noticed in time; ``wait(s)`` sleeps between tries
+    (Ctrl-C or ``cancel`` ends it)."""
 
-    def __init__(self, config: HttpConfig, url: str, clock: Callable[[], float] = time.monotonic):
+    def __init__(
+        self,
+        config: HttpConfig,
+        url: str,
+        clock: Callable[[], float] = time.monotonic,
+        cancel: threading.Event | None = None,
+    ):
         self.config, self.url, self._clock = config, url, clock
+        self.cancel = cancel or threading.Event()
         self.start = clock()
         self.received = 0
         self._samples: collections.deque[tuple[float, int]] = collections.deque([(self.start, 0)])
@@ -151,6 +161,8 @@ class FileClock:
         self.check(now)
 
     def check(self, now: float | None = None) -> None:
+        if self.cancel.is_set():
+            raise HttpError("cancelled", self.url, "cancelled")
         now = self._clock() if now is None else now
         config = self.config
         if now - self.start > config.deadline_s:
@@ -176,7 +188,7 @@ class FileClock:
         """Sleep ``seconds`` before another try; HttpError (deadline) instead of waiting past it."""
         if self._clock() + seconds - self.start > self.config.deadline_s:
             raise self._deadline()
-        time.sleep(seconds)
+        self.cancel.wait(seconds)
         self.check()
 
     def _deadline(self) -> HttpError:
@@ -200,11 +212,18 @@ def _host(url: str) -> str:
 
 
 class HttpClient:
-    """A requests session under ``HttpConfig``; ``fetched`` counts the body bytes received, and
-    ``note`` receives the one-line notes a transfer makes (a server that ignores Range)."""
+    """A requests session under ``HttpConfig``; ``fetched`` counts the body bytes received, ``note``
+    receives the one-line notes a transfer makes (a server that ignores Range), and once ``cancel``
+    is set every transfer ends at its next read or wait (HttpError, kind cancelled)."""
 
-    def __init__(self, config: HttpConfig | None = None, note: Callable[[str], None] | None = None):
+    def __init__(
+        self,
+        config: HttpConfig | None = None,
+        note: Callable[[str], None] | None = None,
+        cancel: threading.Event | None = None,
+    ):
         self.config = config or HttpConfig()
+        self.cancel = cancel or threading.Event()
         self.session = requests.Session()
         self.fetched = 0
         self.note = note or (lambda text: None)
@@ -220,7 +239,7 @@ class HttpClient:
         self.close()
 
     def clock(self, url: str) -> FileClock:
-        return FileClock(self.config, url)
+        return FileClock(self.config, url, cancel=self.cancel)
 
     def get(self, url: str, clock: FileClock, headers: dict[str, str] | None = None) -> requests.Response:
         """An open, streaming answer (200 or 206) to a GET of ``url``, tried as ``HttpConfig`` says;
@@ -282,67 +301,79 @@ class HttpClient:
         response.close()
         if status in RETRY_STATUSES:
             raise _Retry(f"HTTP {status}", "status", status)
+        if status == 416:
+            raise HttpError(
+                f"HTTP 416 (range not satisfiable) to a request of {_asked(headers)}", url, "protocol", 416
+            )
         kind = "not_found" if status in NOT_FOUND else "status"
         raise HttpError(f"HTTP {status}", url, kind, status)
 
-    def body(self, response: requests.Response, clock: FileClock, sink: Callable[[bytes], None]) -> int:
-        """Stream the body of ``response`` into ``sink``; the bytes it held. _Retry (broken) when the
-        connection is lost or a read times out before the body ends."""
+    def body(
+        self,
+        response: requests.Response,
+        clock: FileClock,
+        sink: Callable[[bytes], None],
+        expected: ExpectedBody | None = None,
+    ) -> int:
+        """Stream the body of ``response`` into ``sink``; the bytes it held. With ``expected``, at most
+        its length is read: a body that goes on past it is HttpError (kind protocol), read no further.
+        _Retry (broken) when the connection is lost or a read times out before the body ends."""
         got = 0
+        left = None if expected is None else expected.length
         try:
-            while True:
+            while left is None or left > 0:
                 # At most one socket read (bounded by the read timeout) per chunk: the file's clock sees
                 # every arrival, so a trickle is caught by the stall rule in time.
-                try:
-                    chunk = response.raw.read1(CHUNK_BYTES, decode_content=True)
-                except (requests.RequestException, urllib3.exceptions.HTTPError, ConnectionError) as error:
-                    raise _Retry(_failure(error)[1], "broken") from None
+                chunk = self._read(response, CHUNK_BYTES if left is None else min(CHUNK_BYTES, left))
                 if not chunk:
                     break
                 got += len(chunk)
                 self.fetched += len(chunk)
                 clock.got(len(chunk))
                 sink(chunk)
+                if left is not None:
+                    left -= len(chunk)
+            if expected is not None and left == 0 and not expected.declared and self._read(response, 1):
+                raise HttpError(
+                    f"the body runs past the {expected.length:,} bytes of {expected.asked} (no "
+                    "Content-Length); stopped reading there",
+                    response.url,
+                    "protocol",
+                    response.status_code,
+                )
         finally:
             response.close()
         return got
 
-    def read_range(self, url: str, clock: FileClock, start: int, stop: int) -> bytes:
-        """Bytes [start, stop) of the file at ``url`` by Range requests (a body cut short is asked for
-        again from where it stopped); HttpError when the server answers with anything but them."""
+    @staticmethod
+    def _read(response: requests.Response, count: int) -> bytes:
+        try:
+            return response.raw.read1(count, decode_content=True)
+        except (requests.RequestException, urllib3.exceptions.HTTPError, ConnectionError) as error:
+            raise _Retry(_failure(error)[1], "broken") from None
+
+    def read_range(self, url: str, clock: FileClock, start: int, stop: int, size: int | None = None) -> bytes:
+        """Bytes [start, stop) of the file at ``url`` (``size`` bytes, when known) by Range requests: a
+        body cut short is asked for again from where it stopped; an answer that is not the range asked
+        for (``check_partial``) fails at once."""
         parts: list[bytes] = []
         tries = 0
         while True:
             tries += 1
-            done = sum(len(part) for part in parts)
+            first = start + sum(len(part) for part in parts)
             try:
-                response = self._answer(url, clock, {"Range": f"bytes={start + done}-{stop - 1}"})
-                first, _, _ = content_range(response)
-                if response.status_code != 206 or first != start + done:
-                    response.close()
-                    raise HttpError(
-                        f"asked for bytes {start + done}-{stop - 1}, got HTTP {response.status_code} "
-                        f"{response.headers.get('Content-Range', 'without a Content-Range')}",
-                        url,
-                        "status",
-                        response.status_code,
-                    )
+                response = self._answer(url, clock, {"Range": f"bytes={first}-{stop - 1}"})
+                expected = check_partial(response, url, first, stop - 1, size)
                 try:
-                    self.body(response, clock, parts.append)
+                    self.body(response, clock, parts.append, expected)
                 except _Retry as lost:
-                    raise _Retry(self.short(parts, start, stop, f" ({lost})"), "truncated") from None
-                if start + sum(len(part) for part in parts) >= stop:
+                    raise _Retry(short(parts, start, stop, f" ({lost})"), "truncated") from None
+                if start + sum(len(part) for part in parts) == stop:
                     return b"".join(parts)
-                raise _Retry(self.short(parts, start, stop), "truncated")
+                raise _Retry(short(parts, start, stop), "truncated")
             except _Retry as failure:
                 problem = failure
             self.retry_or_fail(url, clock, tries, problem)
-
-    @staticmethod
-    def short(parts: list[bytes], start: int, stop: int, cause: str = "") -> str:
-        """The cause of a body that ended before bytes [start, stop) were all in ``parts``."""
-        got = sum(len(part) for part in parts)
-        return f"truncated: got {got} of bytes {start}-{stop - 1} ({stop - start} bytes){cause}"
 
     def download(self, url: str, out: BinaryIO, size: int) -> str:
         """Stream the file at ``url`` (``size`` bytes) into the empty file ``out``; its SHA-1 (hex),
@@ -356,10 +387,15 @@ class HttpClient:
             got = out.tell()  # what earlier tries wrote
             try:
                 response = self._answer(url, clock, {"Range": f"bytes={got}-"} if got else {})
-                if got and not (response.status_code == 206 and content_range(response)[0] == got):
+                if got and response.status_code == 206:
+                    check_partial(response, url, got, size - 1, size)
+                elif got:  # the whole file again: start over
                     out.seek(0)
                     out.truncate()
                     digest, got = hashlib.sha1(), 0
+                elif response.status_code == 206:
+                    response.close()
+                    raise HttpError("asked for the whole file, got HTTP 206", url, "protocol", 206)
                 declared = response.headers.get("Content-Length")
                 if declared is not None and declared.strip() != str(size - got):
                     response.close()
@@ -403,11 +439,71 @@ _shared: dict[tuple[HttpConfig, int], HttpClient] = {}
 
 def shared_client(config: HttpConfig | None = None) -> HttpClient:
     """This process's (and thread's) client under ``config``, made on first use: a worker's clips
-    share its connections."""
+    share its connections; its notes go to the unit being annotated (``pipeline.core.progress.note``)."""
     key = (config or HttpConfig(), threading.get_ident())
     if key not in _shared:
-        _shared[key] = HttpClient(key[0])
+        _shared[key] = HttpClient(key[0], note)
     return _shared[key]
+
+
+def short(parts: list[bytes], start: int, stop: int, cause: str = "") -> str:
+    """The cause of a body that ended before bytes [start, stop) were all in ``parts``."""
+    got = sum(len(part) for part in parts)
+    return f"truncated: {got:,} of the {stop - start:,} bytes of bytes {start}-{stop - 1} received{cause}"
+
+
+@dataclasses.dataclass(frozen=True)
+class ExpectedBody:
+    """What a 206 answer's body must hold: ``length`` bytes, of the range ``asked`` (as messages name
+    it); ``declared``: the answer gave that length in its Content-Length."""
+
+    length: int
+    asked: str
+    declared: bool
+
+
+def _asked(headers: dict[str, str]) -> str:
+    """A request's Range header as messages name it: ``bytes 10-19``, ``the last 4096 bytes``."""
+    wanted = headers.get("Range", "").removeprefix("bytes=")
+    if not wanted:
+        return "the whole file"
+    if wanted.startswith("-"):
+        return f"the last {wanted[1:]} bytes"
+    return f"bytes {wanted}"
+
+
+def check_partial(
+    response: requests.Response, url: str, first: int | None, last: int, size: int | None
+) -> ExpectedBody:
+    """The body a 206 answer to a request of bytes ``first``-``last`` must hold (``first`` None: the
+    last ``last`` bytes, a suffix request), checked against the answer's headers. HttpError (kind
+    protocol), naming what was asked and what came back, when the status is not 206, the
+    Content-Range is missing or not the range asked (or names a size other than ``size``, when
+    known), or the Content-Length disagrees with it; the response is then closed."""
+    asked = f"the last {last} bytes" if first is None else f"bytes {first}-{last}"
+    header = response.headers.get("Content-Range", "").strip()
+    match = _CONTENT_RANGE.fullmatch(header)
+    declared = response.headers.get("Content-Length")
+    if response.status_code != 206:
+        problem = f"HTTP {response.status_code}"
+    elif match is None:
+        problem = f"HTTP 206 with Content-Range {header!r}" if header else "HTTP 206 without a Content-Range"
+    else:
+        got_first, got_last = int(match[1]), int(match[2])
+        total = None if match[3] == "*" else int(match[3])
+        length = got_last - got_first + 1
+        if first is None:
+            right = total is not None and got_last == total - 1 and length == min(last, total)
+        else:
+            right = (got_first, got_last) == (first, last) and (size is None or total in (None, size))
+        if not right:
+            problem = f"Content-Range {header!r}"
+        elif declared is not None and declared.strip() != str(length):
+            problem = f"Content-Range {header!r} with Content-Length {declared.strip()}"
+        else:
+            return ExpectedBody(length, f"bytes {got_first}-{got_last}", declared is not None)
+    response.close()
+    raise HttpError(f"asked for {asked}, got {problem}", url, "protocol", response.status_code)
 
 
 def content_range(response: requests.Response) -> tuple[int | None, int | None, int | None]:
@@ -505,7 +601,7 @@ class RemoteFile(io.RawIOBase):
         """Fetch the bytes of [start, stop) not kept yet, one request per gap."""
         start, stop = max(0, start), min(stop, self.size)
         for gap_start, gap_stop in self._gaps(start, stop):
-            data = self.client.read_range(self.url, self.clock, gap_start, gap_stop)
+            data = self.client.read_range(self.url, self.clock, gap_start, gap_stop, self.size)
             self.fetched += len(data)
             self.segments[gap_start] = data
 
@@ -542,25 +638,29 @@ def open_remote(client: HttpClient, url: str, max_bytes: int) -> RemoteFile | io
     """A seekable binary file of the HTTP(S) URL, read by Range requests (its first request fetches the
     last ``TAIL_BYTES``, where a zip keeps its directory). A server that ignores Range gets one note
     and the whole file is read, when it is at most ``max_bytes``. HttpError (kind not_found for 404
-    and 410, too_large) when it cannot be opened. The file's ``fetched`` counts its bytes received."""
+    and 410, too_large, protocol for an answer that is not the range asked) when it cannot be
+    opened. The file's ``fetched`` counts its bytes received."""
     clock = client.clock(url)
     tries = 0
     while True:
         tries += 1
         try:
             response = client.get(url, clock, {"Range": f"bytes=-{TAIL_BYTES}"})
-            first, _, total = content_range(response)
-            if response.status_code == 206 and first is not None and total is not None:
-                tail: list[bytes] = []
-                try:
-                    client.body(response, clock, tail.append)
-                except _Retry as lost:
-                    raise _Retry(client.short(tail, first, total, f" ({lost})"), "truncated") from None
-                data = b"".join(tail)
-                if first + len(data) != total:
-                    raise _Retry(client.short(tail, first, total), "truncated")
-                return RemoteFile(client, url, clock, total, data)
-            return _whole(client, url, clock, response, max_bytes)
+            if response.status_code == 200:
+                return _whole(client, url, clock, response, max_bytes)
+            expected = check_partial(response, url, None, TAIL_BYTES, None)
+            _, _, total = content_range(response)
+            assert total is not None  # check_partial refuses a suffix's answer without its size
+            first = total - expected.length
+            tail: list[bytes] = []
+            try:
+                client.body(response, clock, tail.append, expected)
+            except _Retry as lost:
+                raise _Retry(short(tail, first, total, f" ({lost})"), "truncated") from None
+            data = b"".join(tail)
+            if len(data) != expected.length:
+                raise _Retry(short(tail, first, total), "truncated")
+            return RemoteFile(client, url, clock, total, data)
         except _Retry as failure:
             problem = failure
         client.retry_or_fail(url, clock, tries, problem)
@@ -570,11 +670,7 @@ def _whole(
     client: HttpClient, url: str, clock: FileClock, response: requests.Response, max_bytes: int
 ) -> io.BytesIO:
     """The whole body of a 200 answer to a Range request, read within ``max_bytes``."""
-    client.note_once(
-        _host(url),
-        f"{shown(url)}: the server ignores Range requests; reading whole files from it "
-        f"(at most {max_bytes:,} bytes each)",
-    )
+    client.note_once(_host(url), ignores_range_note(url, max_bytes))
     declared = response.headers.get("Content-Length", "")
     if declared.strip().isdigit() and int(declared) > max_bytes:
         response.close()
@@ -590,7 +686,16 @@ def _whole(
 
     client.body(response, clock, keep)
     if declared.strip().isdigit() and received[0] != int(declared):
-        raise _Retry(f"truncated: got {received[0]} of {int(declared)} bytes", "truncated")
+        raise _Retry(f"truncated: {received[0]:,} of the {int(declared):,} bytes received", "truncated")
     whole = io.BytesIO(b"".join(parts))
     whole.fetched = received[0]  # type: ignore[attr-defined]
     return whole
+
+
+def ignores_range_note(url: str, max_bytes: int) -> str:
+    """The one note a host that ignores Range requests gets."""
+    parts = urllib.parse.urlsplit(shown(url))
+    return (
+        f"{parts.scheme}://{parts.netloc}: the server ignores Range requests; reading whole files from it "
+        f"(at most {max_bytes:,} bytes each)"
+    )

@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 import io
 import math
+import stat
 import struct
 import zipfile
 from typing import Protocol
@@ -27,6 +28,8 @@ SAFE_KINDS = frozenset("biufS")
 LOCAL_HEADER_FIXED = 30
 LOCAL_HEADER_BYTES = LOCAL_HEADER_FIXED + 64
 NPY_HEADER_BYTES = 256
+# Spans of a remote file to be read that lie at most this far apart are fetched in one request.
+MERGE_GAP_BYTES = 64 << 10
 
 
 class NpzError(ValueError):
@@ -74,6 +77,12 @@ class NpzArchive:
         infos = self._zip.infolist()
         if len(infos) > max_members:
             raise NpzError(name, f"{len(infos)} members, more than the {max_members} a clip can hold")
+        for info in infos:
+            _check_member(name, info)
+        names = [info.filename for info in infos]
+        if len(set(names)) < len(names):
+            twice = next(member for member in names if names.count(member) > 1)
+            raise NpzError(name, f"member {twice!r} appears more than once; refused")
         self._infos = {
             info.filename[: -len(".npy")]: info for info in infos if info.filename.endswith(".npy")
         }
@@ -88,6 +97,34 @@ class NpzArchive:
         if key not in self._headers:
             self._headers[key] = self._read_header(key)
         return self._headers[key]
+
+    def prefetch(self, wanted: dict[str, int | None], max_bytes: int) -> None:
+        """On a remote file that can (``RemoteFile.prefetch``), fetch what reading ``wanted`` (member ->
+        how many of its data bytes will be read, None: all of them) needs in as few requests as it
+        takes (spans at most ``MERGE_GAP_BYTES`` apart merged), when that is at most ``max_bytes``
+        in all by the directory's sizes; else each read fetches its own span, after its header's
+        checks. Members not in the archive are skipped."""
+        fetch = getattr(self._file, "prefetch", None)
+        if fetch is None:
+            return
+        spans = []
+        for key, count in wanted.items():
+            info = self._infos.get(key)
+            if info is not None:
+                local = LOCAL_HEADER_BYTES + len(info.orig_filename.encode())
+                size = (
+                    info.compress_size if count is None else min(info.compress_size, NPY_HEADER_BYTES + count)
+                )
+                spans.append((info.header_offset, info.header_offset + local + size))
+        merged: list[list[int]] = []
+        for start, stop in sorted(spans):
+            if merged and start <= merged[-1][1] + MERGE_GAP_BYTES:
+                merged[-1][1] = max(merged[-1][1], stop)
+            else:
+                merged.append([start, stop])
+        if sum(stop - start for start, stop in merged) <= max_bytes:
+            for start, stop in merged:
+                fetch(start, stop)
 
     def _prefetch(self, key: str, data_bytes: int) -> None:
         """On a remote file that can (``RemoteFile.prefetch``), fetch the member's local header and its
@@ -189,6 +226,28 @@ class NpzArchive:
         array = np.frombuffer(data, dtype=header.dtype)
         array = array.reshape(header.shape, order="F" if header.fortran_order else "C")
         return array.copy() if writable else array
+
+
+# What np.savez and np.savez_compressed write: members stored or deflated, nothing else.
+READ_METHODS = {zipfile.ZIP_STORED: "stored", zipfile.ZIP_DEFLATED: "deflated"}
+
+
+def _check_member(name: str, info: zipfile.ZipInfo) -> None:
+    """NpzError naming the member when it is encrypted, compressed by a method an ``.npz`` never uses,
+    a symlink, or named with an absolute path or ``..``."""
+    member = info.filename
+    if info.flag_bits & 0x1:
+        raise NpzError(name, f"member {member!r} is encrypted; refused")
+    if info.compress_type not in READ_METHODS:
+        raise NpzError(
+            name,
+            f"member {member!r} uses compression method {info.compress_type}; only stored and deflated "
+            "members (what np.savez writes) are read",
+        )
+    if stat.S_ISLNK(info.external_attr >> 16):
+        raise NpzError(name, f"member {member!r} is a symlink; refused")
+    if member.startswith("/") or ".." in member.replace("\\", "/").split("/"):
+        raise NpzError(name, f"member {member!r} has an absolute or '..' path; refused")
 
 
 def _size(nbytes: int) -> str:

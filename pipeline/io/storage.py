@@ -17,6 +17,8 @@ from apache_beam.io.filesystem import BeamIOError, FileSystem
 from apache_beam.io.filesystems import FileSystems
 from apache_beam.options.pipeline_options import PipelineOptions, S3Options
 
+from pipeline.io.http import scrub
+
 # The extra of this package each remote scheme needs.
 EXTRAS = {"gs": "gcp", "s3": "aws"}
 # Beam registers its S3 filesystem without boto3, which it imports only when it opens a file.
@@ -40,8 +42,9 @@ class StorageError(ValueError):
     """A path no usable Beam filesystem can open; the message is one line saying what to do."""
 
 
-def check_scheme(path: str) -> None:
-    """Raise StorageError unless Beam has a working filesystem for ``path`` (local paths always do)."""
+def check_scheme(path: str, also: tuple[str, ...] = ()) -> None:
+    """Raise StorageError unless Beam has a working filesystem for ``path`` (local paths always do);
+    ``also``: schemes the caller reads itself (``http``, ``https``), named among those that work."""
     scheme = FileSystems.get_scheme(path)
     if scheme is None:
         return
@@ -59,10 +62,11 @@ def check_scheme(path: str) -> None:
             f"(pip install -e '.[{extra}]' in a checkout), on the workers too"
         )
     known = sorted({*EXTRAS, *(fs.scheme() for fs in FileSystem.get_all_subclasses() if fs.scheme())})
-    raise StorageError(
-        f"no usable filesystem for {path}: Beam opens local paths and "
-        f"{', '.join(s + '://' for s in known)} (each with its own dependencies)"
+    beam = (
+        f"Beam opens local paths and {', '.join(s + '://' for s in known)} (each with its own dependencies)"
     )
+    own = f"; {' and '.join(s + '://' for s in also)} are read directly" if also else ""
+    raise StorageError(f"no usable filesystem for {scrub(path)}: {beam}{own}")
 
 
 def use_options(options: PipelineOptions | None) -> None:

@@ -21,8 +21,8 @@ import logging
 import sys
 import time
 import uuid
+from collections.abc import Mapping
 
-import apache_beam as beam
 from apache_beam.metrics.metric import MetricsFilter
 
 from pipeline import sources
@@ -30,9 +30,11 @@ from pipeline.commandline import StrictParser, UsageError, check_beam_args
 from pipeline.core.errors import InputError, OutputError, interruption, root_cause
 from pipeline.core.outcomes import FILTER_ORDER
 from pipeline.core.progress import quiet_worker_logs, set_verbose, workers_silenced
+from pipeline.core.sizes import format_bytes
 from pipeline.export.layout import failures_path, provenance_path, release_verdicts_path
+from pipeline.io.file_set import complete_commits
 from pipeline.io.http import shown
-from pipeline.pipes import INTERRUPTED, OUTPUT_CLOSED, READER_GONE, STOPPED, silence_output
+from pipeline.pipes import OUTPUT_CLOSED, READER_GONE, STOPPED, interrupted_status, silence_output
 from pipeline.runner import graph
 from pipeline.runner.finish import RunSummary, finish_run
 from pipeline.runner.monitor import RunMonitor
@@ -157,12 +159,14 @@ def run_pipeline(prepared: PreparedRun, job: UnitJob, plan: UnitPlan):
         if monitor is not None and monitor.gave_up:
             raise GaveUp(monitor.gave_up) from None
         raise
+    if monitor.gave_up:  # the units failing alike were the last ones: the rule holds all the same
+        raise GaveUp(monitor.gave_up)
     return result
 
 
 def _run_graph(prepared: PreparedRun, job: UnitJob, plan: UnitPlan):
     """The Beam pipeline over the plan's units, run to its end; its result."""
-    p = beam.Pipeline(options=prepared.options)
+    p = graph.pipeline_for(prepared.options)
     _ = p | "RegenerateClips" >> graph.RegenerateClips(job, plan.units, prepared.options)
     result = p.run()
     try:
@@ -195,8 +199,7 @@ def print_summary(summary: RunSummary, metrics: dict[str, int] | None, output: s
         f"({summary.clips_below_target} below their target track count)\n"
         f"tracks: {summary.candidate_tracks} candidates, dropped by filter: {dropped}; "
         f"{summary.tracks_passing_filters} passed, {summary.tracks_written} written\n"
-        f"manifests: minival {summary.manifests['minival']}, "
-        f"full_test {summary.manifests['full_test']} clip(s)\n"
+        f"manifests: {manifest_line(summary.manifests, source)}\n"
         f"clips in {output}/{source}/, manifests in {output}/manifests/, "
         f"provenance in {provenance_path(output, source)}"
     )
@@ -204,6 +207,14 @@ def print_summary(summary: RunSummary, metrics: dict[str, int] | None, output: s
         print(f"{summary_line(summary.release)} (one row each in {release_verdicts_path(output, source)})")
     if summary.failures:
         print(f"{summary.failures} failure(s): see {failures_path(output, source)}", file=sys.stderr)
+
+
+def manifest_line(counts: Mapping[str, int], source: str) -> str:
+    """The manifests' entries of ``source`` per split, and every source's when others are listed."""
+    line = f"minival {counts['minival']}, full_test {counts['full_test']} clip(s) of {source}"
+    if (counts["minival_all"], counts["full_test_all"]) != (counts["minival"], counts["full_test"]):
+        line += f" (every source: minival {counts['minival_all']}, full_test {counts['full_test_all']})"
+    return line
 
 
 class _ReportedByUs(logging.Filter):
@@ -224,8 +235,13 @@ def why_nothing(summary: RunSummary, config: RunConfig) -> str:
 def _why_nothing(summary: RunSummary, config: RunConfig) -> str:
     if not summary.units:
         return "no clip written: no unit to annotate (nothing in --input for this run)"
-    if summary.units_failed == summary.units:
-        return f"no clip written: all {summary.units} unit(s) failed"
+    if summary.units_failed:
+        failed = "all" if summary.units_failed == summary.units else f"{summary.units_failed} of the"
+        others = "" if summary.units_failed == summary.units else "; the others made no clip"
+        cause, count = summary.common_failure, summary.common_failures
+        fetched = "fetching --queries-from failed: " if "--queries-from" in cause else ""
+        why = f"{fetched}{count} with {cause}"
+        return f"no clip written: {failed} {summary.units} unit(s) failed ({why}){others}"
     if not summary.clips_annotated:
         given = ""
         if config.queries_from:
@@ -249,18 +265,26 @@ def exit_status(summary: RunSummary) -> int:
 
 
 def stopped(prepared: PreparedRun) -> int:
-    """After a Ctrl-C or a closed output: this process's partial files removed, one line (when the
-    output is still open); 130, or 141 for a closed output."""
+    """After a Ctrl-C, a SIGTERM or a closed output: the worker processes ended, this run's partial
+    files and what its workers left in the source's scratch folder removed, one line (when the output
+    is still open); 130 (Ctrl-C), 143 (SIGTERM), or 141 for a closed output."""
+    stop_workers()
     removed = remove_partial_files(prepared.output, prepared.source.name, include_own=True)
+    freed = 0
+    if prepared.source.reclaim_scratch is not None:
+        with contextlib.suppress(OSError):
+            freed = prepared.source.reclaim_scratch(prepared.config)
     if READER_GONE.is_set():
         silence_output()
         return OUTPUT_CLOSED
+    status, word = interrupted_status()
     note = f"; removed {removed} partial file(s)" if removed else ""
+    note += f"; emptied {format_bytes(freed)} of scratch" if freed else ""
     print(
-        f"interrupted: stopped{note}; finished units are kept, rerun the same command to resume",
+        f"{word}: stopped{note}; finished units are kept, rerun the same command to resume",
         file=sys.stderr,
     )
-    return INTERRUPTED
+    return status
 
 
 def main(argv: list[str] | None = None, started: float | None = None) -> int:
@@ -282,6 +306,9 @@ def main(argv: list[str] | None = None, started: float | None = None) -> int:
         return 2
     except (CannotStart, ValueError, InputError) as problem:
         print(f"cannot start: {problem}", file=sys.stderr)
+        return 2
+    except NoSample as message:
+        print(message, file=sys.stderr)
         return 2
     try:
         return run(prepared, started)
@@ -305,6 +332,8 @@ def run(prepared: PreparedRun, started: float) -> int:
     source, output = prepared.source, prepared.output
     for line in prepared.rules.lines():
         print(line, flush=True)
+    if prepared.release is not None and prepared.release.alias_line():
+        print(prepared.release.alias_line(), flush=True)
     try:
         input_root = sample_input(prepared)
         plan = plan_units(prepared, input_root)
@@ -319,6 +348,7 @@ def run(prepared: PreparedRun, started: float) -> int:
         print(note, flush=True)
     if plan.scratch_per_worker:
         print(scratch_line(plan.scratch_per_worker, prepared.options), flush=True)
+    complete_commits(output)  # a finish or compare killed mid-commit: its new set, whole
     removed = remove_partial_files(output, source.name)
     if removed:
         print(f"removed {removed} partial file(s) an interrupted run left in {output}")
@@ -357,10 +387,13 @@ def run(prepared: PreparedRun, started: float) -> int:
 
 
 def stop_workers() -> None:
-    """Kill this process's children (the DirectRunner's worker processes): their threads here
-    would otherwise keep the interpreter from exiting after a Ctrl-C or a closed output."""
+    """Kill this process's children (the DirectRunner's worker processes) and wait for them to be gone
+    (a few seconds at most): their threads here would otherwise keep the interpreter from exiting
+    after a Ctrl-C or a closed output, and their temporaries are reclaimable only once they are."""
     import psutil
 
-    for child in psutil.Process().children(recursive=True):
+    children = psutil.Process().children(recursive=True)
+    for child in children:
         with contextlib.suppress(psutil.Error):
             child.kill()
+    psutil.wait_procs(children, timeout=5)

@@ -10,13 +10,14 @@ Dataflow. A planned unit without a checkpoint of this run (it could not be writt
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import json
 from collections.abc import Mapping
 from typing import TYPE_CHECKING
 
 from pipeline import sources
-from pipeline.core.outcomes import FILTER_ORDER, Failure, UnitOutcome
+from pipeline.core.outcomes import FILTER_ORDER, Failure, UnitOutcome, failure_cause
 from pipeline.export.layout import (
     clip_folder,
     failures_path,
@@ -25,12 +26,16 @@ from pipeline.export.layout import (
     release_verdicts_path,
 )
 from pipeline.export.manifests import split_clips
-from pipeline.io.files import list_files, write_atomic
+from pipeline.io.file_set import output_lock, write_together
+from pipeline.io.files import exists, list_files, read_bytes
 from pipeline.runner.resume import read_checkpoint
 from pipeline.runner.splits import Release
 from pipeline.runner.stages import UnitJob
-from pipeline.runner.verdicts import summary_line, tally, verdict_lines, verdicts
+from pipeline.runner.verdicts import kept_agreements, summary_line, tally, verdict_lines, verdicts
 from pipeline.sources import UnitPlan
+
+# A verdict file larger than this is not one a run wrote (a release's is about 1 KB a clip).
+MAX_VERDICT_BYTES = 256 << 20
 
 if TYPE_CHECKING:
     from pipeline.runner.prepare import Provenance
@@ -41,8 +46,9 @@ if TYPE_CHECKING:
 class RunSummary:
     """A run's totals over every planned unit, finished earlier ones included: units (resumed, failed),
     clips (annotated, written, written below their target track count), tracks (candidates, dropped
-    per filter, passing every filter, written), failures, the manifests' entries per split and, on a
-    release run, the verdict counts (``release.tally``)."""
+    per filter, passing every filter, written), failures (with an example of the most common cause,
+    ``failure_cause``, and how many have it), the notes its units made (each once), the manifests'
+    entries per split and, on a release run, the verdict counts (``release.tally``)."""
 
     units: int
     units_resumed: int
@@ -55,11 +61,17 @@ class RunSummary:
     tracks_passing_filters: int
     tracks_written: int
     failures: int
-    manifests: Mapping[str, int] = dataclasses.field(default_factory=dict)
+    common_failure: str = ""
+    common_failures: int = 0
+    notes: tuple[str, ...] = ()
+    manifests: Mapping[str, int] = dataclasses.field(default_factory=dict)  # ``manifest_counts``
     release: Mapping[str, int] | None = None
 
     def to_json(self) -> dict:
-        summary = dataclasses.asdict(self) | {"dropped_by_filter": dict(self.dropped_by_filter)}
+        summary = dataclasses.asdict(self) | {
+            "dropped_by_filter": dict(self.dropped_by_filter),
+            "notes": list(self.notes),
+        }
         if self.release is None:
             del summary["release"]
         else:
@@ -67,13 +79,17 @@ class RunSummary:
         return summary
 
 
-def unit_outcomes(job: UnitJob, names: list[str]) -> dict[str, UnitOutcome | None]:
-    """Each planned unit's outcome in this run (from its checkpoint), None when it left none."""
-    outcomes = {}
+def unit_outcomes(job: UnitJob, names: list[str]) -> tuple[dict[str, UnitOutcome | None], dict[str, str]]:
+    """Each planned unit's outcome in this run (from its checkpoint), None when it left none; and the
+    SHA-256 of every clip file those checkpoints list (clip -> digest)."""
+    outcomes: dict[str, UnitOutcome | None] = {}
+    digests: dict[str, str] = {}
     for name in names:
         found = read_checkpoint(job.output, job.source.name, name)
-        outcomes[name] = found.outcome if found is not None and found.run == job.run_id else None
-    return outcomes
+        ours = found is not None and found.run == job.run_id
+        outcomes[name] = found.outcome if found is not None and ours else None
+        digests |= dict(found.clips) if found is not None and ours else {}
+    return outcomes, digests
 
 
 def all_failures(outcomes: dict[str, UnitOutcome | None]) -> list[Failure]:
@@ -94,6 +110,11 @@ def summarize(outcomes: dict[str, UnitOutcome | None], failures: list[Failure]) 
     done = [outcome for outcome in outcomes.values() if outcome is not None]
     reports = [report for outcome in done for report in outcome.reports]
     written = [r for r in reports if r.written]
+    causes = collections.Counter(failure_cause(failure.error) for failure in failures).most_common(1)
+    common = ("", 0)
+    if causes:
+        cause, count = causes[0]
+        common = (next(f.error for f in failures if failure_cause(f.error) == cause), count)
     return RunSummary(
         units=len(outcomes),
         units_resumed=sum(outcome.resumed for outcome in done),
@@ -106,11 +127,15 @@ def summarize(outcomes: dict[str, UnitOutcome | None], failures: list[Failure]) 
         tracks_passing_filters=sum(r.passed for r in reports),
         tracks_written=sum(r.written_tracks for r in reports),
         failures=len(failures),
+        common_failure=common[0],
+        common_failures=common[1],
+        notes=tuple(dict.fromkeys(text for outcome in done for text in outcome.notes)),
     )
 
 
-def write_manifests(output: str, config: RunConfig, release: Release | None) -> dict[str, int]:
-    """The manifests over every source's clips in the output folder; entries per split."""
+def manifests(output: str, config: RunConfig, release: Release | None) -> dict[str, list[str]]:
+    """split -> the manifest's entries (``<source>/<clip>.npz``), over every source's clips in the
+    output folder."""
     clips = {
         name: [p.rsplit("/", 1)[-1] for p in list_files(f"{clip_folder(output, name)}/*.npz")]
         for name in sources.names()
@@ -119,9 +144,15 @@ def write_manifests(output: str, config: RunConfig, release: Release | None) -> 
     membership = release.clips if release is not None else None
     only_named = release is not None and release.restricts_run
     minival, full_test = split_clips(clips, config.minival_per_source, config.seed, membership, only_named)
-    for split, entries in (("minival", minival), ("full_test", full_test)):
-        write_atomic(manifest_path(output, split), "".join(entry + "\n" for entry in entries).encode())
-    return {"minival": len(minival), "full_test": len(full_test)}
+    return {"minival": minival, "full_test": full_test}
+
+
+def manifest_counts(entries: Mapping[str, list[str]], source: str) -> dict[str, int]:
+    """Per split: the source's entries, and every source's (``<split>_all``)."""
+    counts = {
+        split: sum(entry.startswith(f"{source}/") for entry in listed) for split, listed in entries.items()
+    }
+    return counts | {f"{split}_all": len(listed) for split, listed in entries.items()}
 
 
 def finish_run(
@@ -131,33 +162,44 @@ def finish_run(
     release: Release | None,
     metrics: dict[str, int] | None,
 ) -> RunSummary:
-    """Write the failures, the release verdicts (a release run), the manifests and the run's provenance.
+    """Write the failures, the release verdicts (a release run: each keeping the agreement an ``audit
+    compare`` added while the clip's file is the one it scored), the manifests and the run's
+    provenance, together (``pipeline.io.file_set``): a run killed meanwhile leaves the earlier set.
 
     release: the release the run follows (``--release``, or ``splits_file`` for the manifests alone).
     metrics: the run's Beam counters, None when the runner reports none (recorded as saying so).
     """
     source, output = job.source.name, job.output
-    outcomes = unit_outcomes(job, [unit.name for unit in plan.units])
+    outcomes, digests = unit_outcomes(job, [unit.name for unit in plan.units])
     failures = all_failures(outcomes)
-    write_atomic(
-        failures_path(output, source),
-        "".join(json.dumps(f.to_json(), sort_keys=True) + "\n" for f in failures).encode(),
-    )
-    counts = None
-    if release is not None and release.restricts_run:
-        rows = verdicts(
-            release.clips.get(source, {}),
-            plan.absent,
-            plan.not_made,
-            plan.expected,
-            outcomes,
-            job.config.min_tracks,
+    files = {
+        failures_path(output, source): "".join(
+            json.dumps(f.to_json(), sort_keys=True) + "\n" for f in failures
+        ).encode()
+    }
+    with output_lock(output):
+        counts = None
+        if release is not None and release.restricts_run:
+            rows = verdicts(
+                release.clips.get(source, {}),
+                plan.absent,
+                plan.not_made,
+                plan.expected,
+                outcomes,
+                job.config.min_tracks,
+            )
+            path = release_verdicts_path(output, source)
+            earlier = kept_agreements(read_bytes(path, MAX_VERDICT_BYTES), digests) if exists(path) else {}
+            files[path] = verdict_lines(rows, earlier)
+            counts = tally(rows)
+        entries = manifests(output, job.config, release)
+        for split, listed in entries.items():
+            files[manifest_path(output, split)] = "".join(entry + "\n" for entry in listed).encode()
+        summary = dataclasses.replace(
+            summarize(outcomes, failures), manifests=manifest_counts(entries, source), release=counts
         )
-        write_atomic(release_verdicts_path(output, source), verdict_lines(rows))
-        counts = tally(rows)
-    manifests = write_manifests(output, job.config, release)
-    summary = dataclasses.replace(summarize(outcomes, failures), manifests=manifests, release=counts)
-    recorded = "not reported by this runner" if metrics is None else metrics
-    written = dict(provenance.to_json(), summary=summary.to_json(), metrics=recorded)
-    write_atomic(provenance_path(output, source), json.dumps(written, indent=2, sort_keys=True).encode())
+        recorded = "not reported by this runner" if metrics is None else metrics
+        written = dict(provenance.to_json(), summary=summary.to_json(), metrics=recorded)
+        files[provenance_path(output, source)] = json.dumps(written, indent=2, sort_keys=True).encode()
+        write_together(files, output)
     return summary

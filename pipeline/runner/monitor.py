@@ -13,6 +13,7 @@ do ``max_failures_in_a_row`` units in a row failing with one cause (``gave_up`` 
 from __future__ import annotations
 
 import _thread
+import contextlib
 import sys
 import threading
 import time
@@ -49,7 +50,8 @@ def describe(outcome: UnitOutcome) -> str:
 
 class RunMonitor:
     """Reports the units of a run (``names``) as their checkpoints, stamped with ``run_id``, appear: a
-    line each on ``lines`` (default stdout), a live bar on ``bar_stream`` when it is a terminal.
+    line each on ``lines`` (default stdout), a live bar on ``bar_stream`` when it is a terminal, and
+    each note a unit brings (``UnitOutcome.notes``) once, on ``bar_stream``.
     Once ``max_failures_in_a_row`` units in a row (0: no limit) failed with one cause
     (``failure_cause``), ``gave_up`` says so and the main thread is stopped."""
 
@@ -75,6 +77,8 @@ class RunMonitor:
         self.limit = max_failures_in_a_row
         self.streak: tuple[str, int] = ("", 0)  # the cause of the last failures in a row, how many
         self.gave_up = ""
+        self.notes: dict[str, None] = {}
+        self._notes_stream = bar_stream
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.bar = (
@@ -121,6 +125,7 @@ class RunMonitor:
             found = read_checkpoint(self.output, self.source, name)
             if found is not None and found.run == self.run_id:
                 self.done[name] = found.outcome
+                self._note(found.outcome)
                 self._say(self.done[name])
                 self._count(self.done[name])
 
@@ -137,6 +142,13 @@ class RunMonitor:
                 f"the last {count} units failed alike ({outcome.failures[0].error}; "
                 f"max_failures_in_a_row={self.limit})"
             )
+
+    def _note(self, outcome: UnitOutcome) -> None:
+        for text in outcome.notes:
+            if text not in self.notes and not self.closed:
+                self.notes[text] = None
+                with contextlib.suppress(BrokenPipeError, ValueError):
+                    print(f"note: {text}", file=self._notes_stream, flush=True)
 
     def _say(self, outcome: UnitOutcome) -> None:
         if self.closed:

@@ -104,7 +104,7 @@ def check_inputs(input_root: str | None, config: RunConfig, release: str | None 
     paths = {"--input": input_root, "--release": release, **path_settings(config)}
     for what, path in paths.items():
         if path and not (what == "--queries-from" and is_http(path)):
-            storage.check_scheme(path)
+            storage.check_scheme(path, ("http", "https") if what == "--queries-from" else ())
         if path and is_local(path) and not os.path.exists(path):
             given = f"{what} {path}" if what.startswith("--") else f"--set {what}={path}"
             raise CannotStart(f"{given} does not exist")
@@ -114,9 +114,9 @@ def check_inputs(input_root: str | None, config: RunConfig, release: str | None 
 class RuleSet:
     """The rule set a run follows and what it decides for the run's source: ``sets``, key -> value of
     each setting the rule set gives (its run-wide ones and the source's); ``other``, key -> that
-    setting's value under the other rule set; ``overridden``, key -> the rule set's value of each
-    one a ``--set`` changed; ``not_known``, the source's settings whose release value is not known
-    (ours kept)."""
+    setting's value under the other rule set; ``overridden``, key -> the value a ``--set`` gave one of
+    them instead; ``not_known``, the source's settings whose release value is not known (ours
+    kept)."""
 
     name: str
     sets: dict[str, object]
@@ -135,7 +135,7 @@ class RuleSet:
         if self.name == "release" and self.not_known:
             lines.append(f"rules: the release's value not known, ours kept: {', '.join(self.not_known)}")
         lines += [
-            f"rules: --set {key}={_shown(self.sets[key])} wins over rules={self.name} ({_shown(value)})"
+            f"rules: --set {key}={_shown(value)} wins over rules={self.name} ({_shown(self.sets[key])})"
             for key, value in self.overridden.items()
         ]
         return lines
@@ -171,9 +171,9 @@ def rule_set(config: RunConfig, source: str, explicit: frozenset[str]) -> RuleSe
     rule_values = _flat(settings_dict(with_rules(config, config.rules)))
     return RuleSet(
         config.rules,
-        {key: values[key] for key in governed},
+        {key: rule_values[key] for key in governed},
         {key: others[key] for key in governed},
-        {key: rule_values[key] for key in governed if key in explicit and values[key] != rule_values[key]},
+        {key: values[key] for key in governed if key in explicit and values[key] != rule_values[key]},
         tuple(sorted(key for key in ours if known[key] is NOT_KNOWN)),
     )
 
@@ -222,6 +222,8 @@ def prepare_run(args: argparse.Namespace, beam_args: list[str]) -> PreparedRun:
     output = absolute(args.output)
     storage.check_scheme(output)
     config, release = settings(args)
+    if args.input is None and not source.has_sample:
+        source.sample_input(sample_folder(output, source.name))  # NoSample: how to get the source's data
     rules = rule_set(config, source.name, assigned_keys(args.overrides))
     check_writable(output)
     if args.input is None and not is_local(output):

@@ -49,6 +49,7 @@ from pipeline.io.files import (
     write_atomic,
     writer_pid,
 )
+from pipeline.io.http import scrub
 from pipeline.settings.fields import settings_items
 
 if TYPE_CHECKING:
@@ -63,7 +64,8 @@ def sha256(data: bytes) -> str:
 
 def clip_settings(config: DataclassInstance, source: str) -> dict[str, object]:
     """The settings that decide the bytes of ``source``'s clips: every setting of ``config`` but those
-    marked ``not_in_clips`` and the sections named after other sources."""
+    marked ``not_in_clips`` and the sections named after other sources; a URL without its query
+    string and user-info (a rotated token names the same files)."""
     others = set(sources.names()) - {source}
     fields = dataclasses.fields(config)
     marked: dict[str, Mapping[str, object]] = {field.name: field.metadata for field in fields}
@@ -72,7 +74,10 @@ def clip_settings(config: DataclassInstance, source: str) -> dict[str, object]:
         if marked.get(name, {}).get("clip_bytes", True) is False or name in others:
             continue
         is_section = dataclasses.is_dataclass(value) and not isinstance(value, type)
-        settings[name] = clip_settings(value, source) if is_section else value
+        if is_section:
+            settings[name] = clip_settings(value, source)
+        else:
+            settings[name] = scrub(value) if isinstance(value, str) else value
     return settings
 
 
@@ -95,7 +100,8 @@ class UnitCheckpoint:
     run: the run that wrote it or resumed the unit; resumed: whether that run skipped the unit;
     seconds: the unit's work; wanted: the clips a release run asked it for (None: every clip it
     makes); reports: its clips' reports; clips: clip -> SHA-256 of its ``.npz``; failures: its
-    errors; not_made: clip -> why the unit made none of that name.
+    errors; not_made: clip -> why the unit made none of that name; notes: what its annotation could
+    not do as asked.
     """
 
     unit: str
@@ -108,11 +114,18 @@ class UnitCheckpoint:
     clips: Mapping[str, str] = dataclasses.field(default_factory=dict)
     failures: tuple[Failure, ...] = ()
     not_made: Mapping[str, str] = dataclasses.field(default_factory=dict)
+    notes: tuple[str, ...] = ()
 
     @property
     def outcome(self) -> UnitOutcome:
         return UnitOutcome(
-            self.unit, self.reports, self.failures, dict(self.not_made), self.resumed, self.seconds
+            self.unit,
+            self.reports,
+            self.failures,
+            dict(self.not_made),
+            self.resumed,
+            self.seconds,
+            self.notes,
         )
 
     def to_json(self) -> dict:
@@ -127,6 +140,7 @@ class UnitCheckpoint:
             "clips": dict(self.clips),
             "failures": [item.to_json() for item in self.failures],
             "not_made": dict(self.not_made),
+            "notes": list(self.notes),
         }
 
     @classmethod
@@ -149,6 +163,9 @@ class UnitCheckpoint:
         if not all(is_clip_name(report.clip) for report in reports):
             raise ValueError("a report's clip is not a plain clip name")
         seconds = value.get("seconds", 0.0)
+        notes = value.get("notes", [])
+        if not (isinstance(notes, list) and all(isinstance(text, str) for text in notes)):
+            raise ValueError("notes must be a list of lines")
         return cls(
             unit=value["unit"],
             fingerprint=value["fingerprint"],
@@ -160,6 +177,7 @@ class UnitCheckpoint:
             clips=dict(value["clips"]),
             failures=tuple(Failure.from_json(item) for item in value["failures"]),
             not_made=dict(value["not_made"]),
+            notes=tuple(notes),
         )
 
 
@@ -225,7 +243,7 @@ def finished_outcome(
         ):
             return None
     if wanted is None:
-        return dataclasses.replace(outcome, resumed=True, seconds=0.0)
+        return dataclasses.replace(outcome, resumed=True, seconds=0.0, notes=())
     unexplained = wanted - made - set(outcome.not_made)
     return dataclasses.replace(
         outcome,
@@ -236,6 +254,7 @@ def finished_outcome(
         },
         resumed=True,
         seconds=0.0,
+        notes=(),
     )
 
 

@@ -1,7 +1,8 @@
 """The release's own clips: its splits JSON, read and checked.
 
 The TAPVid-3D release lists its clips in a splits JSON (``{"minival": {source: [file, ...]},
-"full_eval": {...}}``; ``full_test`` is accepted for ``full_eval``). ``--release FILE`` restricts a
+"full_eval": {...}}``). This project calls ``full_eval`` ``full_test`` in every output (manifests,
+verdicts, audits); a file may use either name. ``--release FILE`` restricts a
 run to those clips (``ReleasePlan``), and each gets a verdict after it (``runner/verdicts.py``);
 ``--set splits_file=FILE`` only gives the manifests its membership.
 """
@@ -18,9 +19,9 @@ from pipeline.commandline import closest
 from pipeline.core.errors import InputError
 from pipeline.io.files import read_bytes
 
-# The release's split names, in its file; ``full_test`` is what our manifests call ``full_eval``.
-SPLITS = ("minival", "full_eval")
-SPLIT_ALIASES = {"full_test": "full_eval"}
+# The splits, as every output names them; the release's file calls full_test ``full_eval``.
+SPLITS = ("minival", "full_test")
+SPLIT_ALIASES = {"full_eval": "full_test"}
 MAX_RELEASE_BYTES = 64 << 20
 # A splits file of the sample worlds' clips, shipped with the package: every clip the samples make,
 # and a few they cannot (an object of another camera, absent segments and sequences, a camera the
@@ -34,14 +35,22 @@ class Release:
     """The release a run follows, from prepare to finish.
 
     path: its splits JSON.
-    clips: source -> clip name (without ``.npz``) -> split.
+    clips: source -> clip name (without ``.npz``) -> split (``SPLITS``).
     restricts_run: the run makes only these clips and gives each a verdict (``--release``); else
       the file only sets the manifests' membership (``splits_file``).
+    full_test_as: what the file calls full_test (the release's file: ``full_eval``).
     """
 
     path: str
     clips: Mapping[str, Mapping[str, str]]
     restricts_run: bool = False
+    full_test_as: str = "full_test"
+
+    def alias_line(self) -> str:
+        """The one line that says the file's other name for full_test, or "" when it uses ours."""
+        if self.full_test_as == "full_test":
+            return ""
+        return f"splits: {self.full_test_as} in {self.path} is full_test here (manifests, verdicts, audits)"
 
     def names(self, source: str) -> frozenset[str]:
         return frozenset(self.clips.get(source, {}))
@@ -63,6 +72,8 @@ def parse_release(text: str, path: str = "") -> Release:
     keys = {SPLIT_ALIASES.get(key, key): key for key in data}
     if set(keys) - set(SPLITS) or "minival" not in keys:
         raise ValueError(f"expected the keys minival and full_eval (or full_test), found {sorted(data)}")
+    if len(keys) < len(data):
+        raise ValueError("full_eval and full_test are one split (full_test here); give one of them")
     clips: dict[str, dict[str, str]] = {}
     for split in SPLITS:
         entry = data.get(keys.get(split, split), {})
@@ -82,8 +93,8 @@ def parse_release(text: str, path: str = "") -> Release:
                 clip = name[: -len(".npz")] if name.endswith(".npz") else name
                 other = clips.setdefault(source, {}).setdefault(clip, split)
                 if other != split:
-                    raise ValueError(f"{source} clip {name} is in both minival and full_eval")
-    return Release(path, clips)
+                    raise ValueError(f"{source} clip {name} is in both minival and {keys.get(split, split)}")
+    return Release(path, clips, full_test_as=keys.get("full_test", "full_test"))
 
 
 def read_release(path: str, given: str = "") -> Release:

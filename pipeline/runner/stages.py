@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 from pipeline.core.clip import ClipRecord
 from pipeline.core.errors import InputError, OutputError, interruption
 from pipeline.core.outcomes import ClipReport, Failure, UnitClips, UnitOutcome
-from pipeline.core.progress import progress
+from pipeline.core.progress import progress, take_notes
 from pipeline.export.audit_table import encode_parquet, outcome_table
 from pipeline.export.depth_export import encode_depth
 from pipeline.export.layout import audit_path, check_clip_name, clip_path, depth_path
@@ -68,11 +68,12 @@ class UnitJob:
 @dataclasses.dataclass(frozen=True)
 class Annotated:
     """A unit's candidate clips on their way to the filter and write stages (``started``: when its
-    annotation began, ``time.time()``)."""
+    annotation began, ``time.time()``; ``notes``: what its annotation could not do as asked)."""
 
     name: str
     made: UnitClips
     started: float
+    notes: tuple[str, ...] = ()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -83,6 +84,7 @@ class Filtered:
     items: tuple[tuple[ClipRecord, FilterOutcome] | Failure, ...]
     not_made: Mapping[str, str]
     started: float
+    notes: tuple[str, ...] = ()
 
 
 def failure(unit: str, stage: str, error: BaseException, clip: str = "") -> Failure:
@@ -196,6 +198,7 @@ def checkpoint(job: UnitJob, outcome: UnitOutcome, digests: Mapping[str, str]) -
             clips=dict(digests),
             failures=outcome.failures,
             not_made=dict(outcome.not_made),
+            notes=outcome.notes,
         )
         write_checkpoint(job.output, source, written)
     except OSError as error:
@@ -216,7 +219,7 @@ def filter_unit(job: UnitJob, annotated: Annotated) -> Filtered:
         except Exception as error:  # noqa: BLE001 - every failure becomes data
             items.append(failure(annotated.name, "clip", error, clip.name))
             progress(f"clip {clip.name} FAILED: {error}")
-    return Filtered(annotated.name, tuple(items), annotated.made.not_made, annotated.started)
+    return Filtered(annotated.name, tuple(items), annotated.made.not_made, annotated.started, annotated.notes)
 
 
 def write_unit(job: UnitJob, filtered: Filtered, on_written=None) -> UnitOutcome:
@@ -245,6 +248,7 @@ def write_unit(job: UnitJob, filtered: Filtered, on_written=None) -> UnitOutcome
         tuple(failures),
         dict(filtered.not_made),
         seconds=time.time() - filtered.started,
+        notes=filtered.notes,
     )
     return checkpoint(job, outcome, digests)
 
@@ -263,13 +267,14 @@ def annotate_units(job: UnitJob, units: list) -> Iterator[UnitOutcome | Annotate
             todo.append(item)
     started = time.time()
     for item, result in zip(todo, annotate_group(job, todo), strict=True):
-        name = item.name
+        name, notes = item.name, take_notes()
         if isinstance(result, Exception):
             problem = failure(name, "annotate", result)
             progress(f"unit {name} FAILED: {result}")
-            yield checkpoint(job, UnitOutcome(name, failures=(problem,), seconds=time.time() - started), {})
+            failed = UnitOutcome(name, failures=(problem,), seconds=time.time() - started, notes=notes)
+            yield checkpoint(job, failed, {})
         else:
-            yield Annotated(name, result, started)
+            yield Annotated(name, result, started, notes)
         started = time.time()
 
 

@@ -129,6 +129,33 @@ def summary_line(counts: Mapping[str, int]) -> str:
     )
 
 
-def verdict_lines(rows: Iterable[Verdict]) -> bytes:
-    """The rows as JSON lines (``release_<source>.jsonl``)."""
-    return "".join(json.dumps(row.to_json(), sort_keys=True) + "\n" for row in rows).encode()
+def verdict_lines(rows: Iterable[Verdict], agreements: Mapping[str, dict] | None = None) -> bytes:
+    """The rows as JSON lines (``release_<source>.jsonl``), each with its clip's entry of
+    ``agreements`` (clip -> the ``agreement`` an ``audit compare`` added) when it has one."""
+    kept = agreements or {}
+    lines = []
+    for row in rows:
+        entry = row.to_json() | ({"agreement": kept[row.clip]} if row.clip in kept else {})
+        lines.append(json.dumps(entry, sort_keys=True) + "\n")
+    return "".join(lines).encode()
+
+
+def kept_agreements(text: bytes, digests: Mapping[str, str]) -> dict[str, dict]:
+    """clip -> its ``agreement`` in an earlier verdict file's ``text``, for each clip whose file is
+    still the one that compare scored (its SHA-256 in ``digests``, clip -> SHA-256 of the clip file
+    on disk now) or that it found without scoring (the reference lacks it, or the run made none: a
+    finding about the release, kept until a compare replaces it). Lines that are not verdicts are
+    skipped."""
+    kept = {}
+    for line in text.decode("utf-8", errors="replace").splitlines():
+        try:
+            row = json.loads(line)
+            clip, entry = row["clip"], row["agreement"]
+            scored = entry["status"] == "scored"
+        except (ValueError, KeyError, TypeError):
+            continue
+        if not isinstance(clip, str) or not isinstance(entry, dict):
+            continue
+        if (scored and entry.get("clip_sha256") == digests.get(clip)) or entry["status"] == "not_in_ref":
+            kept[clip] = entry
+    return kept

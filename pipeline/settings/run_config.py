@@ -28,6 +28,8 @@ from pipeline.settings.fields import (
 )
 
 S = TypeVar("S")
+# Units (a run) or files (``audit compare``) failing alike in a row that stop a command, by default.
+MAX_FAILURES_IN_A_ROW = 20
 
 
 def default_sections() -> dict[str, Any]:
@@ -68,7 +70,7 @@ class RunConfig:
     export_depth: bool = not_in_clips(False)
     minival_per_source: int = not_in_clips(50, "[0, 1000000]")
     min_tracks: int = ranged(1, "[1, 100000]", release=NOT_KNOWN)
-    max_failures_in_a_row: int = not_in_clips(20, "[0, 1000000]")
+    max_failures_in_a_row: int = not_in_clips(MAX_FAILURES_IN_A_ROW, "[0, 1000000]")
     flicker: FlickerConfig = dataclasses.field(default_factory=FlickerConfig)
     http: HttpConfig = dataclasses.field(default_factory=HttpConfig, metadata={"clip_bytes": False})
     source_sections: Mapping[str, Any] = sections(default_sections)

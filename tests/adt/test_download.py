@@ -9,6 +9,7 @@ import pathlib
 
 import pytest
 
+from benchmarks.file_server import serve
 from pipeline.adt import download
 from pipeline.adt.download import fetch_sequence, is_url_file, plan_download, read_url_file
 from pipeline.adt.reader import SequenceReader, required_files
@@ -17,7 +18,6 @@ from pipeline.core.sizes import format_bytes
 from pipeline.io.http import HttpConfig
 from tests.support.adt_excerpt import SAMPLE, needs_excerpt
 from tests.support.adt_server import GROUPS, write_layout
-from tests.support.http_server import serve
 
 pytestmark = needs_excerpt
 SEQUENCE = SAMPLE.name

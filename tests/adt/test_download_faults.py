@@ -14,6 +14,7 @@ import time
 
 import pytest
 
+from benchmarks.file_server import serve
 from pipeline.adt.download import FETCH_FOLDER, fetch_sequence, plan_download, read_url_file, reclaim_scratch
 from pipeline.adt.reader import check_csv, required_files
 from pipeline.core.errors import InputError
@@ -22,7 +23,6 @@ from pipeline.io.http import FileClock, HttpConfig, HttpError
 from tests.support.adt_excerpt import ONE_FRAME_CHUNKS, SAMPLE, needs_excerpt
 from tests.support.adt_server import write_layout
 from tests.support.cli import REPO, run_in_process
-from tests.support.http_server import serve
 
 SEQUENCE = SAMPLE.name
 TOKEN = "tok-SECRET-3c9e"
@@ -214,6 +214,42 @@ def test_ctrl_c_in_a_retry_wait_exits_130(served, tmp_path):
     assert process.returncode == 130, stderr[-2000:]
     assert "interrupted: stopped" in stderr
     assert "cannot finish" not in stderr
+
+
+@needs_excerpt
+@pytest.mark.parametrize("mode", ["in_process", "multi_processing"])
+def test_sigterm_mid_download_stops_as_ctrl_c_does_and_empties_the_scratch_folder(served, tmp_path, mode):
+    """SIGTERM (a scheduler stopping the run) while a group's body trickles in: exit 143, one line,
+    and no partial download left in the scratch folder, also where a worker process was fetching."""
+    server, layout = served
+    server.fail(layout.filename("depth"), *["trickle"] * 4)
+    scratch = tmp_path / "scratch"
+    workers = (
+        ["--direct_running_mode=multi_processing", "--direct_num_workers=1"] if mode != "in_process" else []
+    )
+    command = [
+        sys.executable,
+        *("-m", "pipeline.run", "--source", "adt", "--input", str(layout.url_file)),
+        *(
+            "--output",
+            str(tmp_path / "out"),
+            *ONE_FRAME_CHUNKS,
+            "--set",
+            f"adt.scratch_dir={scratch}",
+            *workers,
+        ),
+    ]
+    process = subprocess.Popen(command, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while server.sent(layout.filename("depth")) < 4096 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert any(scratch.rglob("*")), "the download had not started"
+    process.send_signal(signal.SIGTERM)
+    _, stderr = process.communicate(timeout=30)
+    assert process.returncode == 143, stderr[-2000:]
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("terminated: stopped"), lines
+    assert list(scratch.iterdir()) == []
 
 
 def test_a_ground_truth_csv_that_no_reader_can_read_is_one_line(tmp_path):

@@ -12,10 +12,10 @@ import pathlib
 
 import pytest
 
+from benchmarks.file_server import serve
 from tests.support.adt_excerpt import ONE_FRAME_CHUNKS, SAMPLE, needs_excerpt
 from tests.support.adt_server import write_layout
 from tests.support.cli import clip_bytes, run_in_process
-from tests.support.http_server import serve
 
 pytestmark = needs_excerpt
 

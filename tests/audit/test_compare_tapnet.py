@@ -264,10 +264,10 @@ def test_a_clip_list_picks_the_benchmark_and_a_missing_ref_clip_is_left_out(tmp_
     # A listed clip REF lacks is named and left out of the means (tapnet would stop); a is scored.
     listing.write_text("adt/a.npz\nadt/zz.npz\n")
     assert main([str(ref), str(new), "--clips", str(listing), "--out", str(out)]) == 0
-    assert "not scored: adt/zz.npz: not in REF (REF unreadable" in capsys.readouterr().err
+    assert "not scored: adt/zz.npz: not in REF (REF holds no clip of this name)" in capsys.readouterr().err
     report = json.loads(out.with_suffix(".json").read_text())
     assert report["sources"][-1]["aj_median"] == 1.0
-    assert report["sources"][-1]["ref_errors"] == 1
+    assert (report["sources"][-1]["not_in_ref"], report["sources"][-1]["ref_errors"]) == (1, 0)
     listing.write_text("adt/zz.npz\n")  # nothing scorable
     assert main([str(ref), str(new), "--clips", str(listing), "--out", str(out)]) == 1
     listing.write_text("a.npz\n")

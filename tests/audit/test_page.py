@@ -327,7 +327,7 @@ def test_sliders_show_the_sweeps_counts(loaded, out, source, tmp_path):
     lasts = [100, 100, int(loaded.find_element(By.ID, f"{source}-slider-min_tracks").get_attribute("max"))]
     counts = {"passed": "passed", "clips-written": "clips_written", "below-target": "clips_below_target"}
     if source == "drivetrack":
-        counts |= {f"release-{split}": f"release_{split}" for split in ("minival", "full_eval")}
+        counts |= {f"release-{split}": f"release_{split}" for split in ("minival", "full_test")}
     funnel = ("never_visible", "flicker", "mask")
     wanted = {f"{source}-value-{slider}": "text" for slider in sliders}
     wanted |= {f"{source}-{name}": "data-value" for name in counts}
@@ -399,10 +399,10 @@ def test_the_agreement_table_shows_each_splits_clips_agreeing_fully(loaded, out)
         for row in table.find_elements(By.TAG_NAME, "tr")
     ][1:]
     expected = []
-    for split in ("minival", "full_eval", "all"):
+    for split in ("minival", "full_test", "all"):
         chosen = [row for row in rows if split in ("all", row["split"])]
         written = sum(row["status"] == "written" for row in chosen)
-        expected.append([split, str(len(chosen)), str(written), str(written), "0"])
+        expected.append([split, str(len(chosen)), str(written), str(written), "0", "0"])
     assert shown_rows == expected
 
 

@@ -36,8 +36,10 @@ def test_sweep_at_run_thresholds_reproduces_the_run(pstudio_run, capsys):
     report = (pstudio_run / "sweep_pstudio" / "report.md").read_text()
     assert "reproduces the run's counts" in report
     run = summary(pstudio_run, "pstudio")
-    row = f"| 0.1 | {run['candidate_tracks']} | 0 | {run['dropped_by_filter']['flicker']} | "
+    # the grid names only the run's own threshold: one row, labelled as both
+    row = f"| run = grid | 0.1 | {run['candidate_tracks']} | 0 | {run['dropped_by_filter']['flicker']} | "
     assert row in report
+    assert report.count("| 0.1 |") == 1
     for picture in ("survival.png", "histograms.png"):
         assert (pstudio_run / "sweep_pstudio" / picture).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 

@@ -10,9 +10,13 @@ import hashlib
 import io
 import json
 import os
+import re
 import shutil
+import stat
 import subprocess
 import sys
+import warnings
+import zipfile
 
 import numpy as np
 import pytest
@@ -133,8 +137,11 @@ def test_compare_viz_and_stats_never_unpickle(hostile, reference_run, tmp_path, 
     assert compare_main([reference, str(folder.parent), "--out", str(tmp_path / "c")]) == 0
     err = capsys.readouterr().err
     assert err.count("not scored: pstudio/") == 1  # the tracks payload; NEW's frames and queries are not read
-    assert compare_main([str(folder.parent), reference, "--out", str(tmp_path / "d")]) == 0
-    assert capsys.readouterr().err.count("would need pickle") == 3  # REF reads frames, queries, tracks
+    # as REF: three clips cannot be read (exit 1, each named in one line), the fourth is scored
+    assert compare_main([str(folder.parent), reference, "--out", str(tmp_path / "d")]) == 1
+    err = capsys.readouterr().err
+    assert err.count("would need pickle") == 3  # REF reads frames, queries, tracks
+    assert err.strip().splitlines()[-1] == "3 of 4 clip(s) could not be read from REF; rerun to complete them"
     for path in sorted(folder.glob("*.npz"))[1:]:
         assert viz_main([str(path), "--out", str(tmp_path / "v.png")]) == 2
         err = capsys.readouterr().err.strip().splitlines()
@@ -234,3 +241,77 @@ def test_resume_never_unpickles_nor_deletes_outside_the_output(pstudio_sample, t
     assert clip.read_bytes() == good
     assert victim.read_bytes() == b"keep me"
     assert not marker.exists()
+
+
+def hostile_members(clip: dict[str, np.ndarray]) -> dict[str, bytes]:
+    """A clip's bytes with one member made hostile each way a zip allows: flagged encrypted, compressed
+    by a method an ``.npz`` never uses, twice in the directory, a symlink, an absolute name."""
+    plain = savez_bytes(clip)
+
+    def patched(flag: int = 0, method: int | None = None) -> bytes:
+        data = bytearray(plain)
+        for marker, flags_at in ((b"PK\x03\x04", 6), (b"PK\x01\x02", 8)):
+            at = data.find(marker)
+            while at >= 0:
+                data[at + flags_at] |= flag
+                if method is not None:
+                    data[at + flags_at + 2 : at + flags_at + 4] = method.to_bytes(2, "little")
+                at = data.find(marker, at + 4)
+        return bytes(data)
+
+    def rezipped(change) -> bytes:
+        out = io.BytesIO()
+        with zipfile.ZipFile(io.BytesIO(plain)) as source, zipfile.ZipFile(out, "w") as target:
+            for info in source.infolist():
+                change(target, info, source.read(info))
+        return out.getvalue()
+
+    def twice(target, info, data):
+        target.writestr(info, data)
+        if info.filename == "tracks_XYZ.npy":
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # zipfile warns of the duplicate name: the point here
+                target.writestr(info, data)
+
+    def symlink(target, info, data):
+        if info.filename == "tracks_XYZ.npy":
+            info.external_attr = (stat.S_IFLNK | 0o777) << 16
+        target.writestr(info, data)
+
+    def absolute(target, info, data):
+        target.writestr("/tmp/" + info.filename if info.filename == "tracks_XYZ.npy" else info.filename, data)
+
+    return {
+        "encrypted": patched(flag=1),
+        "method": patched(method=99),
+        "twice": rezipped(twice),
+        "symlink": rezipped(symlink),
+        "absolute": rezipped(absolute),
+    }
+
+
+def test_hostile_zip_members_are_refused_in_one_line_and_validate_checks_the_others(
+    reference_run, tmp_path, capsys
+):
+    folder = tmp_path / "files" / "pstudio"
+    folder.mkdir(parents=True)
+    good = clip_files(reference_run("pstudio"), "pstudio")[0]
+    shutil.copy(good, folder)
+    causes = {
+        "encrypted": "member 'fx_fy_cx_cy.npy' is encrypted; refused",
+        "method": "member 'fx_fy_cx_cy.npy' uses compression method 99; only stored and deflated members",
+        "twice": "member 'tracks_XYZ.npy' appears more than once; refused",
+        "symlink": "member 'tracks_XYZ.npy' is a symlink; refused",
+        "absolute": "member '/tmp/tracks_XYZ.npy' has an absolute or '..' path; refused",
+    }
+    for name, data in hostile_members(plain_load(good)).items():
+        with pytest.raises(NpzError, match=re.escape(causes[name])):
+            read_clip_bytes(data, name)
+        (folder / f"{name}.npz").write_bytes(data)
+    assert validate_main([str(folder.parent)]) == 1
+    out = capsys.readouterr().out
+    assert "Traceback" not in out
+    for name, cause in causes.items():
+        said = [line for line in out.splitlines() if line.startswith(f"{folder / name}.npz: ")]
+        assert len(said) == 1 and cause in said[0], said
+    assert f"{len(causes) + 1} clip(s) checked, 1 valid, {len(causes)} with violations" in out

@@ -48,7 +48,7 @@ def verdict_rows(count: int) -> str:
         rows.append(
             {
                 "clip": f"seq{index:05d}_3",
-                "split": "minival" if index < 50 else "full_eval",
+                "split": "minival" if index < 50 else "full_test",
                 "status": "written" if made else "not_produced",
                 "tracks": 50 if made else 0,
                 "reason": reason,

@@ -4,6 +4,7 @@ an output error at the end, Ctrl-C, and one-line errors from every command."""
 from __future__ import annotations
 
 import errno
+import json
 import os
 import resource
 import signal
@@ -13,12 +14,15 @@ import time
 
 import pytest
 
+from pipeline import sources
 from pipeline.core.errors import InputError
 from pipeline.export.layout import check_clip_name
 from pipeline.io import files
+from pipeline.io.file_set import complete_commits
 from pipeline.io.files import remove_quietly, temporary_path, write_atomic
 from pipeline.runner.resume import remove_partial_files
 from tests.support.cli import REPO, command_in_process, run_in_process
+from tests.support.toy_source import TOY
 
 
 def test_replace_is_atomic_and_never_deletes_first(tmp_path, monkeypatch):
@@ -180,3 +184,79 @@ def test_commands_print_one_line_errors_and_no_beam_import_noise(tmp_path):
         assert "apitools" not in result.stderr, name
         stderr[name] = result.stderr
     assert "sweep: audit table" in stderr["sweep"]
+
+
+KILLED_FINISH = """
+import os, signal, sys
+import pipeline.io.file_set as file_set
+kill_at = int(sys.argv[1])
+moved = [0]
+def die():
+    os.kill(os.getpid(), signal.SIGKILL)
+journal = file_set.write_atomic
+def write_journal(path, data):
+    if kill_at == 0:
+        die()
+    journal(path, data)
+def move(pairs):
+    for pair in pairs:
+        moved[0] += 1
+        if moved[0] == kill_at:
+            die()
+        os.replace(*pair)
+file_set.write_atomic, file_set._move_into_place = write_journal, move
+from pipeline.runner.command import main
+sys.exit(main(sys.argv[2:]))
+"""
+
+
+def finish_set(out) -> tuple[int, int]:
+    """(minival_per_source the run's provenance records, minival entries in the manifest), each file
+    of the finish checked against the provenance's summary: one run's set."""
+    record = json.loads((out / "run_toy.json").read_text())
+    minival = (out / "manifests" / "minival.txt").read_text().splitlines()
+    full_test = (out / "manifests" / "full_test.txt").read_text().splitlines()
+    summary = record["summary"]["manifests"]
+    assert (summary["minival"], summary["full_test"]) == (len(minival), len(full_test))
+    assert (out / "failures_toy.jsonl").read_text() == ""
+    return record["config"]["minival_per_source"], len(minival)
+
+
+@pytest.fixture
+def toy():
+    sources.register(TOY)
+    yield
+    sources.unregister(TOY.name)
+
+
+@pytest.mark.parametrize("kill_at", [0, 1, 3])  # before the journal, after one move, after three
+def test_a_run_killed_while_it_writes_its_finish_leaves_one_set_and_a_rerun_completes_it(
+    toy, tmp_path, kill_at
+):
+    """The run's failures, manifests and provenance are one result: killed before its journal is in
+    place, the earlier set stays; after, the next command completes the new set."""
+    source = tmp_path / "in"
+    source.mkdir()
+    for name in "abcd":
+        spec = {"frames": 4, "points": [[0.0, 0.0, 2.0]], "velocity": [0.01, 0, 0]}
+        (source / f"{name}.json").write_text(json.dumps(spec))
+    out = tmp_path / "out"
+    argv = ["--input", str(source), "--output", str(out)]
+    assert run_in_process("toy", *argv, "--set", "minival_per_source=1").returncode == 0
+    assert finish_set(out) == (1, 1)
+    env = {**os.environ, "TAPVID3D_SOURCES": "tests.support.toy_source"}
+    killed = [sys.executable, "-c", KILLED_FINISH, str(kill_at), "--source", "toy", *argv]
+    done = subprocess.run(
+        [*killed, "--set", "minival_per_source=2"],
+        cwd=REPO,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == -signal.SIGKILL, done.stderr[-2000:]
+    complete_commits(str(out))  # what every command does first in a folder it reads or writes
+    assert finish_set(out) == ((1, 1) if kill_at == 0 else (2, 2))
+    assert run_in_process("toy", *argv, "--set", "minival_per_source=2").returncode == 0
+    assert finish_set(out) == (2, 2)
+    assert not [path for path in out.rglob("*") if ".partial-" in path.name or ".commit-" in path.name]

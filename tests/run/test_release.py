@@ -215,9 +215,10 @@ def test_an_explicit_setting_wins_over_the_rules_and_says_so(release_file, sampl
     assert prepared.config.rules == "release"
     assert prepared.config.section(DriveTrackConfig).facing_test is True
     assert prepared.config.section(DriveTrackConfig).undistort_frames is False
-    assert (
-        "rules: --set drivetrack.facing_test=true wins over rules=release (false)" in prepared.rules.lines()
-    )
+    first, *others = prepared.rules.lines()
+    # the rule set's own values first, then what --set changed: no line contradicts another
+    assert first.startswith("rules: release (") and "drivetrack.facing_test=false," in first
+    assert "rules: --set drivetrack.facing_test=true wins over rules=release (false)" in others
     args, beam_args = parse_args([*argv, "--set", "rules=release"])
     assert prepare_run(args, beam_args).config == with_rules(RunConfig(), "release")
 
@@ -305,7 +306,9 @@ def test_every_named_clip_has_its_verdict(release_run, source):
         pytest.skip("the ADT excerpt is absent")
     rows = verdicts(out, source)
     named = {
-        name[: -len(".npz")]: split for split in ("minival", "full_eval") for name in RELEASE[split][source]
+        name[: -len(".npz")]: "full_test" if split == "full_eval" else split
+        for split in ("minival", "full_eval")
+        for name in RELEASE[split][source]
     }
     assert set(rows) == set(named)
     for clip, row in rows.items():
@@ -342,7 +345,7 @@ def test_audit_release_prints_each_split_and_the_common_reasons(release_run, cap
     assert audit_main(["release", out, "--source", "drivetrack"]) == 0
     printed = capsys.readouterr().out
     assert "minival         1             1             0             0             0" in printed
-    assert "full_eval       4             1             2             1             0" in printed
+    assert "full_test       4             1             2             1             0" in printed
     assert "object id X is not among the segment's boxes" in printed
     assert "segment X is not in --input" in printed
 
@@ -375,10 +378,10 @@ def test_the_sweep_counts_surviving_release_clips_as_a_rerun_does(
         "min_tracks=500",
     )
     assert result.returncode == 0, result.stderr[-3000:]
-    written = {split: 0 for split in ("minival", "full_eval")}
+    written = {split: 0 for split in ("minival", "full_test")}
     for row in verdicts(rerun, "drivetrack").values():
         written[row["split"]] += row["status"] == "written"
-    assert written == {"minival": 1, "full_eval": 0}
+    assert written == {"minival": 1, "full_test": 0}
     passed = first[PARKED]["passed"]
     assert (
         verdicts(rerun, "drivetrack")[PARKED]["reason"]

@@ -10,11 +10,13 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 
 import pytest
 
 from pipeline.audit.__main__ import main as audit_main
 from pipeline.runner.splits import SAMPLE_RELEASE, read_release
+from tests.support import golden
 from tests.support.adt_excerpt import SAMPLE, needs_excerpt
 from tests.support.cli import REPO, clip_bytes, run_in_process
 
@@ -138,3 +140,31 @@ def test_the_demo_is_a_release_run_of_the_packaged_sample_splits():
     assert "-m pipeline.audit release $(OUT)" in demo
     pyproject = open(os.path.join(REPO, "pyproject.toml")).read()
     assert '"pipeline.samples" = ["sample_splits.json"]' in pyproject  # in a wheel too
+
+
+def test_a_rerun_keeps_the_agreement_of_each_clip_whose_file_is_the_one_compared(sample_release, tmp_path):
+    """``audit compare`` adds each written clip's agreement to its verdict; the release run again
+    (every unit resumed) rewrites the verdicts and keeps each agreement whose clip file is the one
+    compared (its SHA-256), and drops one recorded for other bytes."""
+    out = tmp_path / "run"
+    shutil.copytree(sample_release[0], out)
+    assert audit_main(["compare", str(out), str(out), "--out", str(tmp_path / "self")]) == 0
+    before = verdicts(out, "drivetrack")
+    written = sorted(clip for clip, row in before.items() if row["status"] == "written")
+    assert all(before[clip]["agreement"]["status"] == "scored" for clip in written)
+    forged, kept = written[0], written[1:]
+    rows = [dict(row) for row in before.values()]
+    for row in rows:
+        if row["clip"] == forged:
+            row["agreement"] = dict(row["agreement"], clip_sha256="0" * 64)  # scored other bytes
+    (out / "release_drivetrack.jsonl").write_text(
+        "".join(json.dumps(row, sort_keys=True) + "\n" for row in rows)
+    )
+
+    args = golden.concrete(golden.release_args("drivetrack"), str(out))
+    rerun = run_in_process("drivetrack", *args[2:])
+    assert rerun.returncode == 0, rerun.stderr[-3000:]
+    assert rerun.stdout.count("finished by an earlier run with these settings; skipped") == 3
+    after = verdicts(out, "drivetrack")
+    assert [after[clip].get("agreement") for clip in kept] == [before[clip]["agreement"] for clip in kept]
+    assert "agreement" not in after[forged]

@@ -3,7 +3,7 @@
 ``write_layout(source, sequence, folder, base_url)`` writes into ``folder`` one file per data group
 (the recording as a plain ``.vrs``, every other group a zip of its files) and ``urls.json``
 pointing at ``base_url`` with their real SHA-1s and sizes. ``serve(folder)`` serves them over HTTP with faults
-on demand (``tests/support/http_server.py``).
+on demand (``benchmarks/file_server.py``).
 """
 
 from __future__ import annotations

@@ -6,7 +6,8 @@ one object and nothing else in the package (docs/adding-a-source.md), its settin
 Input: a folder of ``<name>.json`` files, each a unit: ``{"frames": T, "points": [[x, y, z], ...],
 "velocity": [vx, vy, vz]}``: points moving at constant velocity (metres per frame, times
 ``toy.speed_scale``) in front of a static 64x48 pinhole camera. Each unit makes one clip
-``toy_<name>`` of every point, visible while it projects into the frame.
+``toy_<name>`` of every point, visible while it projects into the frame; with ``--queries-from``,
+only the clips found there, with their queries.
 
 Registered by the tests (``sources.register(TOY)``), or for every process of a run by naming this
 module in ``TAPVID3D_SOURCES`` (it defines ``SOURCE``).
@@ -25,7 +26,7 @@ from pipeline.core.clip import ClipRecord, TrackStats
 from pipeline.core.errors import InputError
 from pipeline.settings.fields import ranged
 from pipeline.settings.run_config import RunConfig
-from pipeline.sources import Source, UnitPlan, one_by_one
+from pipeline.sources import RunChoices, Source, UnitPlan, one_by_one
 
 WIDTH, HEIGHT = 64, 48
 INTRINSICS = np.array([40.0, 40.0, 32.0, 24.0])
@@ -65,6 +66,10 @@ def truth(spec: dict, speed_scale: float = 1.0) -> np.ndarray:
 
 
 def annotate(input_root: str, unit: SpecFile, config: RunConfig) -> list[ClipRecord]:
+    given = RunChoices.of(config, "toy").given
+    queries_given = given.of(f"toy_{unit.name}")
+    if given.active and queries_given is None:
+        return []
     with open(os.path.join(input_root, f"{unit.name}.json")) as handle:
         spec = json.load(handle)
     tracks = truth(spec, config.section(ToyConfig).speed_scale)
@@ -78,6 +83,8 @@ def annotate(input_root: str, unit: SpecFile, config: RunConfig) -> list[ClipRec
     query_frames = visible.argmax(axis=0)
     index = np.arange(tracks.shape[1])
     queries = np.concatenate([pixels[query_frames, index], query_frames[:, None]], axis=1)
+    if queries_given is not None:
+        queries = queries_given
     frame = cv2.imencode(".jpg", np.full((HEIGHT, WIDTH, 3), 90, np.uint8))[1].tobytes()
     return [
         ClipRecord(
@@ -94,6 +101,7 @@ def annotate(input_root: str, unit: SpecFile, config: RunConfig) -> list[ClipRec
             frame_ids=np.arange(spec["frames"]),
             track_stats=TrackStats(np.ones(tracks.shape[1])),
             target_tracks=tracks.shape[1],
+            given_queries=queries_given is not None,
         )
     ]
 
