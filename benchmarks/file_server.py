@@ -173,6 +173,7 @@ class FileServer:
         self, folder: pathlib.Path, ranges: bool = True, trickle_s: float = 1.0, latency_s: float = 0.0
     ):
         self._server = _Server(pathlib.Path(folder), ranges, trickle_s, latency_s)
+        self.folder = self._server.folder
         self.base_url = f"http://127.0.0.1:{self._server.server_address[1]}"
         self._thread = threading.Thread(target=self._server.serve_forever, args=(0.05,), daemon=True)
         self._thread.start()

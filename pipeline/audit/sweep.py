@@ -4,10 +4,11 @@ other thresholds.
 The filter stage records every candidate track's statistics in ``OUT/audit/<source>/*.parquet`` (one
 table per clip). The sweep reads them and evaluates every combination of the ``--grid`` thresholds
 with the filter stage's own rule (``verdicts_from_stats``), without annotating again. It writes, into
-``--out`` (default ``OUT/sweep_<source>``), ``report.md`` (a table per combination, statistic
-summaries), ``sweep.parquet`` (the same table) and two PNGs: the survival curve of each filter and
-the histogram of each statistic. A folder holding no run of the source is refused, unless
-``--run-sample`` asks to run the pipeline on the source's sample world into it first.
+``--out`` (default ``OUT/sweep_<source>``), together (``pipeline.io.file_set``: all new, or all as
+they were), ``report.md`` (a table per combination, statistic summaries), ``sweep.parquet`` (the same
+table) and two PNGs: the survival curve of each filter and the histogram of each statistic. A folder
+holding no run of the source is refused, unless ``--run-sample`` asks to run the pipeline on the
+source's sample world into it first.
 
 On a release run (``--release``, or the run's own), only the release's clips are replayed, and each
 combination also counts, per split, the release clips that survive it: written, with at least
@@ -36,7 +37,8 @@ from pipeline.core.errors import InputError
 from pipeline.core.outcomes import FILTER_ORDER
 from pipeline.export.layout import audit_path, provenance_path, sweep_folder
 from pipeline.filters.select import FILTERED_BY, FilterStats, count_dropped, verdicts_from_stats
-from pipeline.io.files import list_files, read_bytes, write_atomic
+from pipeline.io.file_set import complete_commits, reclaim_temporaries, write_together
+from pipeline.io.files import list_files, read_bytes
 from pipeline.runner.splits import SPLITS, Release, read_release
 from pipeline.settings.fields import SettingsError, config_from_dict, setting_keys, value_at, with_overrides
 from pipeline.settings.run_config import RunConfig
@@ -203,8 +205,16 @@ def _pyplot():
     return plt
 
 
-def survival_figure(clips: list[AuditTable], source: Source, config: RunConfig, path: str) -> None:
-    """Share of candidates each filter keeps as its threshold varies (default marked)."""
+def png_bytes(figure) -> bytes:
+    """A matplotlib figure as PNG bytes (the figure closed)."""
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png", dpi=110)
+    _pyplot().close(figure)
+    return buffer.getvalue()
+
+
+def survival_figure(clips: list[AuditTable], source: Source, config: RunConfig) -> bytes:
+    """Share of candidates each filter keeps as its threshold varies (default marked), as a PNG."""
     plt = _pyplot()
     flips = np.concatenate([c.stats.visibility_flips / max(c.num_frames, 1) for c in clips])
     figure, axes = plt.subplots(1, 2, figsize=(10, 3.8))
@@ -225,12 +235,11 @@ def survival_figure(clips: list[AuditTable], source: Source, config: RunConfig, 
         ax.legend()
     figure.suptitle(f"{source.name}: survival per filter ({sum(c.stats.count for c in clips)} candidates)")
     figure.tight_layout()
-    figure.savefig(path, dpi=110)
-    plt.close(figure)
+    return png_bytes(figure)
 
 
-def histogram_figure(statistics: dict[str, np.ndarray], source: str, path: str) -> None:
-    """One histogram per statistic [N] over all candidates."""
+def histogram_figure(statistics: dict[str, np.ndarray], source: str) -> bytes:
+    """One histogram per statistic [N] over all candidates, as a PNG."""
     plt = _pyplot()
     names = sorted(statistics)
     figure, axes = plt.subplots(1, len(names), figsize=(3.6 * len(names), 3.2), squeeze=False)
@@ -240,8 +249,7 @@ def histogram_figure(statistics: dict[str, np.ndarray], source: str, path: str) 
         ax.set(title=name, ylabel="candidate tracks")
     figure.suptitle(f"{source}: statistics of all candidate tracks")
     figure.tight_layout()
-    figure.savefig(path, dpi=110)
-    plt.close(figure)
+    return png_bytes(figure)
 
 
 def numeric_statistics(clips: list[AuditTable]) -> dict[str, np.ndarray]:
@@ -455,16 +463,24 @@ def sweep(args: argparse.Namespace) -> int:
             continue
         rows.append(SweepRow(dict(zip(keys, values, strict=True)), evaluate(clips, source, config, splits)))
     report = args.out or sweep_folder(output, args.source)
-    os.makedirs(report, exist_ok=True)
     statistics = numeric_statistics(clips)
-    survival_figure(clips, source, base, f"{report}/survival.png")
-    histogram_figure(statistics, args.source, f"{report}/histograms.png")
     named = (
         {split: sum(s == split for s in splits.values()) for split in SPLITS} if splits is not None else None
     )
     markdown = report_markdown(args.source, rows, run_summary, statistics, named)
-    write_atomic(f"{report}/report.md", markdown.encode())
-    write_atomic(f"{report}/sweep.parquet", _rows_parquet(rows))
+    files = {
+        f"{report}/report.md": markdown.encode(),
+        f"{report}/sweep.parquet": _rows_parquet(rows),
+        f"{report}/survival.png": survival_figure(clips, source, base),
+        f"{report}/histograms.png": histogram_figure(statistics, args.source),
+    }
+    try:
+        complete_commits(report)  # what an earlier sweep killed while writing here left
+        reclaim_temporaries(list(files))
+        write_together(files, report)  # the report's files are one result: all new or all as they were
+    except OSError as error:
+        print(f"sweep: cannot write the report in {report}: {error}", file=sys.stderr)
+        return 2
     print(markdown.split("\n## Statistics")[0])
     print(f"report: {report}/report.md (with survival.png, histograms.png, sweep.parquet)")
     return 1 if rows[0].matches_run is False else 0

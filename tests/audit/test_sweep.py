@@ -3,6 +3,7 @@ without a run is refused unless ``--run-sample`` asks for one; the old option sp
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import shutil
@@ -11,6 +12,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from pipeline.audit.__main__ import main as audit_main
+from pipeline.io import file_set
 from pipeline.runner.command import main as run_main
 from pipeline.samples.waymo_world import SAMPLE_VERSION
 from tests.conftest import link_tree
@@ -120,3 +122,26 @@ def test_sweep_refuses_a_setting_that_needs_annotation(pstudio_run, capsys):
     grid = ["--grid", "pstudio.depth_delta_m=0.1"]
     assert audit_main(["sweep", str(pstudio_run), "--source", "pstudio", *grid]) == 2
     assert "needs a new run" in capsys.readouterr().err
+
+
+def test_a_report_that_cannot_be_written_whole_leaves_the_earlier_one(
+    pstudio_run, tmp_path, monkeypatch, capsys
+):
+    """The sweep's report, table and figures are one result: a write failing part-way (a full disk)
+    leaves the earlier report's files as they were, one line, exit 2, no temporary."""
+    report = tmp_path / "report"
+    grid = ["sweep", str(pstudio_run), "--source", "pstudio", "--out", str(report)]
+    assert audit_main([*grid, "--grid", "flicker.max_fraction=0.05"]) == 0
+    before = {path.name: path.read_bytes() for path in report.iterdir()}
+    real = file_set._write_plain
+
+    def full_disk(path, data):
+        if path.rpartition("/")[2].startswith(".survival.png"):
+            raise OSError(errno.ENOSPC, "No space left on device", path)
+        real(path, data)
+
+    monkeypatch.setattr(file_set, "_write_plain", full_disk)
+    capsys.readouterr()
+    assert audit_main([*grid, "--grid", "flicker.max_fraction=0.2"]) == 2
+    assert capsys.readouterr().err.startswith(f"sweep: cannot write the report in {report}: ")
+    assert {path.name: path.read_bytes() for path in report.iterdir()} == before

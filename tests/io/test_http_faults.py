@@ -152,3 +152,17 @@ def test_a_cancelled_transfer_ends_in_its_retry_wait(served):
         read_queries(server, client=client)
     assert caught.value.kind == "cancelled"
     assert time.monotonic() - started < 10  # the 60 s wait before the third try was cut short
+
+
+def test_a_resumed_download_answered_with_another_range_fails_at_once(served, tmp_path):
+    """ADT's streamed download: a body cut short is resumed by a Range request; an answer naming
+    another range is a protocol error, not a third try."""
+    server, _ = served
+    server.reset()
+    server.fail(NAME, "truncate", "range_off")
+    size = len((server.folder / NAME).read_bytes())
+    with open(tmp_path / "file", "wb") as out, pytest.raises(HttpError) as caught:
+        HttpClient(QUICK).download(f"{server.base_url}/{NAME}", out, size)
+    assert caught.value.kind == "protocol"
+    assert str(caught.value).startswith(f"asked for bytes {size // 2}-{size - 1}, got Content-Range 'bytes ")
+    assert server.requests(NAME) == 2

@@ -97,6 +97,26 @@ def test_every_bad_setting_is_reported_in_one_list(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+def test_a_source_without_a_sample_is_refused_before_any_work_saying_how_to_get_it(tmp_path):
+    result = run_in_process("adt", "--output", str(tmp_path / "out"))
+    assert result.returncode == 2
+    assert result.stderr.startswith("adt: there is no embedded ADT sample")
+    assert "embedded sample world" not in result.stdout  # never announced first, then refused
+    assert not (tmp_path / "out").exists()
+
+
+def test_an_unknown_scheme_for_queries_from_names_what_is_read(tmp_path):
+    result = run_in_process(
+        "pstudio", "--output", str(tmp_path / "out"), "--queries-from", "htp://h/x?t=SECRET"
+    )
+    assert result.returncode == 2
+    assert result.stderr.startswith(
+        "cannot start: no usable filesystem for htp://h/x: Beam opens local paths"
+    )
+    assert result.stderr.rstrip().endswith("; http:// and https:// are read directly")
+    assert "SECRET" not in result.stderr
+
+
 def test_a_misspelt_source_gets_the_nearest_name(tmp_path):
     result = run_in_process("drivetrak", "--output", str(tmp_path / "out"))
     assert (result.returncode, result.stderr) == (
@@ -411,6 +431,14 @@ def test_manifest_settings_resume_every_unit_and_rewrite_the_manifests(finished,
     assert result.stdout.count(RESUMED) == 3
     assert open(os.path.join(out, "manifests", "minival.txt")).read() == f"drivetrack/{names[0]}\n"
     assert clip_bytes(out, "drivetrack") == before
+    # the release's name for full_test, said once; the manifests' counts of this source, then all
+    assert result.stdout.count("full_eval") == 1
+    assert f"splits: full_eval in {splits} is full_test here (manifests, verdicts, audits)" in result.stdout
+    os.makedirs(os.path.join(out, "pstudio"))
+    open(os.path.join(out, "pstudio", "other.npz"), "wb").close()  # another source's clip there
+    result = run_in_process("drivetrack", "--input", source_input, "--output", out)
+    counts = "minival 4, full_test 0 clip(s) of drivetrack (every source: minival 5, full_test 0)"
+    assert f"manifests: {counts}" in result.stdout
 
 
 def test_a_release_run_resumes_a_plain_runs_units(finished, tmp_path):
