@@ -1,2 +1,3 @@
-"""Aria Digital Twin source: reader (projectaria-tools), rectify (pinhole re-rendering and the
-upright rotation), annotate (pure NumPy), source (its Source: units, names, the excerpt)."""
+"""Aria Digital Twin source: reader (projectaria-tools), units (listing and naming its units),
+rectify (pinhole re-rendering and the upright rotation), annotate (the group entry), tracks (one
+chunk's candidate clip), source (its Source)."""

@@ -8,6 +8,7 @@ import numpy as np
 
 from pipeline.adt.records import IdRuns
 from pipeline.core.geometry import in_image, project
+from pipeline.core.visibility import passes_dense_depth_test
 
 
 def pixel_centres(rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
@@ -95,8 +96,7 @@ def frame_visibility(
     rows, cols = pixel_at(xy_in, size)
     pixel_ids = ids[rows, cols]
     surface = sample_depth(depth, xy_in, max_spread=delta)
-    with np.errstate(invalid="ignore"):
-        close = np.abs(points_cam[inside, 2] - surface) < delta
+    close = passes_dense_depth_test(points_cam[inside, 2], surface, delta)
     not_human = ~np.isin(pixel_ids, list(human_ids)) if human_ids else np.ones(len(rows), bool)
     visible[inside] = close & not_human
     on_own[inside] = pixel_ids == object_ids[inside]

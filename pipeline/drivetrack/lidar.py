@@ -20,6 +20,7 @@ import numpy as np
 from pipeline.core.errors import InputError
 from pipeline.core.geometry import invert_se3, rotation_from_roll_pitch_yaw, transform_points
 from pipeline.drivetrack.camera_model import UnitCamera
+from pipeline.drivetrack.cell_grid import CellGrid
 from pipeline.drivetrack.footprints import (
     BoxMotions,
     FrameFootprints,
@@ -35,8 +36,9 @@ from pipeline.drivetrack.footprints import (
 )
 from pipeline.drivetrack.object_surface import consistent_triangles, surface_triangles
 from pipeline.drivetrack.objects import ObjectRun, box_poses, inside_box
+from pipeline.drivetrack.parallax import camera_occluded_lidar
 from pipeline.drivetrack.records import LidarCalibration, UnitInput
-from pipeline.drivetrack.visibility import CellGrid, camera_occluded_lidar, depth_tree
+from pipeline.drivetrack.visibility import depth_grid
 
 
 def beam_inclinations(calibration: LidarCalibration, height: int, what: str = "lidar") -> np.ndarray:
@@ -276,15 +278,15 @@ class LidarEvidence:
     body_points: dict[str, dict[int, np.ndarray]]
     body_normals: dict[str, dict[int, np.ndarray]]
     body_pixels: dict[str, dict[int, np.ndarray]]
-    depth_trees: dict[int, CellGrid | None] = dataclasses.field(default_factory=dict)
+    depth_grids: dict[int, CellGrid | None] = dataclasses.field(default_factory=dict)
     refined: RefinedEvidence | None = None
 
-    def depth_tree(self, t: int) -> CellGrid | None:
-        """The lookup of frame t's depth pixels (``depth.depth_tree``), built at the first clip that
-        reads it."""
-        if t not in self.depth_trees:
-            self.depth_trees[t] = depth_tree(self.depth_uv[t])
-        return self.depth_trees[t]
+    def depth_grid(self, t: int) -> CellGrid | None:
+        """The lookup of frame t's depth pixels (``visibility.depth_grid``), built at the first clip
+        that reads it."""
+        if t not in self.depth_grids:
+            self.depth_grids[t] = depth_grid(self.depth_uv[t])
+        return self.depth_grids[t]
 
 
 @dataclasses.dataclass

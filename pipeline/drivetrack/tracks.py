@@ -79,7 +79,7 @@ def object_visibility(
         transform_directions_batch(cam_from_box, pool.normals[chosen]) if rules.facing_test else None,
         [evidence.depth_uv[t] for t in frames],
         [evidence.depth_z[t] for t in frames],
-        [evidence.depth_tree(t) for t in frames],
+        [evidence.depth_grid(t) for t in frames],
         (unit.calibration.width, unit.calibration.height),
         rules.occlusion_margin,
     )

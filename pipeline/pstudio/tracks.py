@@ -22,7 +22,7 @@ from pipeline.core.clip import ClipRecord, TrackStats
 from pipeline.core.errors import InputError
 from pipeline.core.geometry import invert_se3, project, transform_points, unproject
 from pipeline.core.sampling import rng_for
-from pipeline.core.visibility import in_view
+from pipeline.core.visibility import in_view, passes_dense_depth_test
 from pipeline.export.depth_export import dense_depth_mm, dense_export
 from pipeline.io.given_queries import given_query_frames
 from pipeline.pstudio.multiview_masks import multiview_mask_fraction
@@ -160,7 +160,7 @@ def track_visibility(
             splats = splats_in_view(unit, view, t, pixels, limits)
         if seen.any():
             depth, surface = render_depth_at(splats, pixels, limits)
-            visible[t, seen] = surface & (np.abs(z - depth) < delta)
+            visible[t, seen] = surface & passes_dense_depth_test(z, depth, delta)
     return tracks, visible, depth_maps
 
 

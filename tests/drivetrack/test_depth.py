@@ -2,8 +2,8 @@
 
 import numpy as np
 
+from pipeline.drivetrack.parallax import camera_occluded_lidar
 from pipeline.drivetrack.visibility import (
-    camera_occluded_lidar,
     dense_nearest_depth,
     max4_from_dense,
     nearest_depth_max4,
@@ -91,12 +91,12 @@ def test_the_cell_grid_finds_the_kd_trees_nearest_point_near_and_far():
     (the image around a lidar cluster): the nearest point is the KD-tree's."""
     from scipy.spatial import cKDTree
 
-    from pipeline.drivetrack.visibility import depth_tree
+    from pipeline.drivetrack.visibility import depth_grid
 
     rng = np.random.default_rng(4)
     lidar_uv = np.concatenate([rng.normal([900, 900], [200, 40], (3000, 2)), rng.uniform(0, 1920, (30, 2))])
     queries = np.concatenate([rng.uniform(0, 1920, (500, 2)), rng.uniform(-5000, 5000, (100, 2))])
     queries[:50] = np.floor(queries[:50])  # integer pixels, as nearest_depth_max4 asks
     expected = cKDTree(lidar_uv).query(queries)[1]
-    np.testing.assert_array_equal(depth_tree(lidar_uv).nearest(queries), expected)
-    assert depth_tree(np.zeros((0, 2))) is None
+    np.testing.assert_array_equal(depth_grid(lidar_uv).nearest(queries), expected)
+    assert depth_grid(np.zeros((0, 2))) is None

@@ -32,7 +32,7 @@ from pipeline.drivetrack.object_surface import (
 )
 from pipeline.drivetrack.objects import SURFACE_GROW_M, box_poses, inside_box, on_surface_box
 from pipeline.drivetrack.records import BoxLabels
-from pipeline.drivetrack.visibility import depth_tree, nearest_depth_max4
+from pipeline.drivetrack.visibility import depth_grid, nearest_depth_max4
 
 
 def _plain_poses(pixel_pose, kept):
@@ -85,8 +85,8 @@ def test_nearest_depth_with_a_prebuilt_tree():
     lidar_uv, lidar_z = rng.uniform(0, 100, size=(500, 2)), rng.uniform(1, 50, size=500)
     queries = rng.uniform(0, 100, size=(200, 2))
     plain = nearest_depth_max4(lidar_uv, lidar_z, queries, 100, 100)
-    tree = depth_tree(lidar_uv)
-    assert np.array_equal(nearest_depth_max4(lidar_uv, lidar_z, queries, 100, 100, tree), plain)
+    grid = depth_grid(lidar_uv)
+    assert np.array_equal(nearest_depth_max4(lidar_uv, lidar_z, queries, 100, 100, grid), plain)
 
 
 # The refined visibility's kernels against the array expressions they replace.
