@@ -76,7 +76,7 @@ from pipeline.io.clip_reader import DEFAULT_LIMITS, ReadLimits, add_limit_argume
 from pipeline.io.file_set import complete_commits, output_lock, reclaim_temporaries, write_together
 from pipeline.io.files import is_local, list_files, read_bytes
 from pipeline.io.http import HttpClient, HttpConfig, is_http, join, shown
-from pipeline.settings.fields import SettingsError, not_in_clips, with_overrides
+from pipeline.settings.fields import SettingsError, add_set_argument, not_in_clips, with_overrides
 from pipeline.settings.run_config import MAX_FAILURES_IN_A_ROW
 
 __all__ = ["Status", "compare_dirs", "main", "read_reference"]
@@ -256,22 +256,7 @@ def compare_dirs(
     """The report of NEW_DIR's clips against REF's (``benchmark_clips``, in their order: each mean sums
     its clips in that order, as tapnet sums a split's), scored ``jobs`` at a time under ``settings``;
     a clip REF could not give takes its row in ``earlier`` (``<source>/<clip>.npz`` -> an earlier
-    report's row, against this REF) when there is one (``compare_and_stop`` also says whether the
-    stop rule ended it)."""
-    return compare_and_stop(ref_dir, new_dir, limits, clips, agree_mm, settings, jobs, earlier)[0]
-
-
-def compare_and_stop(
-    ref_dir: str,
-    new_dir: str,
-    limits: ReadLimits = DEFAULT_LIMITS,
-    clips: list[str] | None = None,
-    agree_mm: float = AGREE_MM,
-    settings: CompareSettings | None = None,
-    jobs: int = 1,
-    earlier: Mapping[str, Mapping[str, Any]] | None = None,
-) -> tuple[CompareReport, str]:
-    """``compare_dirs``'s report, and why the stop rule ended it ("" when it did not)."""
+    report's row, against this REF) when there is one; ``stopped`` says whether the stop rule ended it."""
     settings = settings or CompareSettings()
     bench = benchmark_clips(ref_dir, new_dir, clips)
     at = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
@@ -287,10 +272,17 @@ def compare_and_stop(
     only_in_new = None if bench.listed is None else sorted(bench.new.keys() - bench.listed)
     if bench.listed is None and clips is None:
         only_in_new = sorted(bench.new.keys() - set(bench.keys))
-    report = CompareReport(
-        shown(ref_dir), new_dir, agree_mm, at, rows, summarise(rows), only_in_new, bench.not_requested
+    return CompareReport(
+        shown(ref_dir),
+        new_dir,
+        agree_mm,
+        at,
+        rows,
+        summarise(rows),
+        only_in_new,
+        bench.not_requested,
+        scoring.stopped,
     )
-    return report, scoring.stopped
 
 
 def earlier_rows(prefix: str, ref_dir: str) -> dict[str, dict[str, Any]]:
@@ -395,13 +387,9 @@ def command_parser() -> StrictParser:
         default=DEFAULT_JOBS,
         help=f"clips read and scored at a time (1 to {MAX_JOBS}; default %(default)s)",
     )
-    parser.add_argument(
-        "--set",
-        dest="overrides",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="max_failures_in_a_row=N or http.<field>=VALUE (retries, backoff_s, deadline_s, stall_s, "
+    add_set_argument(
+        parser,
+        "max_failures_in_a_row=N or http.<field>=VALUE (retries, backoff_s, deadline_s, stall_s, "
         "stall_bytes_per_s), as in a run (docs/configuration.md)",
     )
     add_limit_argument(parser)
@@ -441,7 +429,7 @@ def main(argv: list[str] | None = None) -> int:
     prefix = _absolute(args.out) if args.out else f"{new_dir}/compare"
     try:
         tidy(new_dir, prefix)
-        report, stopped = compare_and_stop(
+        report = compare_dirs(
             ref_dir, new_dir, limits, clips, args.agree_mm, settings, args.jobs, earlier_rows(prefix, ref_dir)
         )
     except ValueError as error:
@@ -450,16 +438,14 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as error:
         print(f"compare: cannot tidy {new_dir}: {error}", file=sys.stderr)
         return 2
-    return closing(report, prefix, new_dir, stopped, lambda: write_outputs(report, prefix, new_dir))
+    return closing(report, prefix, new_dir, lambda: write_outputs(report, prefix, new_dir))
 
 
 def _absolute(path: str) -> str:
     return os.path.abspath(path) if is_local(path) else path
 
 
-def closing(
-    report: CompareReport, prefix: str, new_dir: str, stopped: str, write: Callable[[], list[str]]
-) -> int:
+def closing(report: CompareReport, prefix: str, new_dir: str, write: Callable[[], list[str]]) -> int:
     """Print the report and the clips not scored; write the outputs (``write``) unless this compare
     found nothing; the last lines say what it could not do. The exit status."""
     rows = report.clips
@@ -490,10 +476,10 @@ def closing(
     carried = sum(isinstance(row, Carried) for row in rows)
     kept = f"; earlier findings kept for {carried}" if carried else ""
     written = "" if found else "; nothing written: the earlier report and verdicts are as they were"
-    if stopped:
+    if report.stopped:
         print(
-            f"stopped: {stopped}; {len(found)} of {len(rows)} clip(s) compared{written}: mend the cause "
-            "and rerun to complete",
+            f"stopped: {report.stopped}; {len(found)} of {len(rows)} clip(s) compared{written}: "
+            "mend the cause and rerun to complete",
             file=sys.stderr,
         )
         return 4

@@ -315,7 +315,8 @@ class CompareReport:
     """NEW_DIR's clips against REF's: REF as shown, NEW_DIR, agree_mm, when, a row per benchmark clip
     (in the benchmark's order), a ``SourceMeans`` per source then ``all``'s, NEW's clips that REF
     does not hold (``only_in_new``; None when REF cannot be listed) and how many of NEW's clips
-    ``--clips`` left out (``not_requested``)."""
+    ``--clips`` left out (``not_requested``); ``stopped`` says why the stop rule ended the scoring
+    ("" when it did not; not part of the JSON)."""
 
     ref: str
     new: str
@@ -325,6 +326,7 @@ class CompareReport:
     sources: list[SourceMeans]
     only_in_new: list[str] | None
     not_requested: int = 0
+    stopped: str = ""
 
     def to_json(self) -> dict[str, Any]:
         """The report as ``PREFIX.json`` holds it (strict JSON: NaN as None)."""

@@ -40,7 +40,14 @@ from pipeline.filters.select import FILTERED_BY, FilterStats, count_dropped, ver
 from pipeline.io.file_set import complete_commits, reclaim_temporaries, write_together
 from pipeline.io.files import list_files, read_bytes
 from pipeline.runner.splits import SPLITS, Release, read_release
-from pipeline.settings.fields import SettingsError, config_from_dict, setting_keys, value_at, with_overrides
+from pipeline.settings.fields import (
+    SettingsError,
+    add_set_argument,
+    config_from_dict,
+    setting_keys,
+    value_at,
+    with_overrides,
+)
 from pipeline.settings.run_config import RunConfig
 from pipeline.sources import Source
 
@@ -371,13 +378,9 @@ def command_parser() -> StrictParser:
         metavar="KEY=V1,V2,...",
         help="a threshold and the values to try, e.g. flicker.max_fraction=0.05,0.2 (repeatable)",
     )
-    parser.add_argument(
-        "--set",
-        dest="overrides",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="change a setting of the run before replaying it (repeatable)",
+    add_set_argument(
+        parser,
+        "change a setting of the run before replaying it (repeatable)",
     )
     parser.add_argument("--out", metavar="DIR", help="the report's folder (default OUT/sweep_<source>)")
     parser.add_argument(

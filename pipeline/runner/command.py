@@ -51,7 +51,7 @@ from pipeline.runner.prepare import (
 from pipeline.runner.resume import remove_partial_files
 from pipeline.runner.stages import UnitJob
 from pipeline.runner.verdicts import summary_line
-from pipeline.settings.fields import SettingsError
+from pipeline.settings.fields import SettingsError, add_set_argument
 from pipeline.settings.run_config import RunConfig
 from pipeline.sources import NoSample, UnitPlan
 
@@ -92,13 +92,9 @@ def command_parser() -> StrictParser:
         help="re-annotate every unit; by default a unit an earlier run finished with the same settings "
         "(its clips on disk, intact and valid) is skipped",
     )
-    parser.add_argument(
-        "--set",
-        dest="overrides",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="override a config field, e.g. flicker.max_fraction=0.2 (repeatable)",
+    add_set_argument(
+        parser,
+        "override a config field, e.g. flicker.max_fraction=0.2 (repeatable)",
     )
     parser.add_argument("--verbose", action="store_true", help="also print the workers' and Beam's log lines")
     return parser

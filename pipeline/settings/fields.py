@@ -8,6 +8,7 @@ section.field=value``; ``with_overrides`` refuses every value outside its field'
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import difflib
 import re
@@ -332,6 +333,13 @@ def _keys(config, prefix: str = "") -> list[str]:
         else:
             keys.append(prefix + name)
     return keys
+
+
+def add_set_argument(parser: argparse.ArgumentParser, help: str) -> None:
+    """The repeatable ``--set KEY=VALUE`` option, gathered in ``args.overrides`` for ``with_overrides``."""
+    parser.add_argument(
+        "--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help=help
+    )
 
 
 def with_overrides(config, assignments: list[str], option: str = "--set"):
