@@ -30,7 +30,7 @@ from pipeline.adt.units import (
 from pipeline.core.clip import ClipRecord
 from pipeline.core.errors import InputError
 from pipeline.core.outcomes import UnitClips
-from pipeline.io.http import HttpConfig
+from pipeline.settings.run_config import HttpConfig
 from pipeline.sources import RunChoices, Wanted
 
 if TYPE_CHECKING:

@@ -47,7 +47,8 @@ from pipeline.core.errors import InputError
 from pipeline.core.progress import progress
 from pipeline.core.sizes import format_bytes
 from pipeline.io.files import PARTIAL, is_abandoned, writer_host
-from pipeline.io.http import HttpClient, HttpConfig, HttpError
+from pipeline.io.http import HttpClient, HttpError
+from pipeline.settings.run_config import HttpConfig
 
 T = TypeVar("T")
 

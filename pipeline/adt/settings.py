@@ -53,4 +53,6 @@ class AdtConfig:
     scratch_dir: str = not_in_clips("")
 
 
+# The source as the settings page (``python -m pipeline.settings.doc``) titles its section.
+TITLE = "Aria Digital Twin"
 SETTINGS = AdtConfig

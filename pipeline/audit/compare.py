@@ -75,9 +75,9 @@ from pipeline.export.layout import release_verdicts_path
 from pipeline.io.clip_reader import DEFAULT_LIMITS, ReadLimits, add_limit_argument, limits_from
 from pipeline.io.file_set import complete_commits, output_lock, reclaim_temporaries, write_together
 from pipeline.io.files import is_local, list_files, read_bytes
-from pipeline.io.http import HttpClient, HttpConfig, is_http, join, shown
+from pipeline.io.http import HttpClient, is_http, join, shown
 from pipeline.settings.fields import SettingsError, add_set_argument, not_in_clips, with_overrides
-from pipeline.settings.run_config import MAX_FAILURES_IN_A_ROW
+from pipeline.settings.run_config import MAX_FAILURES_IN_A_ROW, HttpConfig
 
 __all__ = ["Status", "compare_dirs", "main", "read_reference"]
 

@@ -74,4 +74,6 @@ class DriveTrackConfig:
     undistort_frames: bool = flag(True, release=False)
 
 
+# The source as the settings page (``python -m pipeline.settings.doc``) titles its section.
+TITLE = "DriveTrack (Waymo Open v2)"
 SETTINGS = DriveTrackConfig

@@ -12,9 +12,10 @@ import numpy as np
 
 from pipeline.core.geometry import in_image, project
 from pipeline.core.images import jpeg_size
-from pipeline.filters.flicker import FlickerConfig, passes_flicker, visibility_flips
+from pipeline.filters.flicker import passes_flicker, visibility_flips
 from pipeline.io.clip_reader import DEFAULT_LIMITS, ReadLimits, read_clip_bytes
 from pipeline.io.npz_reader import NpzError
+from pipeline.settings.run_config import FlickerConfig
 
 REQUIRED_KEYS = ("images_jpeg_bytes", "queries_xyt", "tracks_XYZ", "visibility", "fx_fy_cx_cy")
 FLOATS = (np.dtype(np.float32), np.dtype(np.float64))

@@ -17,8 +17,9 @@ import numpy as np
 from pipeline.core.errors import InputError
 from pipeline.io.clip_reader import read_clip_file
 from pipeline.io.files import exists
-from pipeline.io.http import HttpConfig, HttpError, is_http, join, shared_client, shown
+from pipeline.io.http import HttpError, is_http, join, shared_client, shown
 from pipeline.io.npz_reader import NpzError
+from pipeline.settings.run_config import HttpConfig
 
 
 @dataclasses.dataclass(frozen=True)

@@ -38,7 +38,7 @@ import requests
 import urllib3
 
 from pipeline.core.progress import note
-from pipeline.settings.fields import not_in_clips
+from pipeline.settings.run_config import HttpConfig
 
 RETRY_STATUSES = frozenset({429, 500, 502, 503, 504})
 NOT_FOUND = frozenset({404, 410})
@@ -49,31 +49,6 @@ CHUNK_BYTES = 1 << 20
 TAIL_BYTES = 4 << 10
 _CONTENT_RANGE = re.compile(r"bytes (\d+)-(\d+)/(\d+|\*)")
 _URL = re.compile(r"\b[A-Za-z][A-Za-z0-9+.-]*://[^\s'\"<>]+")
-
-
-@dataclasses.dataclass(frozen=True)
-class HttpConfig:
-    """How every HTTP transfer of a run behaves: the release's files, ADT's downloads.
-
-    retries: a request that fails with 429, 500, 502, 503, 504, a lost connection or a read timeout
-      is retried this many times, waiting backoff_s x 2^(n-1) s before the n-th retry but the first.
-    backoff_s: the retries' base wait (seconds).
-    deadline_s: a file not transferred within this many seconds, retries and waits included, fails.
-    stall_s: a file that received fewer than stall_bytes_per_s x stall_s bytes in the last stall_s
-      seconds, retries and waits included, fails: with the defaults, a file trickling from a
-      stalled server fails within 2 minutes.
-    stall_bytes_per_s: the stall rule's rate (bytes per second; 0: no stall rule).
-    """
-
-    retries: int = not_in_clips(5, "[0, 100]")
-    backoff_s: float = not_in_clips(2.0, "[0, 600]")
-    deadline_s: float = not_in_clips(7200.0, "(0, 604800]")
-    stall_s: float = not_in_clips(120.0, "(0, 86400]")
-    stall_bytes_per_s: int = not_in_clips(16384, "[0, 1073741824]")
-
-    def wait_before(self, retry: int) -> float:
-        """Seconds to wait before the ``retry``-th retry (1 for the first)."""
-        return 0.0 if retry <= 1 else self.backoff_s * 2 ** (retry - 1)
 
 
 def is_http(path: str) -> bool:

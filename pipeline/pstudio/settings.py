@@ -40,4 +40,6 @@ class PstudioConfig:
     oversample: int = ranged(8, "[1, 10000]", release=NOT_KNOWN)
 
 
+# The source as the settings page (``python -m pipeline.settings.doc``) titles its section.
+TITLE = "Panoptic Studio (Dynamic 3D Gaussians)"
 SETTINGS = PstudioConfig

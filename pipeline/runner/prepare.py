@@ -24,14 +24,8 @@ from pipeline.io import storage
 from pipeline.io.files import is_local, remove_quietly, write_atomic
 from pipeline.io.http import is_http, scrub
 from pipeline.runner.splits import Release, read_release
-from pipeline.settings.fields import (
-    NOT_KNOWN,
-    path_settings,
-    release_values,
-    settings_dict,
-    with_overrides,
-    with_rules,
-)
+from pipeline.settings.fields import path_settings, with_overrides, with_rules
+from pipeline.settings.rule_sets import RuleSet, assigned_keys, rule_set
 from pipeline.settings.run_config import RunConfig
 from pipeline.sources import Source, UnitPlan
 
@@ -108,84 +102,6 @@ def check_inputs(input_root: str | None, config: RunConfig, release: str | None 
         if path and is_local(path) and not os.path.exists(path):
             given = f"{what} {path}" if what.startswith("--") else f"--set {what}={path}"
             raise CannotStart(f"{given} does not exist")
-
-
-@dataclasses.dataclass(frozen=True)
-class RuleSet:
-    """The rule set a run follows and what it decides for the run's source: ``sets``, key -> value of
-    each setting the rule set gives (its run-wide ones and the source's); ``other``, key -> that
-    setting's value under the other rule set; ``overridden``, key -> the value a ``--set`` gave one of
-    them instead; ``not_known``, the source's settings whose release value is not known (ours
-    kept)."""
-
-    name: str
-    sets: dict[str, object]
-    other: dict[str, object]
-    overridden: dict[str, object]
-    not_known: tuple[str, ...]
-
-    def lines(self) -> list[str]:
-        """What the run prints first: the rule set, the settings it sets, and each override."""
-        said = ", ".join(f"{key}={_shown(value)}" for key, value in self.sets.items())
-        other = "refined" if self.name == "release" else "release"
-        what = "the original generators' choices" if self.name == "release" else "ours, measured better"
-        lines = [f"rules: {self.name} ({what}; docs/release.md): {said or 'no setting of this source'}"]
-        if self.sets:
-            lines[0] += f" ({other}: {', '.join(_shown(value) for value in self.other.values())})"
-        if self.name == "release" and self.not_known:
-            lines.append(f"rules: the release's value not known, ours kept: {', '.join(self.not_known)}")
-        lines += [
-            f"rules: --set {key}={_shown(value)} wins over rules={self.name} ({_shown(self.sets[key])})"
-            for key, value in self.overridden.items()
-        ]
-        return lines
-
-    def to_json(self) -> dict:
-        return {
-            "name": self.name,
-            "sets": dict(self.sets),
-            "overridden": dict(self.overridden),
-            "not_known": list(self.not_known),
-        }
-
-
-def _shown(value) -> str:
-    """A setting's value as ``--set`` takes it."""
-    if isinstance(value, bool):
-        return str(value).lower()
-    return ",".join(str(item) for item in value) if isinstance(value, tuple) else str(value)
-
-
-def assigned_keys(assignments: list[str]) -> frozenset[str]:
-    """The keys of ``key=value`` assignments (``--set``)."""
-    return frozenset(text.partition("=")[0].strip() for text in assignments)
-
-
-def rule_set(config: RunConfig, source: str, explicit: frozenset[str]) -> RuleSet:
-    """What ``config.rules`` decides for a run of ``source``, the ``explicit`` keys (``--set``) aside."""
-    known = {key: value for key, value in release_values(config).items() if key != "rules"}
-    ours = {key for key in known if "." not in key or key.split(".", 1)[0] in ("flicker", source)}
-    other = with_rules(config, "refined" if config.rules == "release" else "release")
-    values, others = _flat(settings_dict(config)), _flat(settings_dict(other))
-    governed = sorted(key for key in ours if known[key] is not NOT_KNOWN)
-    rule_values = _flat(settings_dict(with_rules(config, config.rules)))
-    return RuleSet(
-        config.rules,
-        {key: rule_values[key] for key in governed},
-        {key: others[key] for key in governed},
-        {key: values[key] for key in governed if key in explicit and values[key] != rule_values[key]},
-        tuple(sorted(key for key in ours if known[key] is NOT_KNOWN)),
-    )
-
-
-def _flat(values: dict, prefix: str = "") -> dict[str, object]:
-    flat = {}
-    for name, value in values.items():
-        if isinstance(value, dict):
-            flat.update(_flat(value, f"{prefix}{name}."))
-        else:
-            flat[prefix + name] = tuple(value) if isinstance(value, list) else value
-    return flat
 
 
 def settings(args: argparse.Namespace) -> tuple[RunConfig, Release | None]:

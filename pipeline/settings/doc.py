@@ -18,9 +18,9 @@ import inspect
 import re
 import sys
 
-from pipeline import sources
 from pipeline.commandline import StrictParser
 from pipeline.pipes import run_command
+from pipeline.settings import sections as registry
 from pipeline.settings.fields import NOT_KNOWN, settings_items
 from pipeline.settings.run_config import RunConfig
 
@@ -147,7 +147,8 @@ def _section(key: str) -> str:
 def markdown() -> str:
     """The page: the header, then one table per section (run-wide first), built-in sources with
     settings only."""
-    sections = {name: kind() for name in sources.BUILT_IN if (kind := sources.settings_of(name)) is not None}
+    built_in = registry.BUILT_IN
+    sections = {name: kind() for name in built_in if (kind := registry.settings_of(name)) is not None}
     config = RunConfig(source_sections=sections)
     table = rows(config)
     titles = {
@@ -155,20 +156,13 @@ def markdown() -> str:
         "flicker": "`flicker`: the flicker filter",
         "http": "`http`: every HTTP transfer (the release's files, ADT's downloads)",
     }
-    titles |= {name: f"`{name}`: {SOURCE_TITLES.get(name, name)}" for name in sources.BUILT_IN}
+    titles |= {name: f"`{name}`: {registry.title_of(name)}" for name in built_in}
     parts = [HEADER]
     for section in dict.fromkeys(_section(key) for key, *_ in table):
         parts.append(f"\n## {titles[section]}\n\n")
         parts.append("| key | default | release | allowed | meaning | marks |\n|---|---|---|---|---|---|\n")
         parts += [f"| `{key}` | {' | '.join(rest)} |\n" for key, *rest in table if _section(key) == section]
     return "".join(parts)
-
-
-SOURCE_TITLES = {
-    "drivetrack": "DriveTrack (Waymo Open v2)",
-    "adt": "Aria Digital Twin",
-    "pstudio": "Panoptic Studio (Dynamic 3D Gaussians)",
-}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -287,8 +287,10 @@ def _violations(node, prefix: str = "") -> list[tuple[str, typing.Any, str]]:
     return found
 
 
-def _show(value) -> str:
+def as_set_value(value) -> str:
     """``value`` as it would be written after ``--set key=``."""
+    if isinstance(value, bool):
+        return str(value).lower()
     return ",".join(str(v) for v in value) if isinstance(value, tuple) else str(value)
 
 
@@ -308,7 +310,7 @@ def range_problems(config, assigned: dict[str, str] | None = None, option: str =
     assigned = assigned or {}
     shown = {key: f"{option} {key}={text}" for key, text in assigned.items()}
     return [
-        f"{shown.get(key, f'{key}={_show(value)}')}: must be {need}"
+        f"{shown.get(key, f'{key}={as_set_value(value)}')}: must be {need}"
         for key, value, need in _violations(config)
     ]
 
@@ -322,17 +324,18 @@ def check_ranges(config, assigned: dict[str, str] | None = None) -> None:
 
 def setting_keys(config) -> list[str]:
     """Every field of ``config`` as ``section.field`` (or ``field``)."""
-    return _keys(config)
+    return list(flat_settings(config))
 
 
-def _keys(config, prefix: str = "") -> list[str]:
-    keys = []
+def flat_settings(config, prefix: str = "") -> dict[str, typing.Any]:
+    """Dotted key (``section.field`` or ``field``) -> value of every setting of ``config``."""
+    flat: dict[str, typing.Any] = {}
     for name, value, _ in settings_items(config):
         if dataclasses.is_dataclass(value):
-            keys += _keys(value, f"{prefix}{name}.")
+            flat.update(flat_settings(value, f"{prefix}{name}."))
         else:
-            keys.append(prefix + name)
-    return keys
+            flat[prefix + name] = value
+    return flat
 
 
 def add_set_argument(parser: argparse.ArgumentParser, help: str) -> None:

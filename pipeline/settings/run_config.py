@@ -1,5 +1,7 @@
-"""The run's settings: the run-wide fields, the filters' thresholds, and one section per source, named
-after it, that each source declares (``Source.settings``: ``pipeline/<source>/settings.py``).
+"""The run's settings: the run-wide fields, the run-wide sections (``FlickerConfig``, the flicker
+filter's threshold; ``HttpConfig``, every HTTP transfer's policy) and one section per source, named
+after it, that each source declares (``Source.settings``: ``pipeline/<source>/settings.py``) and the
+registry (``sections.py``) hands over: this module imports no room above ``settings/``.
 
 A source's code reads its own section, ``config.section(AdtConfig)``, and hands its algorithm code
 that section (or plain values), never the whole run's settings. Set from the command line with
@@ -13,8 +15,6 @@ import dataclasses
 from collections.abc import Mapping
 from typing import Any, TypeVar
 
-from pipeline.filters.flicker import FlickerConfig
-from pipeline.io.http import HttpConfig
 from pipeline.settings import sections as registry
 from pipeline.settings.fields import (
     NOT_KNOWN,
@@ -30,6 +30,42 @@ from pipeline.settings.fields import (
 S = TypeVar("S")
 # Units (a run) or files (``audit compare``) failing alike in a row that stop a command, by default.
 MAX_FAILURES_IN_A_ROW = 20
+
+
+@dataclasses.dataclass(frozen=True)
+class FlickerConfig:
+    """Drop a track whose visibility changes state more than ``max_fraction`` x T times.
+
+    max_fraction: a track is dropped when its visibility flips (visible to occluded or back) more
+      than this fraction of its T frames (the paper's 10%).
+    """
+
+    max_fraction: float = ranged(0.10, "[0, 1]")
+
+
+@dataclasses.dataclass(frozen=True)
+class HttpConfig:
+    """How every HTTP transfer of a run behaves: the release's files, ADT's downloads.
+
+    retries: a request that fails with 429, 500, 502, 503, 504, a lost connection or a read timeout
+      is retried this many times, waiting backoff_s x 2^(n-1) s before the n-th retry but the first.
+    backoff_s: the retries' base wait (seconds).
+    deadline_s: a file not transferred within this many seconds, retries and waits included, fails.
+    stall_s: a file that received fewer than stall_bytes_per_s x stall_s bytes in the last stall_s
+      seconds, retries and waits included, fails: with the defaults, a file trickling from a
+      stalled server fails within 2 minutes.
+    stall_bytes_per_s: the stall rule's rate (bytes per second; 0: no stall rule).
+    """
+
+    retries: int = not_in_clips(5, "[0, 100]")
+    backoff_s: float = not_in_clips(2.0, "[0, 600]")
+    deadline_s: float = not_in_clips(7200.0, "(0, 604800]")
+    stall_s: float = not_in_clips(120.0, "(0, 86400]")
+    stall_bytes_per_s: int = not_in_clips(16384, "[0, 1073741824]")
+
+    def wait_before(self, retry: int) -> float:
+        """Seconds to wait before the ``retry``-th retry (1 for the first)."""
+        return 0.0 if retry <= 1 else self.backoff_s * 2 ** (retry - 1)
 
 
 def default_sections() -> dict[str, Any]:

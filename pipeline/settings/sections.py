@@ -75,3 +75,9 @@ def settings_of(name: str) -> type | None:
     if source is not None:
         return source.settings
     return importlib.import_module(f"{BUILT_IN[name]}.settings").SETTINGS
+
+
+def title_of(name: str) -> str:
+    """The title of built-in source ``name``'s section on the settings page (its settings module's
+    ``TITLE``)."""
+    return importlib.import_module(f"{BUILT_IN[name]}.settings").TITLE

@@ -15,7 +15,7 @@ from pipeline.adt.download import fetch_sequence, is_url_file, plan_download, re
 from pipeline.adt.reader import SequenceReader, required_files
 from pipeline.core.errors import InputError
 from pipeline.core.sizes import format_bytes
-from pipeline.io.http import HttpConfig
+from pipeline.settings.run_config import HttpConfig
 from tests.support.adt_excerpt import SAMPLE, needs_excerpt
 from tests.support.adt_server import GROUPS, write_layout
 

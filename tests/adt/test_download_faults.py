@@ -19,7 +19,8 @@ from pipeline.adt.download import FETCH_FOLDER, fetch_sequence, plan_download, r
 from pipeline.adt.reader import check_csv, required_files
 from pipeline.core.errors import InputError
 from pipeline.io.files import PARTIAL, writer_host
-from pipeline.io.http import FileClock, HttpConfig, HttpError
+from pipeline.io.http import FileClock, HttpError
+from pipeline.settings.run_config import HttpConfig
 from tests.support.adt_excerpt import ONE_FRAME_CHUNKS, SAMPLE, needs_excerpt
 from tests.support.adt_server import write_layout
 from tests.support.cli import REPO, run_in_process

@@ -25,8 +25,9 @@ from pipeline.audit.__main__ import main as audit_main
 from pipeline.export.npz_writer import encode_npz
 from pipeline.io.clip_reader import read_clip_file
 from pipeline.io.given_queries import given_queries
-from pipeline.io.http import HttpClient, HttpConfig, HttpError
+from pipeline.io.http import HttpClient, HttpError
 from pipeline.samples.waymo_world import SEGMENT
+from pipeline.settings.run_config import HttpConfig
 from tests.support.cli import run_in_process
 
 TOKEN = "tok3n-SECRET-7f1c"

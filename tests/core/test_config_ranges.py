@@ -149,7 +149,7 @@ def test_a_config_rebuilt_from_a_run_record_is_checked_too():
     with pytest.raises(ValueError) as error:
         check_ranges(config_from_dict(RunConfig, record))
     assert str(error.value) == (
-        "seed=True: must be an integer in [0, 4294967295]; "
+        "seed=true: must be an integer in [0, 4294967295]; "
         "drivetrack.cameras=1,6: must be one or more distinct integers in [1, 5]; "
         "adt.image_size=512.0: must be an integer in [2, 8192] and even; "
         "pstudio.mask_min_agreement=nan: must be a number in [0, 1]"

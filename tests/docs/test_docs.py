@@ -17,6 +17,7 @@ import pytest
 from pipeline import sources
 from pipeline.commandline import StrictParser, UsageError, beam_parser
 from pipeline.settings import doc as settings_doc
+from pipeline.settings import sections as registry
 from pipeline.settings.fields import setting_keys, with_overrides
 from pipeline.settings.run_config import RunConfig
 from tests.support.cli import REPO
@@ -57,9 +58,9 @@ def test_configuration_md_is_the_settings_table():
 
 def test_a_built_in_source_without_settings_has_no_section():
     """A source's settings section is optional (``settings_of`` gives None): the page leaves it out."""
-    settings_of = sources.settings_of
+    settings_of = registry.settings_of
     without_adt = mock.patch.object(
-        sources, "settings_of", side_effect=lambda name: None if name == "adt" else settings_of(name)
+        registry, "settings_of", side_effect=lambda name: None if name == "adt" else settings_of(name)
     )
     with without_adt:
         page = settings_doc.markdown()

@@ -16,8 +16,9 @@ import pytest
 from benchmarks.file_server import serve
 from pipeline.export.npz_writer import encode_npz
 from pipeline.io.clip_reader import ReadLimits, read_clip_file
-from pipeline.io.http import TAIL_BYTES, HttpClient, HttpConfig, HttpError
+from pipeline.io.http import TAIL_BYTES, HttpClient, HttpError
 from pipeline.io.npz_reader import NpzError
+from pipeline.settings.run_config import HttpConfig
 
 TOKEN = "tok-SECRET-51d0"
 NAME = "toy/clip.npz"
