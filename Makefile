@@ -9,7 +9,7 @@ OUT ?= out/demo
 # tests and the benchmarks read the same one (pipeline.samples.adt_excerpt.excerpt_path reads $ADT_EXCERPT).
 ADT_EXCERPT ?= ../shared/data/adt_sample/aria_digital_twin_test_data
 export ADT_EXCERPT
-# The samples' splits file (pipeline.release.SAMPLE_RELEASE): the demo is a release run of it, so
+# The samples' splits file (pipeline.runner.splits.SAMPLE_RELEASE): the demo is a release run of it, so
 # its verdicts show clips written, not produced and input absent, each with its reason.
 SAMPLE_RELEASE := pipeline/samples/sample_splits.json
 

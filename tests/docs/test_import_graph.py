@@ -9,7 +9,10 @@ import grimp
 import networkx as nx
 import pytest
 
-SOURCES = ("pipeline.adt", "pipeline.drivetrack", "pipeline.pstudio")
+from pipeline.settings.sections import BUILT_IN
+
+# The built-in sources' packages, as the registry names them.
+SOURCES = tuple(BUILT_IN.values())
 
 
 @pytest.fixture(scope="module")
