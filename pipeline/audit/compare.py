@@ -70,7 +70,7 @@ from pipeline.audit.compare_rows import (
 from pipeline.audit.scoring import read_reference, score_pair
 from pipeline.audit.verdict_rows import ClipAgreement, amended_verdicts, read_verdicts, release_clip_keys
 from pipeline.commandline import StrictParser
-from pipeline.core.outcomes import failure_cause
+from pipeline.core.outcomes import FailureStreak
 from pipeline.export.layout import release_verdicts_path
 from pipeline.io.clip_reader import DEFAULT_LIMITS, ReadLimits, add_limit_argument, limits_from
 from pipeline.io.file_set import complete_commits, output_lock, reclaim_temporaries, write_together
@@ -212,7 +212,7 @@ def score_clips(scorer: ClipScorer, jobs: int, max_failures_in_a_row: int) -> Sc
     # A release clip the run did not make is known without reading REF: found first, whatever stops.
     found: dict[str, ClipRow] = {key: scorer.score(key) for key in bench.keys if _not_made(bench, key)}
     keys = [key for key in bench.keys if key not in found]
-    streak: tuple[str, int] = ("", 0)
+    streak = FailureStreak(max_failures_in_a_row, "clips")
     stopped, finished = "", False
     pool = concurrent.futures.ThreadPoolExecutor(max_workers=jobs, thread_name_prefix="compare")
     try:
@@ -221,15 +221,8 @@ def score_clips(scorer: ClipScorer, jobs: int, max_failures_in_a_row: int) -> Sc
             row = future.result()
             found[futures[future]] = row
             if not (isinstance(row, RefUnread) and row.status is Status.REF_ERROR):
-                streak = ("", 0)
-                continue
-            cause = failure_cause(row.error)
-            streak = (cause, streak[1] + 1 if streak[0] == cause else 1)
-            if max_failures_in_a_row and streak[1] >= max_failures_in_a_row:
-                stopped = (
-                    f"the last {streak[1]} clips failed alike ({row.error}; "
-                    f"max_failures_in_a_row={max_failures_in_a_row})"
-                )
+                streak.succeeded()
+            elif stopped := streak.failed(row.error):
                 break
         finished = not stopped
     finally:

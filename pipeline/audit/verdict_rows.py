@@ -20,9 +20,8 @@ from pipeline.export.layout import release_verdicts_path
 from pipeline.io.file_set import settle
 from pipeline.io.files import read_bytes
 from pipeline.runner.splits import SPLIT_ALIASES, SPLITS
-from pipeline.runner.verdicts import STATUSES, Verdict, verdict_lines
+from pipeline.runner.verdicts import MAX_VERDICT_BYTES, STATUSES, Verdict, verdict_lines
 
-MAX_VERDICT_BYTES = 256 << 20
 # The fields of a verdict row (``pipeline.runner.verdicts.Verdict``) the audit commands read.
 ROW_FIELDS = ("clip", "split", "status", "tracks", "reason", "candidates", "dropped", "passed")
 # What a verdict row's ``agreement`` holds of a compare row, when the compare scored the clip.
@@ -79,7 +78,7 @@ class ClipAgreement:
     @classmethod
     def from_json(cls, entry: Mapping[str, Any]) -> ClipAgreement:
         """The entry a verdict row holds (``to_json``'s)."""
-        measures = {key: entry.get(key) for key in AGREEMENT_FIELDS if key not in ("agrees",)}
+        measures = {key: entry.get(key) for key in AGREEMENT_FIELDS if key != "agrees"}
         return cls(
             entry["status"],
             entry["agree_mm"],

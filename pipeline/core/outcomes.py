@@ -35,6 +35,30 @@ def failure_cause(error: str) -> str:
     return reason_kind(_DETAIL.sub("", error.rsplit(": ", 1)[-1]))
 
 
+class FailureStreak:
+    """Failures of one cause (``failure_cause``) in a row, of ``what`` (units, clips): ``gave_up`` says
+    why once ``limit`` (0: no limit) of them came in a row, "" until then."""
+
+    def __init__(self, limit: int, what: str):
+        self.limit, self.what = limit, what
+        self.cause, self.count, self.gave_up = "", 0, ""
+
+    def succeeded(self) -> None:
+        self.cause, self.count = "", 0
+
+    def failed(self, error: str) -> str:
+        """Count a failure whose error line is ``error``; ``gave_up``."""
+        cause = failure_cause(error)
+        self.count = self.count + 1 if cause == self.cause else 1
+        self.cause = cause
+        if self.limit and self.count >= self.limit and not self.gave_up:
+            self.gave_up = (
+                f"the last {self.count} {self.what} failed alike ({error}; "
+                f"max_failures_in_a_row={self.limit})"
+            )
+        return self.gave_up
+
+
 @dataclasses.dataclass(frozen=True)
 class NotMade:
     """Why a source makes no clip of an object or view it considered (one sentence, for

@@ -430,11 +430,13 @@ def short(parts: list[bytes], start: int, stop: int, cause: str = "") -> str:
 @dataclasses.dataclass(frozen=True)
 class ExpectedBody:
     """What a 206 answer's body must hold: ``length`` bytes, of the range ``asked`` (as messages name
-    it); ``declared``: the answer gave that length in its Content-Length."""
+    it), of a file of ``total`` bytes (None when the answer gave no size); ``declared``: the answer
+    gave that length in its Content-Length."""
 
     length: int
     asked: str
     declared: bool
+    total: int | None
 
 
 def _asked(headers: dict[str, str]) -> str:
@@ -476,18 +478,9 @@ def check_partial(
         elif declared is not None and declared.strip() != str(length):
             problem = f"Content-Range {header!r} with Content-Length {declared.strip()}"
         else:
-            return ExpectedBody(length, f"bytes {got_first}-{got_last}", declared is not None)
+            return ExpectedBody(length, f"bytes {got_first}-{got_last}", declared is not None, total)
     response.close()
     raise HttpError(f"asked for {asked}, got {problem}", url, "protocol", response.status_code)
-
-
-def content_range(response: requests.Response) -> tuple[int | None, int | None, int | None]:
-    """(first byte, last byte, total size) of a 206 answer's Content-Range (None where absent)."""
-    match = _CONTENT_RANGE.fullmatch(response.headers.get("Content-Range", "").strip())
-    if not match:
-        return None, None, None
-    total = None if match[3] == "*" else int(match[3])
-    return int(match[1]), int(match[2]), total
 
 
 def _scheme_named(text: str) -> str:
@@ -624,7 +617,7 @@ def open_remote(client: HttpClient, url: str, max_bytes: int) -> RemoteFile | io
             if response.status_code == 200:
                 return _whole(client, url, clock, response, max_bytes)
             expected = check_partial(response, url, None, TAIL_BYTES, None)
-            _, _, total = content_range(response)
+            total = expected.total
             assert total is not None  # check_partial refuses a suffix's answer without its size
             first = total - expected.length
             tail: list[bytes] = []

@@ -111,11 +111,10 @@ class NpzArchive:
         for key, count in wanted.items():
             info = self._infos.get(key)
             if info is not None:
-                local = LOCAL_HEADER_BYTES + len(info.orig_filename.encode())
                 size = (
                     info.compress_size if count is None else min(info.compress_size, NPY_HEADER_BYTES + count)
                 )
-                spans.append((info.header_offset, info.header_offset + local + size))
+                spans.append(_member_span(info, size))
         merged: list[list[int]] = []
         for start, stop in sorted(spans):
             if merged and start <= merged[-1][1] + MERGE_GAP_BYTES:
@@ -131,9 +130,7 @@ class NpzArchive:
         first ``data_bytes`` bytes (its ``.npy`` header included) in one request."""
         prefetch = getattr(self._file, "prefetch", None)
         if prefetch is not None:
-            info = self._infos[key]
-            start = info.header_offset
-            prefetch(start, start + LOCAL_HEADER_BYTES + len(info.orig_filename.encode()) + data_bytes)
+            prefetch(*_member_span(self._infos[key], data_bytes))
 
     def _read_header(self, key: str) -> ArrayHeader:
         info = self._infos[key]
@@ -229,7 +226,13 @@ class NpzArchive:
 
 
 # What np.savez and np.savez_compressed write: members stored or deflated, nothing else.
-READ_METHODS = {zipfile.ZIP_STORED: "stored", zipfile.ZIP_DEFLATED: "deflated"}
+READ_METHODS = frozenset({zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED})
+
+
+def _member_span(info: zipfile.ZipInfo, data_bytes: int) -> tuple[int, int]:
+    """The byte span [start, stop) of a member's local header and its first ``data_bytes`` bytes."""
+    start = info.header_offset
+    return start, start + LOCAL_HEADER_BYTES + len(info.orig_filename.encode()) + data_bytes
 
 
 def _check_member(name: str, info: zipfile.ZipInfo) -> None:

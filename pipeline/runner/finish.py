@@ -31,11 +31,15 @@ from pipeline.io.files import exists, list_files, read_bytes
 from pipeline.runner.resume import read_checkpoint
 from pipeline.runner.splits import Release
 from pipeline.runner.stages import UnitJob
-from pipeline.runner.verdicts import kept_agreements, summary_line, tally, verdict_lines, verdicts
+from pipeline.runner.verdicts import (
+    MAX_VERDICT_BYTES,
+    kept_agreements,
+    summary_line,
+    tally,
+    verdict_lines,
+    verdicts,
+)
 from pipeline.sources import UnitPlan
-
-# A verdict file larger than this is not one a run wrote (a release's is about 1 KB a clip).
-MAX_VERDICT_BYTES = 256 << 20
 
 if TYPE_CHECKING:
     from pipeline.runner.prepare import Provenance
@@ -86,9 +90,10 @@ def unit_outcomes(job: UnitJob, names: list[str]) -> tuple[dict[str, UnitOutcome
     digests: dict[str, str] = {}
     for name in names:
         found = read_checkpoint(job.output, job.source.name, name)
-        ours = found is not None and found.run == job.run_id
-        outcomes[name] = found.outcome if found is not None and ours else None
-        digests |= dict(found.clips) if found is not None and ours else {}
+        outcomes[name] = None
+        if found is not None and found.run == job.run_id:
+            outcomes[name] = found.outcome
+            digests |= found.clips
     return outcomes, digests
 
 

@@ -21,7 +21,7 @@ import time
 from apache_beam.io.filesystems import FileSystems
 from tqdm import tqdm
 
-from pipeline.core.outcomes import UnitOutcome, failure_cause
+from pipeline.core.outcomes import FailureStreak, UnitOutcome
 from pipeline.export.layout import checkpoint_path
 from pipeline.pipes import READER_GONE
 from pipeline.runner.resume import read_checkpoint
@@ -74,9 +74,7 @@ class RunMonitor:
         self.seen: dict[str, float] = {}
         self.done: dict[str, UnitOutcome] = {}
         self.closed = False
-        self.limit = max_failures_in_a_row
-        self.streak: tuple[str, int] = ("", 0)  # the cause of the last failures in a row, how many
-        self.gave_up = ""
+        self.streak = FailureStreak(max_failures_in_a_row, "units")
         self.notes: dict[str, None] = {}
         self._notes_stream = bar_stream
         self._stop = threading.Event()
@@ -131,17 +129,15 @@ class RunMonitor:
 
     def _count(self, outcome: UnitOutcome) -> None:
         """Follow the units failing alike in a row; give up at the limit."""
-        if not outcome.failed:
-            self.streak = ("", 0) if not outcome.resumed else self.streak
-            return
-        cause = failure_cause(outcome.failures[0].error)
-        count = self.streak[1] + 1 if self.streak[0] == cause else 1
-        self.streak = (cause, count)
-        if self.limit and count >= self.limit and not self.gave_up:
-            self.gave_up = (
-                f"the last {count} units failed alike ({outcome.failures[0].error}; "
-                f"max_failures_in_a_row={self.limit})"
-            )
+        if outcome.failed:
+            self.streak.failed(outcome.failures[0].error)
+        elif not outcome.resumed:
+            self.streak.succeeded()
+
+    @property
+    def gave_up(self) -> str:
+        """Why the run gives up (units failing alike in a row), "" while it does not."""
+        return self.streak.gave_up
 
     def _note(self, outcome: UnitOutcome) -> None:
         for text in outcome.notes:

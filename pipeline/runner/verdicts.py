@@ -16,6 +16,8 @@ from collections.abc import Iterable, Mapping
 from pipeline.core.outcomes import FILTER_ORDER, ClipReport, UnitOutcome
 
 STATUSES = ("written", "not_produced", "input_absent", "failed")
+# A verdict file larger than this is not one a run wrote (a release's is about 1 KB a clip).
+MAX_VERDICT_BYTES = 256 << 20
 
 
 @dataclasses.dataclass(frozen=True)
@@ -143,9 +145,8 @@ def verdict_lines(rows: Iterable[Verdict], agreements: Mapping[str, dict] | None
 def kept_agreements(text: bytes, digests: Mapping[str, str]) -> dict[str, dict]:
     """clip -> its ``agreement`` in an earlier verdict file's ``text``, for each clip whose file is
     still the one that compare scored (its SHA-256 in ``digests``, clip -> SHA-256 of the clip file
-    on disk now) or that it found without scoring (the reference lacks it, or the run made none: a
-    finding about the release, kept until a compare replaces it). Lines that are not verdicts are
-    skipped."""
+    on disk now) or that the reference lacks (``not_in_ref``: a finding about the release, kept until
+    a compare replaces it). Lines that are not verdicts are skipped."""
     kept = {}
     for line in text.decode("utf-8", errors="replace").splitlines():
         try:
