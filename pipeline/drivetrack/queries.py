@@ -73,6 +73,7 @@ def choose_points(
 
 
 _QUERY_SALT = np.uint64(0x5157_4552_5946_524D)
+_FRAME_SALT = np.uint64(0x4652_414D_454B_4559)
 
 
 def _mix(values: np.ndarray) -> np.ndarray:
@@ -142,13 +143,31 @@ def query_frames(visibility: np.ndarray, draws: np.ndarray) -> np.ndarray:
     return frames
 
 
+def lowest_key_frames(visibility: np.ndarray, keys: np.ndarray) -> np.ndarray:
+    """Query frame [N] int64 per track: of the track's visible frames [T, N], the one whose key (the
+    track's key [N] mixed with the frame's index) is lowest; -1 for a track never visible. Uniform
+    among the visible frames, as ``query_frames`` is, but a visibility change at another frame
+    leaves the choice where it was (a rank among the visible frames moves with any change before it)."""
+    stamps = _mix(np.arange(visibility.shape[0], dtype=np.uint64) ^ _FRAME_SALT)
+    frame_keys = _mix(keys[None, :] ^ stamps[:, None])
+    frames = np.argmin(np.where(visibility, frame_keys, np.iinfo(np.uint64).max), axis=0).astype(np.int64)
+    frames[~visibility.any(axis=0)] = -1
+    return frames
+
+
 def clip_queries(
-    uv: np.ndarray, visibility: np.ndarray, given: np.ndarray | None, draws: np.ndarray
+    uv: np.ndarray, visibility: np.ndarray, given: np.ndarray | None, keys: np.ndarray, stable: bool
 ) -> np.ndarray:
     """Queries [N, 3] (x, y, t): where each track appears in the stored frame (uv [T, N, 2]) at the
-    given queries' [N, 3] frames, or else at a frame drawn among its visible frames [T, N] by its
-    own uniform draw [N] (``query_draws``); NaN for a track never visible."""
-    frames = query_frames(visibility, draws) if given is None else given[:, 2].astype(np.int64)
+    given queries' [N, 3] frames, or else at a frame drawn among its visible frames [T, N] by the
+    track's key [N]: ``lowest_key_frames`` when ``stable``, else by its uniform draw
+    (``query_draws``, ``query_frames``); NaN for a track never visible."""
+    if given is not None:
+        frames = given[:, 2].astype(np.int64)
+    elif stable:
+        frames = lowest_key_frames(visibility, keys)
+    else:
+        frames = query_frames(visibility, query_draws(keys))
     xy = uv[np.maximum(frames, 0), np.arange(uv.shape[1])]
     queries = np.concatenate([xy, frames[:, None].astype(np.float64)], axis=1)
     queries[frames < 0] = np.nan

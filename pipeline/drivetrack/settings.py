@@ -39,6 +39,10 @@ class DriveTrackConfig:
       (objects moved by their boxes), the object's own surface from all its sweeps and its normals
       fitted on that surface (docs/sources/drivetrack.md); it replaces the depth test, the parallax
       cleanup and facing_test. False keeps the depth test (the generator's, with the two above).
+    stable_query_frames: ours: a track's query frame is, of its visible frames, the one with the
+      lowest key (of the track and the frame): uniform among them, and left in place by a visibility
+      change at another frame. False takes the frame of rank floor(draw x count) among them, which
+      any change before it moves.
     tracks_per_clip, oversample: tracks written per clip; candidates drawn = oversample x that.
     mask_min_agreement: keep a track when (visible frames on the object's mask) / (visible
       frames) >= this. 0.5 trims 1-3% of the sample world's candidates, the share the
@@ -72,6 +76,7 @@ class DriveTrackConfig:
     masks_dir: str = path_setting()
     mask_closing_px: int = ranged(0, "[0, 1000]", release=NOT_KNOWN)
     undistort_frames: bool = flag(True, release=False)
+    stable_query_frames: bool = flag(True, release=False)
 
 
 # The source as the settings page (``python -m pipeline.settings.doc``) titles its section.

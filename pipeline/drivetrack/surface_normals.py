@@ -14,7 +14,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 NEIGHBOURS = 24
-PLANE_TOLERANCE_M = 0.005
+PLANE_TOLERANCE_M = 0.01
 # Two neighbours span a candidate plane only when they are this far from collinear with the point
 # (the sine of the angle between them, seen from the point).
 MIN_SPAN_SINE = 0.3
@@ -32,6 +32,14 @@ def fitted_normals(points: np.ndarray, tracked: np.ndarray, towards_lidar: np.nd
 
 
 @numba.njit(cache=True, nogil=True)
+def _weight(distance, tolerance):
+    """A point's vote for a plane it lies ``distance`` from: Tukey's biweight, 1 on the plane, falling
+    smoothly to 0 at ``tolerance``; a millimetre's change of a point changes its vote by little."""
+    ratio = distance / tolerance
+    return (1.0 - ratio * ratio) ** 2 if abs(ratio) < 1.0 else 0.0
+
+
+@numba.njit(cache=True, nogil=True)
 def _fit(points, query, neighbours, towards, tolerance, min_sine, normals):
     """normals [N, 3] (``fitted_normals``) for query points [N, 3] and their neighbours [N, k]."""
     count = neighbours.shape[1]
@@ -42,7 +50,7 @@ def _fit(points, query, neighbours, towards, tolerance, min_sine, normals):
                 offsets[k, c] = points[neighbours[q, k], c] - query[q, c]
         length = np.sqrt(towards[q, 0] ** 2 + towards[q, 1] ** 2 + towards[q, 2] ** 2)
         best_x, best_y, best_z = towards[q, 0] / length, towards[q, 1] / length, towards[q, 2] / length
-        best_count, best_spread = -1, np.inf
+        best_score = -1.0
         for i in range(count):
             ax, ay, az = offsets[i, 0], offsets[i, 1], offsets[i, 2]
             length_a = np.sqrt(ax * ax + ay * ay + az * az)
@@ -54,42 +62,44 @@ def _fit(points, query, neighbours, towards, tolerance, min_sine, normals):
                 if length == 0.0 or length < min_sine * length_a * length_b:
                     continue
                 nx, ny, nz = nx / length, ny / length, nz / length
-                members, spread = 0, 0.0
+                score = 0.0
                 for k in range(count):
-                    if members + count - k < best_count:
-                        break  # this plane can no longer hold as many as the best
-                    distance = nx * offsets[k, 0] + ny * offsets[k, 1] + nz * offsets[k, 2]
-                    if abs(distance) < tolerance:
-                        members += 1
-                        spread += distance * distance
-                if members > best_count or (members == best_count and spread < best_spread):
-                    best_count, best_spread = members, spread
+                    if score + count - k <= best_score:
+                        break  # this plane can no longer score as high as the best
+                    score += _weight(nx * offsets[k, 0] + ny * offsets[k, 1] + nz * offsets[k, 2], tolerance)
+                if score > best_score:
+                    best_score = score
                     best_x, best_y, best_z = nx, ny, nz
         normal = np.empty(3)
         normal[0], normal[1], normal[2] = best_x, best_y, best_z
-        # Written out where NumPy's array expressions would do (np.vstack, boolean indexing, sum(axis=...),
-        # np.abs): each costs seconds of compiling in every new process. The same values: the mean is
-        # summed in row order, as NumPy's sum over rows; only the two products stay BLAS's.
-        distances = offsets @ normal
+        # Written out where NumPy's array expressions would do: each costs seconds of compiling in
+        # every new process.
+        weights = np.empty(count + 1)
+        weights[0] = 1.0  # the query point itself
         members = 0
         for k in range(count):
-            members += abs(distances[k]) < tolerance
-        if members >= 3:  # refit on the query point itself (row 0) and the plane's points
-            plane = np.zeros((members + 1, 3))
-            row = 1
+            weights[k + 1] = _weight(
+                offsets[k, 0] * best_x + offsets[k, 1] * best_y + offsets[k, 2] * best_z, tolerance
+            )
+            members += weights[k + 1] > 0.0
+        if members >= 3:  # refit on the query point (offset 0) and the plane's points, weighed
+            total = 0.0
+            mean = np.zeros(3)
             for k in range(count):
-                if abs(distances[k]) < tolerance:
-                    for c in range(3):
-                        plane[row, c] = offsets[k, c]
-                    row += 1
+                for c in range(3):
+                    mean[c] += weights[k + 1] * offsets[k, c]
+            for k in range(count + 1):
+                total += weights[k]
             for c in range(3):
-                total = 0.0
-                for r in range(members + 1):
-                    total += plane[r, c]
-                mean = total / (members + 1)
-                for r in range(members + 1):
-                    plane[r, c] -= mean
-            normal = np.linalg.eigh(plane.T @ plane)[1][:, 0].copy()
+                mean[c] /= total
+            scatter = np.zeros((3, 3))
+            for k in range(count + 1):
+                for a in range(3):
+                    da = (offsets[k - 1, a] if k > 0 else 0.0) - mean[a]
+                    for b in range(3):
+                        db = (offsets[k - 1, b] if k > 0 else 0.0) - mean[b]
+                        scatter[a, b] += weights[k] * da * db
+            normal = np.linalg.eigh(scatter)[1][:, 0].copy()
         flip = normal[0] * towards[q, 0] + normal[1] * towards[q, 1] + normal[2] * towards[q, 2] < 0
         for c in range(3):
             normals[q, c] = -normal[c] if flip else normal[c]

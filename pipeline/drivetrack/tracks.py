@@ -24,7 +24,6 @@ from pipeline.drivetrack.queries import (
     clip_queries,
     point_keys,
     point_pool,
-    query_draws,
 )
 from pipeline.drivetrack.records import UnitInput, clip_name
 from pipeline.drivetrack.refined_visibility import refined_visibility
@@ -154,7 +153,7 @@ def track_object(
         extrinsics_w2c=camera.cam_from_world[run.start : run.stop].copy(),
         tracks_xyz=np.stack([s.points for s in seen]),
         visibility=visibility,
-        queries_xyt=clip_queries(uv, visibility, given, query_draws(keys[chosen])),
+        queries_xyt=clip_queries(uv, visibility, given, keys[chosen], rules.stable_query_frames),
         frame_ids=frame_ids.copy(),
         track_stats=TrackStats(mask_agreement(unit, run, name, evidence, camera, uv, visibility, rules)),
         target_tracks=rules.tracks_per_clip,

@@ -78,3 +78,70 @@ def reanchor_split(source: str, target: str, moved: np.ndarray) -> None:
         moved_column = pa.ListArray.from_arrays(column.offsets, pa.array(values.reshape(-1)))
         table = table.set_column(table.schema.get_field_index(PIXEL_POSES), PIXEL_POSES, moved_column)
         pq.write_table(table, file)
+
+
+BOX_CENTRES = ("[LiDARBoxComponent].box.center.", "[LiDARCameraSyncedBoxComponent].camera_synced_box.center.")
+
+
+def _nudges(rng: np.random.Generator, count: int, metres: float) -> np.ndarray:
+    """[count, 4, 4] translations by ``metres`` in random directions."""
+    directions = rng.normal(size=(count, 3))
+    nudges = np.repeat(np.eye(4)[None], count, axis=0)
+    nudges[:, :3, 3] = metres * directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    return nudges
+
+
+def _float64_transforms(matrices: np.ndarray) -> pa.Array:
+    return pa.FixedSizeListArray.from_arrays(pa.array(matrices.reshape(-1).astype(np.float64)), 16)
+
+
+def nudge_split(source: str, target: str, metres: float, seed: int = 0) -> None:
+    """Copy the split folder ``source`` to ``target`` with every pose moved by ``metres`` in its own
+    random direction: each frame's vehicle pose with its camera images' poses and its lidar's
+    per-pixel poses (one nudge per frame, so the ego stays one rigid body), and each box of
+    ``lidar_box`` and ``lidar_camera_synced_box`` on its own. Transforms stay float64."""
+    rng = np.random.default_rng(seed)
+    shutil.copytree(source, target)
+    frame_nudge: dict[int, np.ndarray] = {}
+
+    def nudges_of(stamps: np.ndarray) -> np.ndarray:
+        for stamp in stamps.tolist():
+            if stamp not in frame_nudge:
+                frame_nudge[stamp] = _nudges(rng, 1, metres)[0]
+        return np.stack([frame_nudge[stamp] for stamp in stamps.tolist()])
+
+    def files(component: str) -> list[str]:
+        folder = os.path.join(target, component)
+        return [os.path.join(folder, name) for name in sorted(os.listdir(folder))]
+
+    def nudged(table: pa.Table, name: str) -> pa.Table:
+        stamps = table.column("key.frame_timestamp_micros").to_numpy()
+        values = table.column(name).combine_chunks().flatten().to_numpy(zero_copy_only=False)
+        matrices = nudges_of(stamps) @ values.astype(np.float64).reshape(-1, 4, 4)
+        return table.set_column(table.schema.get_field_index(name), name, _float64_transforms(matrices))
+
+    for file in files("vehicle_pose"):
+        pq.write_table(nudged(pq.read_table(file), WORLD_FROM_VEHICLE), file)
+    for file in files("camera_image"):
+        pq.write_table(nudged(pq.read_table(file), POSE), file)
+    for file in files("lidar_pose"):
+        table = pq.read_table(file)
+        column = table.column(PIXEL_POSES).combine_chunks()
+        values = column.flatten().to_numpy().astype(np.float64).reshape(-1, 6)
+        stamps = table.column("key.frame_timestamp_micros").to_numpy()
+        rows = np.repeat(np.arange(len(stamps)), np.diff(column.offsets.to_numpy()) // 6)
+        values[:, 3:] += nudges_of(stamps)[rows, :3, 3]
+        nudged_column = pa.ListArray.from_arrays(
+            column.offsets, pa.array(values.reshape(-1).astype(np.float32))
+        )
+        table = table.set_column(table.schema.get_field_index(PIXEL_POSES), PIXEL_POSES, nudged_column)
+        pq.write_table(table, file)
+    for component, prefix in zip(("lidar_box", "lidar_camera_synced_box"), BOX_CENTRES, strict=True):
+        for file in files(component):
+            table = pq.read_table(file)
+            moves = _nudges(rng, table.num_rows, metres)[:, :3, 3]
+            for i, axis in enumerate("xyz"):
+                index = table.schema.get_field_index(prefix + axis)
+                centre = table.column(prefix + axis).to_numpy() + moves[:, i]
+                table = table.set_column(index, prefix + axis, pa.array(centre, pa.float64()))
+            pq.write_table(table, file)
