@@ -193,7 +193,8 @@ def test_a_release_run_names_its_rules_first_and_records_them(release_run, refer
     assert first == (
         "rules: release (the original generators' choices; docs/release.md): drivetrack.facing_test=false, "
         "drivetrack.parallax_cleanup=false, drivetrack.refined_visibility=false, "
-        "drivetrack.undistort_frames=false (refined: true, true, true, true)"
+        "drivetrack.stable_query_frames=false, drivetrack.undistort_frames=false "
+        "(refined: true, true, true, true, true)"
     )
     assert reference_run.result("drivetrack").stdout.startswith("rules: refined (ours, measured better;")
     record = json.load(open(os.path.join(out, "run_drivetrack.json")))
@@ -203,6 +204,7 @@ def test_a_release_run_names_its_rules_first_and_records_them(release_run, refer
         "drivetrack.facing_test": False,
         "drivetrack.parallax_cleanup": False,
         "drivetrack.refined_visibility": False,
+        "drivetrack.stable_query_frames": False,
         "drivetrack.undistort_frames": False,
     }
     assert "drivetrack.oversample" in record["rules"]["not_known"]
