@@ -2,9 +2,11 @@
 
 A range-image normal comes from one sweep's two neighbours, and beside a crease those lie on two
 faces. Here every point of the object's clip, from all its sweeps in the box frame, votes: among the
-planes through a track point and two of its NEIGHBOURS nearest points, the one that holds the most
-of them within PLANE_TOLERANCE_M wins, and the normal is refitted (principal axes) on that plane's
-points. It faces the lidar of the track point's own sweep, which saw that side of the surface.
+planes through a track point and two of its NEIGHBOURS nearest points, the one they vote for most
+wins (Tukey's biweight of a point's distance to the plane: 1 on it, 0 from PLANE_TOLERANCE_M), and
+the normal is refitted (principal axes, weighed by the same votes) on that plane's points. Votes
+that fall smoothly keep a millimetre's change of the input from swapping one plane for another. It
+faces the lidar of the track point's own sweep, which saw that side of the surface.
 """
 
 from __future__ import annotations
