@@ -76,31 +76,30 @@ def _fit(points, query, neighbours, towards, tolerance, min_sine, normals):
         normal[0], normal[1], normal[2] = best_x, best_y, best_z
         # Written out where NumPy's array expressions would do: each costs seconds of compiling in
         # every new process.
-        weights = np.empty(count + 1)
-        weights[0] = 1.0  # the query point itself
+        weights = np.empty(count)
         members = 0
         for k in range(count):
-            weights[k + 1] = _weight(
+            weights[k] = _weight(
                 offsets[k, 0] * best_x + offsets[k, 1] * best_y + offsets[k, 2] * best_z, tolerance
             )
-            members += weights[k + 1] > 0.0
-        if members >= 3:  # refit on the query point (offset 0) and the plane's points, weighed
-            total = 0.0
+            members += weights[k] > 0.0
+        if members >= 3:  # refit on the plane's points, weighed, and the query point (offset 0, weight 1)
             mean = np.zeros(3)
+            total = 1.0
             for k in range(count):
                 for c in range(3):
-                    mean[c] += weights[k + 1] * offsets[k, c]
-            for k in range(count + 1):
+                    mean[c] += weights[k] * offsets[k, c]
                 total += weights[k]
             for c in range(3):
                 mean[c] /= total
             scatter = np.zeros((3, 3))
-            for k in range(count + 1):
+            for a in range(3):
+                for b in range(3):
+                    scatter[a, b] += mean[a] * mean[b]  # the query point's (0 - mean) products
+            for k in range(count):
                 for a in range(3):
-                    da = (offsets[k - 1, a] if k > 0 else 0.0) - mean[a]
                     for b in range(3):
-                        db = (offsets[k - 1, b] if k > 0 else 0.0) - mean[b]
-                        scatter[a, b] += weights[k] * da * db
+                        scatter[a, b] += weights[k] * (offsets[k, a] - mean[a]) * (offsets[k, b] - mean[b])
             normal = np.linalg.eigh(scatter)[1][:, 0].copy()
         flip = normal[0] * towards[q, 0] + normal[1] * towards[q, 1] + normal[2] * towards[q, 2] < 0
         for c in range(3):

@@ -32,15 +32,13 @@ def anchor(yaw: float, translation) -> np.ndarray:
     return matrix
 
 
-def _float32_transforms(matrices: np.ndarray) -> pa.Array:
-    flat = pa.array(matrices.reshape(-1).astype(np.float32))
-    return pa.FixedSizeListArray.from_arrays(flat, 16)
-
-
-def _moved_transforms(table: pa.Table, name: str, moved: np.ndarray) -> pa.Table:
+def _moved_transforms(table: pa.Table, name: str, moved: np.ndarray, dtype=np.float32) -> pa.Table:
+    """The table with its transform column ``name`` moved by ``moved`` ([4, 4], or one [R, 4, 4] per
+    row) and stored as ``fixed_size_list<dtype>[16]``."""
     values = table.column(name).combine_chunks().flatten().to_numpy(zero_copy_only=False)
     matrices = moved @ values.astype(np.float64).reshape(-1, 4, 4)
-    return table.set_column(table.schema.get_field_index(name), name, _float32_transforms(matrices))
+    column = pa.FixedSizeListArray.from_arrays(pa.array(matrices.reshape(-1).astype(dtype)), 16)
+    return table.set_column(table.schema.get_field_index(name), name, column)
 
 
 def _moved_pixel_poses(values: np.ndarray, moved: np.ndarray) -> np.ndarray:
@@ -91,10 +89,6 @@ def _nudges(rng: np.random.Generator, count: int, metres: float) -> np.ndarray:
     return nudges
 
 
-def _float64_transforms(matrices: np.ndarray) -> pa.Array:
-    return pa.FixedSizeListArray.from_arrays(pa.array(matrices.reshape(-1).astype(np.float64)), 16)
-
-
 def nudge_split(source: str, target: str, metres: float, seed: int = 0) -> None:
     """Copy the split folder ``source`` to ``target`` with every pose moved by ``metres`` in its own
     random direction: each frame's vehicle pose with its camera images' poses and its lidar's
@@ -116,9 +110,7 @@ def nudge_split(source: str, target: str, metres: float, seed: int = 0) -> None:
 
     def nudged(table: pa.Table, name: str) -> pa.Table:
         stamps = table.column("key.frame_timestamp_micros").to_numpy()
-        values = table.column(name).combine_chunks().flatten().to_numpy(zero_copy_only=False)
-        matrices = nudges_of(stamps) @ values.astype(np.float64).reshape(-1, 4, 4)
-        return table.set_column(table.schema.get_field_index(name), name, _float64_transforms(matrices))
+        return _moved_transforms(table, name, nudges_of(stamps), np.float64)
 
     for file in files("vehicle_pose"):
         pq.write_table(nudged(pq.read_table(file), WORLD_FROM_VEHICLE), file)

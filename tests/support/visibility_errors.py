@@ -35,6 +35,11 @@ from tests.support.waymo_truth import seen, true_tracks
 NEAR_M_AT_40 = 0.25
 
 
+def hit_objects(hits: dict[str, np.ndarray], names: list[str]) -> np.ndarray:
+    """[M] the object id each ray of ``DrivingWorld.cast`` hit first ('' the ground, '-' nothing)."""
+    return np.array([names[g] if g < len(names) else "-" for g in hits["geometry_ids"]])
+
+
 def other_object_near(world, scene, names, eyes, points, own: str) -> np.ndarray:
     """[N] bool: another object's surface crosses a ray from eyes [N, 3] aimed NEAR_M_AT_40 (scaled)
     around points [N, 3] (world) before it reaches them."""
@@ -49,7 +54,7 @@ def other_object_near(world, scene, names, eyes, points, own: str) -> np.ndarray
         target = points + (np.cos(angle) * side + np.sin(angle) * up) * radius[:, None]
         length = np.linalg.norm(target - eyes, axis=1)
         hits = world.cast(scene, eyes, (target - eyes) / length[:, None])
-        hit = np.array([names[g] if g < len(names) else "-" for g in hits["geometry_ids"]])
+        hit = hit_objects(hits, names)
         near |= (hits["t_hit"] < 0.97 * length) & (hit != own) & (hit != "") & (hit != "-")
     return near
 
@@ -70,7 +75,7 @@ def clip_errors(world, clip, camera: int) -> collections.Counter:
         scene, names = world.scene(t)
         distance = np.linalg.norm(points - eyes, axis=1)
         hits = world.cast(scene, eyes, (points - eyes) / distance[:, None])
-        hit = np.array([names[g] if g < len(names) else "-" for g in hits["geometry_ids"]])
+        hit = hit_objects(hits, names)
         near = other_object_near(world, scene, names, eyes, points, object_id)
         for k, called_visible in enumerate(clip.visibility[i, wrong]):
             if not called_visible:
