@@ -192,6 +192,22 @@ def stress_split():
     return split
 
 
+@pytest.fixture(scope="session")
+def family_split():
+    """``split(seed)``: the split folder of the world of ``tests/support/driving_family.py`` drawn
+    from ``seed`` (one segment, ``driving_family.SEGMENT``), written once into the shared cache on
+    first use (never write into it)."""
+    from tests.support import driving_family
+
+    def split(seed: int) -> str:
+        def write(staging: str) -> None:
+            driving_family.write_family_split(os.path.join(staging, "split"), seed)
+
+        return os.path.join(cached_sample(f"waymo-family-{seed}", write, (driving_family.__file__,)), "split")
+
+    return split
+
+
 @pytest.fixture
 def split_copy(sample_split, tmp_path):
     """A private copy of the sample split that a test may corrupt."""

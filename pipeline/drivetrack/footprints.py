@@ -48,6 +48,12 @@ def row_spacings(inclinations: np.ndarray) -> np.ndarray:
     return spacing
 
 
+def field_edge_rows(rows: np.ndarray, height: int) -> np.ndarray:
+    """[K] +1 for returns in range-image rows [K] on row 0 (the highest beam,
+    ``lidar.beam_inclinations``), -1 on the last row (the lowest), 0 elsewhere."""
+    return np.where(rows == 0, 1, 0) - np.where(rows == height - 1, 1, 0)
+
+
 @dataclasses.dataclass(frozen=True)
 class SweepFootprints:
     """Footprints of some returns of a sweep in the world: points [K, 3], unit normals [K, 3] and the
@@ -187,12 +193,23 @@ class BoxMotions:
         return labels
 
     def box_limits(
-        self, t: int, footprints: SweepFootprints, labels: np.ndarray, vehicle_from_world: np.ndarray
-    ) -> np.ndarray:
-        """[K, 4] how far (in half-vectors, at most 1) the footprints [K] of frame t's sweep reach
-        along -azimuth, +azimuth, -inclination and +inclination: a labelled object's footprint stops
-        at the border of its box (``objects.on_surface_box``: no surface of the object lies beyond),
-        the rest reach a whole half-vector. labels [K]: ``labels_at``'s."""
+        self,
+        t: int,
+        footprints: SweepFootprints,
+        labels: np.ndarray,
+        vehicle_from_world: np.ndarray,
+        edge_rows: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """How far the footprints [K] of frame t's sweep reach: limits [K, 4] (in half-vectors, at
+        most 1) along -azimuth, +azimuth, -inclination and +inclination, and their half-vectors
+        along the inclination [K, 3]. A labelled object's footprint stops at the border of its box
+        (``objects.on_surface_box``: no surface of the object lies beyond), the rest reach a whole
+        half-vector. labels [K]: ``labels_at``'s.
+
+        Beyond the lidar's field of view: a labelled return in its highest row (``edge_rows`` [K]
+        +1) or its lowest (-1) reaches up, or down, as far as its box: the lidar cannot see past
+        its highest and lowest beams (a truck's top 15 m away, the lower half of a car 5 m away),
+        the camera can, and the object's surface goes on there up to its box."""
         limits = np.ones((len(labels), 4))
         present = np.bincount(labels + 1, minlength=len(self.object_ids) + 1)[1:] > 0
         for row in self._rows[t]:
@@ -211,7 +228,16 @@ class BoxMotions:
                 SURFACE_GROW_M,
                 limits,
             )
-        return np.clip(limits, MIN_LIMIT, 1.0)
+        along_inclination = footprints.along_inclination.copy()
+        beyond = np.flatnonzero((edge_rows != 0) & (labels >= 0))
+        side = np.where(edge_rows[beyond] > 0, 3, 2)  # the side past the edge
+        room = limits[beyond, side]
+        stretch = np.where(np.isfinite(room), np.maximum(room, 1.0), 1.0)  # inf: a null half-vector
+        along_inclination[beyond] *= stretch[:, None]
+        limits = np.clip(limits, MIN_LIMIT, 1.0)
+        limits[beyond, side] = 1.0
+        limits[beyond, 5 - side] /= stretch
+        return limits, along_inclination
 
     def moves(self, source: int, target: int) -> Moves:
         """How each object with a lidar box at frame ``source`` and a camera-synced box at frame
@@ -269,9 +295,10 @@ def _labels(points, boxes, box_from_vehicle, reach, box_labels, grow, labels):
 @numba.njit(cache=True, nogil=True)
 def _box_room(points, members, box_from_world, along_azimuth, along_inclination, half, grow, limits):
     """limits [K, 4] of the footprints ``members`` [M] (rows of points [K, 3]), their half-vectors
-    in the box frame [M, 3] each (``BoxMotions.box_limits``): the largest share (up to 1) of each
-    signed half-vector the point can take and stay within the box of half size ``half`` [3] grown by
-    ``grow`` (its bottom raised by as much). Points carried as ``transform_points`` carries them."""
+    in the box frame [M, 3] each (``BoxMotions.box_limits``): the largest multiple (at least 0) of
+    each signed half-vector the point can take and stay within the box of half size ``half`` [3]
+    grown by ``grow`` (its bottom raised by as much). Points carried as ``transform_points`` carries
+    them."""
     r = box_from_world
     upper = np.empty(3)
     lower = np.empty(3)
@@ -295,7 +322,7 @@ def _box_room(points, members, box_from_world, along_azimuth, along_inclination,
                         room = min(room, (upper[c] - local[c]) / step)
                     elif step < 0:
                         room = min(room, (lower[c] - local[c]) / step)
-                limits[members[m], 2 * axis + side] = min(max(room, 0.0), 1.0)
+                limits[members[m], 2 * axis + side] = max(room, 0.0)
 
 
 # A footprint reaches at least this share of its half-vectors, even from a box's border.

@@ -26,6 +26,7 @@ from pipeline.drivetrack.footprints import (
     FrameFootprints,
     FrameOccluders,
     SweepFootprints,
+    field_edge_rows,
     frame_footprints,
     likely_reach,
     moved,
@@ -497,14 +498,19 @@ def _refined_frame(
         for target in (t - 1, t, t + 1)
         if target in needed
     ]
+    edge_rows = field_edge_rows(sweep.pixels[in_camera] // sweep.kept.shape[1], sweep.kept.shape[0])
     reach = likely_reach(sweep, in_camera, spacing)
+    reach[(edge_rows != 0) & (labels >= 0)] = np.inf  # up to its box (``BoxMotions.box_limits``)
     serving = serving_returns(item.camera, sweep.points[in_camera], labels, reach, targets)
     tracked = [refined.labels[run.object_id] for run in active]
     # Footprints for the returns on the objects tracked now (their surfaces) or serving some frame.
     wanted = np.flatnonzero(np.isin(labels, tracked) | serving.any(axis=0))
     footprints = sweep_footprints(sweep, in_camera[wanted], spacing)
     wanted_labels = labels[wanted]
-    limits = motions.box_limits(t, footprints, wanted_labels, vehicle_from_world)
+    limits, along_inclination = motions.box_limits(
+        t, footprints, wanted_labels, vehicle_from_world, edge_rows[wanted]
+    )
+    footprints = dataclasses.replace(footprints, along_inclination=along_inclination)
     for run in active:
         body, box_from_vehicle = bodies[run.object_id]
         box_from_world = box_from_vehicle @ vehicle_from_world

@@ -1,7 +1,9 @@
 """DriveTrack's refined visibility (``drivetrack.refined_visibility``) against ray-cast truth, on the
 sample world and on the worlds of tests/support/stress_worlds.py: every clip and every world agrees
 with the truth, the flicker filter drops about what it drops under the true visibility, brief true
-occlusions stay, and each part of the method is needed for that."""
+occlusions stay, and each part of the method is needed for that (one part on a world of
+tests/support/driving_family.py, where a truck taller than the lidar's highest beam crosses in front
+of a parked one)."""
 
 from __future__ import annotations
 
@@ -10,16 +12,18 @@ import dataclasses
 import numpy as np
 import pytest
 
-from pipeline.drivetrack import footprints, object_surface, tracks
+from pipeline.drivetrack import footprints, lidar, object_surface, tracks
 from pipeline.filters.flicker import passes_flicker, visibility_flips
 from pipeline.samples.waymo_world import SEGMENT
 from pipeline.settings.fields import with_overrides
 from pipeline.settings.run_config import RunConfig
-from tests.support import stress_worlds
+from tests.support import driving_family, stress_worlds
 from tests.support.units import drivetrack_segment_clips
 from tests.support.waymo_truth import true_tracks
 
 REFINED = ["drivetrack.refined_visibility=true"]
+# The family's world where a truck's top, above the lidar's highest beam, hides another truck.
+TALL_TRUCK_SEED = 0
 CLIP_AGREEMENT, WORLD_AGREEMENT, FLICKER_POINTS = 0.985, 0.99, 0.03
 
 
@@ -63,14 +67,28 @@ def flicker_dropped(scored: list[Scored], truth: bool) -> float:
     return float(np.concatenate(dropped).mean())
 
 
+def world_clips(
+    name: str, sample_split, stress_split, family_split, world, cameras=(1, 2, 3)
+) -> list[Scored]:
+    """The refined clips of a world (``sample``, a stress world's name or ``family``: the family's
+    TALL_TRUCK_SEED world) with their truth."""
+    if name == "sample":
+        return scored_clips(sample_split[0], SEGMENT, world, REFINED, cameras)
+    if name == "family":
+        overrides = REFINED + driving_family.OVERRIDES
+        family_world, _ = driving_family.family_world(TALL_TRUCK_SEED)
+        split = family_split(TALL_TRUCK_SEED)
+        return scored_clips(split, driving_family.SEGMENT, family_world, overrides, cameras)
+    make_world, _ = stress_worlds.WORLDS[name]
+    overrides = REFINED + stress_worlds.OVERRIDES
+    return scored_clips(stress_split(name), stress_worlds.SEGMENT, make_world(), overrides, cameras)
+
+
 @pytest.fixture(scope="module")
-def worlds(sample_split, stress_split, world) -> dict[str, list[Scored]]:
+def worlds(sample_split, stress_split, family_split, world) -> dict[str, list[Scored]]:
     """World name -> its refined clips with their truth: each world's segment annotated once."""
-    made = {"sample": scored_clips(sample_split[0], SEGMENT, world, REFINED)}
-    for name, (make_world, _) in stress_worlds.WORLDS.items():
-        overrides = REFINED + stress_worlds.OVERRIDES
-        made[name] = scored_clips(stress_split(name), stress_worlds.SEGMENT, make_world(), overrides)
-    return made
+    names = ["sample", *stress_worlds.WORLDS, "family"]
+    return {name: world_clips(name, sample_split, stress_split, family_split, world) for name in names}
 
 
 @pytest.mark.parametrize("name", ["sample", *stress_worlds.WORLDS])
@@ -95,7 +113,7 @@ def test_the_flicker_filter_drops_what_it_drops_under_the_truth(worlds, name):
     )
 
 
-@pytest.mark.parametrize("name", ["sample", *stress_worlds.WORLDS])
+@pytest.mark.parametrize("name", ["sample", *stress_worlds.WORLDS, "family"])
 def test_tracks_and_queries_follow_the_true_surface_points(worlds, name):
     for s in worlds[name]:
         error = np.linalg.norm(s.tracks - s.clip.tracks_xyz, axis=2).max()
@@ -150,28 +168,32 @@ def without_box_limits(monkeypatch):
     monkeypatch.setattr(footprints, "MIN_LIMIT", 1.0)
 
 
+def without_reach_past_the_field_of_view(monkeypatch):
+    """A labelled object's returns on the lidar's highest and lowest beams reach no further than
+    any other's: the object's surface that only the camera sees counts for nothing."""
+    monkeypatch.setattr(lidar, "field_edge_rows", lambda rows, height: np.zeros(len(rows), np.int64))
+
+
 # part removed -> (world, camera, clip) where the part matters.
 NEEDED_WHERE = {
     without_neighbour_sweeps: ("brief", 3, "parked_target"),
     without_own_surface: ("sample", 3, "parked_right"),
     without_fitted_normals: ("sample", 1, "crossing_car"),
     without_box_limits: ("fast", 1, "far_parked"),
+    without_reach_past_the_field_of_view: ("family", 1, "truck1"),
 }
 
 
 @pytest.mark.parametrize("remove", list(NEEDED_WHERE), ids=lambda remove: remove.__name__)
-def test_each_part_of_the_method_is_needed(worlds, sample_split, stress_split, world, monkeypatch, remove):
+def test_each_part_of_the_method_is_needed(
+    worlds, sample_split, stress_split, family_split, world, monkeypatch, remove
+):
     """With one part of the method removed, a clip where that part matters misses the target the
     whole method meets."""
     name, camera, object_name = NEEDED_WHERE[remove]
     (whole,) = [s for s in worlds[name] if s.camera == camera and object_name in s.clip.name]
     remove(monkeypatch)
-    if name == "sample":
-        partial = scored_clips(sample_split[0], SEGMENT, world, REFINED, cameras=(camera,))
-    else:
-        make_world, _ = stress_worlds.WORLDS[name]
-        overrides = REFINED + stress_worlds.OVERRIDES
-        partial = scored_clips(stress_split(name), stress_worlds.SEGMENT, make_world(), overrides, (camera,))
+    partial = world_clips(name, sample_split, stress_split, family_split, world, (camera,))
     (partial,) = [s for s in partial if object_name in s.clip.name]
     with_part, without = agreement([whole]), agreement([partial])
     assert without < CLIP_AGREEMENT <= with_part, (

@@ -276,10 +276,22 @@ def test_labels_box_limits_and_moves_match_the_array_expressions():
                         (upper - local) / steps,
                         np.where(steps < 0, (lower - local) / steps, np.inf),
                     )
-                limits[members, 2 * axis + (sign > 0)] = np.clip(room.min(axis=1), 0.0, 1.0)
-    assert np.array_equal(
-        motions.box_limits(1, footprints, labels, vehicle_from_world), np.clip(limits, MIN_LIMIT, 1.0)
-    )
+                limits[members, 2 * axis + (sign > 0)] = np.maximum(room.min(axis=1), 0.0)
+    edge_rows = rng.choice([-1, 0, 0, 1], len(points))
+    got, along_inclination = motions.box_limits(1, footprints, labels, vehicle_from_world, edge_rows)
+    beyond = (edge_rows != 0) & (labels >= 0)
+    assert np.array_equal(got[~beyond], np.clip(limits[~beyond], MIN_LIMIT, 1.0))
+    assert np.array_equal(along_inclination[~beyond], footprints.along_inclination[~beyond])
+    # Past the field of view's edge a footprint reaches its box's border (or its own half-vector, if
+    # that is further), the other way as far as before.
+    side = np.where(edge_rows > 0, 3, 2)[beyond]
+    reach = got[beyond, side, None] * along_inclination[beyond]
+    wanted = np.maximum(limits[beyond, side], 1.0)[:, None] * footprints.along_inclination[beyond]
+    assert np.allclose(reach, wanted, rtol=1e-12, atol=1e-12) and beyond.sum() > 1000
+    back = got[beyond, 5 - side, None] * along_inclination[beyond]
+    before = np.clip(limits[beyond, 5 - side], MIN_LIMIT, 1.0)[:, None] * footprints.along_inclination[beyond]
+    assert np.allclose(back, before, rtol=1e-12, atol=1e-12)
+    assert np.array_equal(got[beyond][:, :2], np.clip(limits[beyond][:, :2], MIN_LIMIT, 1.0))
     moves = motions.moves(1, 2)
     movable = np.flatnonzero(moves.row_of_label >= 0)
     index = np.flatnonzero((labels < 0) | np.isin(labels, movable))
