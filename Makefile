@@ -6,12 +6,12 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 OUT ?= out/demo
 # The real ADT excerpt shipped beside the project (read in place, never copied); exported, so the
-# tests and the benchmarks read the same one (pipeline.samples.adt_excerpt.excerpt_path reads $ADT_EXCERPT).
+# tests and the benchmarks read the same one (pipeline.adt.sample.excerpt.excerpt_path reads $ADT_EXCERPT).
 ADT_EXCERPT ?= ../shared/data/adt_sample/aria_digital_twin_test_data
 export ADT_EXCERPT
 # The samples' splits file (pipeline.runner.splits.SAMPLE_RELEASE): the demo is a release run of it, so
 # its verdicts show clips written, not produced and input absent, each with its reason.
-SAMPLE_RELEASE := pipeline/samples/sample_splits.json
+SAMPLE_RELEASE := pipeline/runner/sample_splits.json
 
 .PHONY: setup demo test typecheck bench bench-full
 

@@ -1,5 +1,5 @@
 """Speed and memory benchmarks of the pipeline (``python -m benchmarks``), kept out of the installed
-package: they import ``pipeline`` and ``pipeline.samples``, never the other way round.
+package: they import ``pipeline`` (its sources' sample worlds among it), never the other way round.
 
 The framework, one file per job:
   cli.py         the command: ``python -m benchmarks {all,<source>} [--quick|--full] [--micro]``

@@ -1,4 +1,4 @@
-"""ADT's benchmark entry. Unit: the real excerpt (``pipeline.samples.adt_excerpt.excerpt_path()``:
+"""ADT's benchmark entry. Unit: the real excerpt (``pipeline.adt.sample.excerpt.excerpt_path()``:
 $ADT_EXCERPT, else ../shared/data/adt_sample), read through projectaria-tools: its one 2-frame
 chunk run 15 times; the 300-frame unit is extrapolated (the opening of the sequence, measured
 apart, + 300 x per-frame cost), at every size. Micro: per-frame cost of reading and re-rendering
@@ -55,7 +55,7 @@ REPEAT, QUICK_REPEAT = 15, 2
 def prepare(workdir: str, size: str) -> UnitSetup | None:
     """The excerpt's unit (read in place: nothing is written under ``workdir``), or None (skipped)
     without an excerpt."""
-    from pipeline.samples.adt_excerpt import EXCERPT_SETTINGS, SHARED_EXCERPT, excerpt_path
+    from pipeline.adt.sample.excerpt import EXCERPT_SETTINGS, SHARED_EXCERPT, excerpt_path
 
     path = excerpt_path()
     if path is None:
@@ -250,7 +250,7 @@ def micro(frames: int) -> None:
     """Print per-frame reading/re-rendering costs over ``frames`` frame reads, then the clip cost."""
     from pipeline.adt.frames import SequenceFrames, open_reader
     from pipeline.adt.rectify import _stored_remap
-    from pipeline.samples.adt_excerpt import EXCERPT_SETTINGS, SHARED_EXCERPT, excerpt_path
+    from pipeline.adt.sample.excerpt import EXCERPT_SETTINGS, SHARED_EXCERPT, excerpt_path
     from pipeline.settings.fields import with_overrides
     from pipeline.settings.run_config import RunConfig
 

@@ -5,7 +5,7 @@ extrapolated to 3 x 199 camera frames; ``--full``: 199 frames. Micro: the occlus
 1920x1280 frame, ours against the DriveTrack generator's.
 
 Inputs (``prepare``): the segment is written by the sample world's writer
-(``pipeline/samples/waymo_world.py``). Full size: 199 frames (20 s at 10 Hz); the cameras' focal is
+(``pipeline/drivetrack/sample/waymo_world.py``). Full size: 199 frames (20 s at 10 Hz); the cameras' focal is
 2055 px (the scene is ray cast at 480x320, resized up and given film grain so the JPEGs weigh about
 what photographs do; the pipeline only passes them through); the TOP lidar's range image has
 per-pixel poses and camera projections; and, as in real ``lidar`` and ``lidar_camera_projection``
@@ -80,14 +80,14 @@ WIDTH, HEIGHT, FOCAL = 1920, 1280, 2055.0  # the micro-benchmark's frame
 
 @functools.cache
 def _shape(pedestrian: bool):
-    from pipeline.samples import driving_world as driving
+    from pipeline.drivetrack.sample import driving_world as driving
 
     return driving.pedestrian_mesh() if pedestrian else driving.car_mesh()
 
 
 def bench_world():
     """A street for 20 s: same-direction traffic, oncoming traffic, parked cars, a pedestrian."""
-    from pipeline.samples import driving_world as driving
+    from pipeline.drivetrack.sample import driving_world as driving
 
     class Actor(driving.Actor):
         """The sample's actor with its mesh built once (``Actor.shape`` builds it at every call,
@@ -165,8 +165,8 @@ def prepare(workdir: str, size: str) -> UnitSetup:
 def _write_segment(folder: str, size: str, sizes: dict) -> float:
     """The street's segment at ``sizes`` written into ``folder`` unless it is there; the seconds
     spent."""
-    from pipeline.samples import waymo_world as waymo
-    from pipeline.samples.write_once import write_once
+    from pipeline.drivetrack.sample import waymo_world as waymo
+    from pipeline.io.write_once import write_once
 
     focal = FOCAL_AT_1920 * sizes["width"] / 1920
     models = waymo.camera_models(

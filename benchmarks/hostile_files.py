@@ -25,7 +25,7 @@ import time
 import numpy as np
 
 from benchmarks.hostile_inputs import bomb_clip, savez_bytes, shape_bomb_clip, with_payload
-from pipeline.samples.dynamic3dgs_files import write_sequence
+from pipeline.pstudio.sample.dynamic3dgs_files import write_sequence
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 

@@ -101,7 +101,7 @@ def prepare(workdir: str, size: str) -> UnitSetup:
 
 def _write_once(folder: str, size: str, sizes: dict, cameras: int) -> float:
     """The sequence at ``sizes`` written into ``folder`` unless it is there; the seconds spent."""
-    from pipeline.samples.write_once import write_once
+    from pipeline.io.write_once import write_once
 
     version = f"{VERSION}-{sizes['frames']}f"  # a folder of other sizes is written again
     if not os.path.exists(os.path.join(folder, f".complete-v{version}")):
@@ -154,7 +154,7 @@ def write_sequence(root: str, sizes: dict, cameras: int) -> None:
         0, sizes["frames"], sizes["per_person"], sizes["floor"], sizes["wall"], cameras
     )
     frames, count = gaussians.means.shape[:2]
-    from pipeline.samples import dynamic3dgs_files as files
+    from pipeline.pstudio.sample import dynamic3dgs_files as files
 
     data = os.path.join(root, "data", SEQUENCE)
     mask_of = _mask_function(gaussians, views)

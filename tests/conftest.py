@@ -2,7 +2,7 @@
 beside the repository and reused by every later session.
 
 The cache is ``<repo>/.cache/samples/<name>-<version>`` (or ``$TAPVID3D_SAMPLE_CACHE/<name>-<version>``);
-``<version>`` hashes the generators' source (every module of ``pipeline/samples``), the versions of
+``<version>`` hashes the generators' source (every module of a ``pipeline/<source>/sample/``), the versions of
 the libraries that encode and ray cast the files, and ``CACHE_LAYOUT``, so editing a generator or
 upgrading them writes a new folder. Each folder is written by ``write_once`` (a hidden staging
 folder renamed into place) under a file lock, so racing sessions write it once and never see it
@@ -29,13 +29,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pytest
 
-import pipeline.samples
-from pipeline.samples.write_once import write_once
+from pipeline.io.write_once import write_once
 from tests.support.cli import REPO, run_in_process, run_pipeline_timed
 
 if TYPE_CHECKING:
-    from pipeline.samples.driving_world import DrivingWorld
-    from pipeline.samples.studio_world import StudioWorld
+    from pipeline.drivetrack.sample.driving_world import DrivingWorld
+    from pipeline.pstudio.sample.studio_world import StudioWorld
 
 # The sample writers and the libraries they use are imported when a fixture first writes or reads a
 # sample, not here: pytest's main process imports this file before it starts the workers.
@@ -43,8 +42,8 @@ SAMPLE_CACHE = os.environ.get("TAPVID3D_SAMPLE_CACHE") or os.path.join(REPO, ".c
 CACHE_LAYOUT = "1"  # bump when what the fixtures below keep in a cache folder changes
 # The module whose SAMPLE_VERSION a run without --input marks its written sample world with, per source.
 SAMPLE_WRITERS = {
-    "drivetrack": "pipeline.samples.waymo_world",
-    "pstudio": "pipeline.samples.dynamic3dgs_files",
+    "drivetrack": "pipeline.drivetrack.sample.waymo_world",
+    "pstudio": "pipeline.pstudio.sample.dynamic3dgs_files",
 }
 # The distributions that encode and ray cast the samples' files.
 SAMPLE_LIBRARIES = ("numpy", "opencv-python-headless", "open3d", "pyarrow", "scipy", "trimesh")
@@ -92,7 +91,7 @@ def sample_version(sources: tuple[str, ...] = ()) -> str:
     """12 hex digits of sha256 over the generators' source (and ``sources``, more files a sample's
     writer reads), the libraries' versions and the layout."""
     digest = hashlib.sha256(f"layout {CACHE_LAYOUT}\0".encode())
-    generators = sorted(pathlib.Path(pipeline.samples.__file__).parent.glob("*.py"))
+    generators = sorted(pathlib.Path(REPO, "pipeline").glob("*/sample/*.py"))
     for path in generators + [pathlib.Path(source) for source in sources]:
         digest.update(path.name.encode() + b"\0" + path.read_bytes() + b"\0")
     for library in SAMPLE_LIBRARIES:
@@ -127,7 +126,7 @@ def link_tree(source: str, target: str) -> None:
 
 @pytest.fixture(scope="session")
 def world() -> DrivingWorld:
-    from pipeline.samples.driving_world import DrivingWorld
+    from pipeline.drivetrack.sample.driving_world import DrivingWorld
 
     return DrivingWorld()
 
@@ -137,8 +136,8 @@ def driving_sample() -> tuple[str, dict]:
     """``sample_split``'s value, written into the cache on first call in this process. The fixtures
     that run on a sample call these when they run on it, not at their setup, so a worker needing
     only the studio world does not wait while another writes the driving one (half a minute)."""
-    from pipeline.samples.driving_world import DrivingWorld
-    from pipeline.samples.waymo_world import write_split
+    from pipeline.drivetrack.sample.driving_world import DrivingWorld
+    from pipeline.drivetrack.sample.waymo_world import write_split
 
     def write(staging: str) -> None:
         generated = write_split(os.path.join(staging, "split"), world=DrivingWorld())
@@ -154,8 +153,8 @@ def studio_sample() -> tuple[str, StudioWorld]:
     """``pstudio_sample``'s value, written into the cache on first call in this process. The world is
     cheap to build (about 10 ms) and deterministic, so a cache hit returns a fresh one equal to the
     one written."""
-    from pipeline.samples.dynamic3dgs_files import write_sequence
-    from pipeline.samples.studio_world import StudioWorld
+    from pipeline.pstudio.sample.dynamic3dgs_files import write_sequence
+    from pipeline.pstudio.sample.studio_world import StudioWorld
 
     studio = StudioWorld()
     folder = cached_sample("pstudio", lambda staging: write_sequence(os.path.join(staging, "root"), studio))

@@ -8,9 +8,9 @@ import operator
 
 from pipeline.adt.annotate import annotate_group
 from pipeline.adt.download import reclaim_scratch
+from pipeline.adt.sample.excerpt import no_sample_message
 from pipeline.adt.settings import AdtConfig
 from pipeline.adt.units import SequenceChunk, list_units, scratch_folder
-from pipeline.samples.adt_excerpt import no_sample_message
 from pipeline.sources import NoSample, Source
 
 

@@ -13,7 +13,7 @@ from pipeline.sources import Source
 
 def sample_input(folder: str) -> str:
     """Write (once) the embedded sample world, a Waymo v2 split folder; returns its path."""
-    from pipeline.samples.waymo_world import write_sample_split
+    from pipeline.drivetrack.sample.waymo_world import write_sample_split
 
     return write_sample_split(folder)
 

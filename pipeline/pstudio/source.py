@@ -14,7 +14,7 @@ from pipeline.sources import Source
 
 def sample_input(folder: str) -> str:
     """Write (once) the embedded sample world in Dynamic 3D Gaussians' layout; returns its path."""
-    from pipeline.samples.dynamic3dgs_files import write_sample
+    from pipeline.pstudio.sample.dynamic3dgs_files import write_sample
 
     return write_sample(folder)
 

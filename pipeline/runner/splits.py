@@ -27,7 +27,7 @@ MAX_RELEASE_BYTES = 64 << 20
 # and a few they cannot (an object of another camera, absent segments and sequences, a camera the
 # sequence lacks, a chunk past the ADT excerpt's end), so that a release run on the samples shows
 # every status with its reason (``make demo`` runs it).
-SAMPLE_RELEASE = str(importlib.resources.files("pipeline.samples") / "sample_splits.json")
+SAMPLE_RELEASE = str(importlib.resources.files("pipeline.runner") / "sample_splits.json")
 
 
 @dataclasses.dataclass(frozen=True)

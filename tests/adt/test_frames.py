@@ -13,10 +13,10 @@ from PIL import Image
 
 from pipeline.adt.reader import SequenceReader
 from pipeline.adt.rectify import Rectifier
+from pipeline.adt.sample.excerpt import EXCERPT_SETTINGS
 from pipeline.adt.settings import AdtConfig
 from pipeline.adt.units import SequenceChunk
 from pipeline.core.errors import InputError
-from pipeline.samples.adt_excerpt import EXCERPT_SETTINGS
 from pipeline.settings.fields import with_overrides, with_rules
 from pipeline.settings.run_config import RunConfig
 from tests.support.adt_excerpt import SAMPLE, needs_excerpt

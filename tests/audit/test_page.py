@@ -30,8 +30,8 @@ from pipeline import sources
 from pipeline.audit.__main__ import main as audit_main
 from pipeline.audit.report_data import counts_at, run_config, source_data
 from pipeline.audit.sweep import evaluate, load_statistics, release_of, run_provenance
+from pipeline.drivetrack.sample.waymo_world import SEGMENT
 from pipeline.runner.command import main as run_main
-from pipeline.samples.waymo_world import SEGMENT
 from pipeline.settings.fields import with_overrides
 from pipeline.viz.__main__ import main as viz_main
 from pipeline.viz.clip_figure import IMAGES_KEY, decode_frame, load_clip

@@ -22,11 +22,11 @@ import pytest
 
 from benchmarks.file_server import serve
 from pipeline.audit.__main__ import main as audit_main
+from pipeline.drivetrack.sample.waymo_world import SEGMENT
 from pipeline.export.npz_writer import encode_npz
 from pipeline.io.clip_reader import read_clip_file
 from pipeline.io.given_queries import given_queries
 from pipeline.io.http import HttpClient, HttpError
-from pipeline.samples.waymo_world import SEGMENT
 from pipeline.settings.run_config import HttpConfig
 from tests.support.cli import run_in_process
 

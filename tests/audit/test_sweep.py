@@ -12,9 +12,9 @@ import pyarrow.parquet as pq
 import pytest
 
 from pipeline.audit.__main__ import main as audit_main
+from pipeline.drivetrack.sample.waymo_world import SAMPLE_VERSION
 from pipeline.io import file_set
 from pipeline.runner.command import main as run_main
-from pipeline.samples.waymo_world import SAMPLE_VERSION
 from tests.conftest import link_tree
 
 

@@ -55,7 +55,7 @@ import pytest
 
 from pipeline.drivetrack import columns as C
 from pipeline.drivetrack.reader import SegmentReader
-from pipeline.samples.waymo_world import SEGMENT, timestamp
+from pipeline.drivetrack.sample.waymo_world import SEGMENT, timestamp
 from tests.support.bad_input import assert_case_error, assert_only_these_units_failed, failures_by_unit
 from tests.support.cli import run_in_process
 

@@ -14,9 +14,9 @@ from pipeline.drivetrack import columns as C
 from pipeline.drivetrack.annotate import unit_camera
 from pipeline.drivetrack.camera_model import JPEG_QUALITY, Undistortion, UnitCamera
 from pipeline.drivetrack.records import CameraCalibration, CameraFrames
+from pipeline.drivetrack.sample.waymo_world import POSE_DELAY_S, SEGMENT, frame_time
 from pipeline.export.invariants import check_arrays, quality_findings
 from pipeline.export.npz_writer import clip_arrays
-from pipeline.samples.waymo_world import POSE_DELAY_S, SEGMENT, frame_time
 from pipeline.settings.fields import with_overrides
 from pipeline.settings.run_config import RunConfig
 from tests.support.units import drivetrack_clips, drivetrack_input

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.samples.driving_world import FRAME_PERIOD_S
+from pipeline.drivetrack.sample.driving_world import FRAME_PERIOD_S
 from tests.support import driving_family
 
 SEEDS = range(20)

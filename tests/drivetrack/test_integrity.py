@@ -17,7 +17,7 @@ import pytest
 from pipeline.core.errors import InputError
 from pipeline.drivetrack import columns as C
 from pipeline.drivetrack.reader import SegmentReader
-from pipeline.samples.waymo_world import SEGMENT, timestamp
+from pipeline.drivetrack.sample.waymo_world import SEGMENT, timestamp
 from tests.drivetrack.test_bad_input import LEAD_CAR, T, as_strings, repeat_row, retyped, set_cells
 from tests.support.cli import clip_bytes, run_in_process
 

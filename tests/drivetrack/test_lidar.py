@@ -12,7 +12,13 @@ from pipeline.drivetrack.lidar import (
 )
 from pipeline.drivetrack.reader import SegmentReader
 from pipeline.drivetrack.records import LidarCalibration
-from pipeline.samples.waymo_world import SEGMENT, frame_time, lidar_to_vehicle, timestamp, world_from_camera
+from pipeline.drivetrack.sample.waymo_world import (
+    SEGMENT,
+    frame_time,
+    lidar_to_vehicle,
+    timestamp,
+    world_from_camera,
+)
 
 
 def test_uniform_inclinations_are_reversed():

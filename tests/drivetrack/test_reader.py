@@ -11,7 +11,7 @@ from pipeline.core.errors import InputError
 from pipeline.drivetrack import columns as C
 from pipeline.drivetrack.annotate import unit_camera
 from pipeline.drivetrack.reader import SegmentReader, list_segments, transforms_from_column
-from pipeline.samples.waymo_world import SEGMENT, camera_to_vehicle
+from pipeline.drivetrack.sample.waymo_world import SEGMENT, camera_to_vehicle
 from tests.support.units import drivetrack_input
 
 

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from pipeline.drivetrack import footprints, lidar, object_surface, tracks
+from pipeline.drivetrack.sample.waymo_world import SEGMENT
 from pipeline.filters.flicker import passes_flicker, visibility_flips
-from pipeline.samples.waymo_world import SEGMENT
 from pipeline.settings.fields import with_overrides
 from pipeline.settings.run_config import RunConfig
 from tests.support import driving_family, stress_worlds

@@ -9,10 +9,10 @@ from pipeline.drivetrack.camera_model import frame_poses
 from pipeline.drivetrack.lidar import gather_lidar
 from pipeline.drivetrack.objects import select_objects
 from pipeline.drivetrack.queries import match_given_queries, point_pool
+from pipeline.drivetrack.sample.waymo_world import SEGMENT
 from pipeline.drivetrack.settings import DriveTrackConfig
 from pipeline.drivetrack.tracks import track_object
 from pipeline.filters.select import apply_filters, decide
-from pipeline.samples.waymo_world import SEGMENT
 from pipeline.settings.fields import with_overrides
 from pipeline.settings.run_config import RunConfig
 from pipeline.sources import RunChoices

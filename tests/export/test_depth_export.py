@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import open3d as o3d
 
+from pipeline.drivetrack.sample.waymo_world import FIRST_TIMESTAMP_MICROS, frame_time, world_from_camera
+from pipeline.pstudio.sample.studio_world import WIDTH as STUDIO_WIDTH
 from pipeline.runner.command import main as run_main
-from pipeline.samples.studio_world import WIDTH as STUDIO_WIDTH
-from pipeline.samples.waymo_world import FIRST_TIMESTAMP_MICROS, frame_time, world_from_camera
 from tests.support.adt_excerpt import SAMPLE as ADT_EXCERPT
 from tests.support.adt_excerpt import needs_excerpt
 

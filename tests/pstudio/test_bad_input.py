@@ -33,7 +33,7 @@ import cv2
 import numpy as np
 import pytest
 
-from pipeline.samples.dynamic3dgs_files import EXPERIMENT, SEQUENCE
+from pipeline.pstudio.sample.dynamic3dgs_files import EXPERIMENT, SEQUENCE
 from tests.conftest import link_tree
 from tests.support.bad_input import assert_case_error, assert_only_these_units_failed
 from tests.support.cli import run_in_process

@@ -10,8 +10,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from pipeline.pstudio.render import render_depth_at, render_depth_image
+from pipeline.pstudio.sample.studio_world import HEIGHT, WIDTH
 from pipeline.pstudio.splats import Splats2D, front_to_back, gaussian_constants, project_splats
-from pipeline.samples.studio_world import HEIGHT, WIDTH
 
 
 def project(means, quaternions, scales, opacities, w2c, fx_fy_cx_cy, width, height, points_uv=None):

@@ -9,10 +9,10 @@ from pipeline.core.geometry import invert_se3, project, transform_points
 from pipeline.export.invariants import check_arrays
 from pipeline.export.npz_writer import clip_arrays
 from pipeline.filters.select import apply_filters
+from pipeline.pstudio.sample.studio_world import FRAMES
 from pipeline.pstudio.settings import PstudioConfig
 from pipeline.pstudio.tracks import annotate_unit, multiview_mask_fraction
 from pipeline.pstudio.units import list_units
-from pipeline.samples.studio_world import FRAMES
 from pipeline.settings.run_config import RunConfig
 from pipeline.sources import RunChoices
 from tests.support.units import pstudio_input

@@ -29,8 +29,8 @@ import pyarrow.parquet as pq
 import pytest
 
 from pipeline.core.errors import InputError
+from pipeline.drivetrack.sample.waymo_world import SEGMENT
 from pipeline.export.layout import check_clip_name
-from pipeline.samples.waymo_world import SEGMENT
 from pipeline.sources import BUILT_IN
 from tests.support.adt_excerpt import SAMPLE as ADT_EXCERPT
 from tests.support.adt_excerpt import SETTINGS as ADT_SETTINGS

@@ -17,11 +17,11 @@ import pyarrow.parquet as pq
 import pytest
 
 from pipeline.audit.__main__ import main as audit_main
+from pipeline.drivetrack.sample.waymo_world import DISTORTION, FX_FY_CX_CY, SEGMENT
 from pipeline.drivetrack.settings import DriveTrackConfig
 from pipeline.runner.command import parse_args
 from pipeline.runner.prepare import prepare_run
 from pipeline.runner.resume import run_fingerprint
-from pipeline.samples.waymo_world import DISTORTION, FX_FY_CX_CY, SEGMENT
 from pipeline.settings.fields import with_overrides, with_rules
 from pipeline.settings.run_config import RunConfig
 from tests.support.adt_excerpt import ONE_FRAME_CHUNKS, SAMPLE, needs_excerpt

@@ -1,4 +1,4 @@
-"""The samples' splits file (``pipeline/samples/sample_splits.json``, what ``make demo`` runs): a release run
+"""The samples' splits file (``pipeline/runner/sample_splits.json``, what ``make demo`` runs): a release run
 on the sample worlds, given no ``--input``, writes every clip the samples make and says why each
 other clip is not there, in words that name no option the user did not give; ``audit release`` shows
 each clip's drops per filter; ``audit report`` shows the verdicts of a release run that annotated
@@ -139,7 +139,7 @@ def test_the_demo_is_a_release_run_of_the_packaged_sample_splits():
     assert demo.count("$(PY) -m pipeline.run ") == demo.count("--release $(SAMPLE_RELEASE)") == 3
     assert "-m pipeline.audit release $(OUT)" in demo
     pyproject = open(os.path.join(REPO, "pyproject.toml")).read()
-    assert '"pipeline.samples" = ["sample_splits.json"]' in pyproject  # in a wheel too
+    assert '"pipeline.runner" = ["sample_splits.json"]' in pyproject  # in a wheel too
 
 
 def test_a_rerun_keeps_the_agreement_of_each_clip_whose_file_is_the_one_compared(sample_release, tmp_path):

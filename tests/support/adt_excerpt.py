@@ -1,4 +1,4 @@
-"""The real ADT excerpt (``pipeline.samples.adt_excerpt.excerpt_path``: ``$ADT_EXCERPT``, else ../shared/data
+"""The real ADT excerpt (``pipeline.adt.sample.excerpt.excerpt_path``: ``$ADT_EXCERPT``, else ../shared/data
 beside the repository), read in place, and the settings its two frames need (the same as the ADT
 bench's); tests that use it skip when it is absent."""
 
@@ -6,7 +6,7 @@ import pathlib
 
 import pytest
 
-from pipeline.samples.adt_excerpt import EXCERPT_SETTINGS, SHARED_EXCERPT, excerpt_path
+from pipeline.adt.sample.excerpt import EXCERPT_SETTINGS, SHARED_EXCERPT, excerpt_path
 
 SAMPLE = pathlib.Path(excerpt_path() or SHARED_EXCERPT)
 SETTINGS = [part for setting in EXCERPT_SETTINGS for part in ("--set", setting)]

@@ -17,8 +17,8 @@ from typing import cast
 import numpy as np
 import trimesh
 
-from pipeline.samples import driving_world as driving
-from pipeline.samples.waymo_world import write_split
+from pipeline.drivetrack.sample import driving_world as driving
+from pipeline.drivetrack.sample.waymo_world import write_split
 
 SEGMENT = "family000000000000001_0_000_8_000"
 FRAMES = 20

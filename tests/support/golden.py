@@ -36,11 +36,11 @@ import sys
 import tempfile
 
 import pipeline.clips
+from pipeline.adt.sample.excerpt import EXCERPT_SETTINGS, SHARED_EXCERPT, excerpt_path
 from pipeline.commandline import StrictParser
 from pipeline.export.layout import sample_folder
 from pipeline.io.files import write_atomic
 from pipeline.runner.splits import SAMPLE_RELEASE
-from pipeline.samples.adt_excerpt import EXCERPT_SETTINGS, SHARED_EXCERPT, excerpt_path
 from tests.support.cli import REPO
 
 FIXTURES = os.path.join(REPO, "tests", "fixtures")

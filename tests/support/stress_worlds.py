@@ -1,5 +1,5 @@
 """Driving worlds that stress DriveTrack's visibility, written like the sample world (real Waymo v2
-Parquet, ``pipeline.samples.waymo_world.write_split``) but short: 16 frames (clips need 10
+Parquet, ``pipeline.drivetrack.sample.waymo_world.write_split``) but short: 16 frames (clips need 10
 contiguous frames: ``OVERRIDES``).
 
 - ``brief``: brief occlusions by thin and small objects. A parked car on the right seen past a
@@ -18,8 +18,8 @@ import dataclasses
 import numpy as np
 import trimesh
 
-from pipeline.samples import driving_world as driving
-from pipeline.samples.waymo_world import write_split
+from pipeline.drivetrack.sample import driving_world as driving
+from pipeline.drivetrack.sample.waymo_world import write_split
 
 SEGMENT = "stress0000000000000001_0_000_8_000"
 FRAMES = 16

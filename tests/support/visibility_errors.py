@@ -21,7 +21,7 @@ import sys
 import numpy as np
 
 from pipeline.commandline import StrictParser
-from pipeline.samples.waymo_world import FIRST_TIMESTAMP_MICROS, frame_time
+from pipeline.drivetrack.sample.waymo_world import FIRST_TIMESTAMP_MICROS, frame_time
 from pipeline.settings.fields import with_overrides, with_rules
 from pipeline.settings.run_config import RunConfig
 from tests.support import driving_family

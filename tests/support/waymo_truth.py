@@ -7,7 +7,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from pipeline.samples.waymo_world import (
+from pipeline.drivetrack.sample.waymo_world import (
     DISTORTION,
     FIRST_TIMESTAMP_MICROS,
     FX_FY_CX_CY,

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from pipeline.samples.driving_world import ACTORS
+from pipeline.drivetrack.sample.driving_world import ACTORS
 from pipeline.viz.__main__ import main
 from pipeline.viz.clip_figure import (
     TrajectoryView,

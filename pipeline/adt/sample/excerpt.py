@@ -10,7 +10,7 @@ import os
 # settings its two frames need. Tests, the Makefile's ADT_EXCERPT and the benchmarks use these.
 SHARED_EXCERPT = "../shared/data/adt_sample/aria_digital_twin_test_data"
 EXCERPT_SETTINGS = ("adt.chunk_frames=2", "adt.min_frames=2", "adt.max_gt_offset_ms=40")
-_REPOSITORY = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+_REPOSITORY = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", "..", ".."))  # pipeline/adt/sample/
 
 
 def excerpt_path() -> str | None:
