@@ -1,12 +1,12 @@
-# Two commands for a fresh machine: `make demo` (set up, run the main job on the embedded
-# sample world as a release run, validate its clips, show its verdicts) and `make test` (set up,
-# lint, run the tests).
+# Two commands for a fresh machine: `make demo` (set up, run the main job of every registered source
+# on its sample as a release run, validate its clips, show its verdicts: pipeline/demo.py) and
+# `make test` (set up, lint, run the tests).
 PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
 OUT ?= out/demo
 # The real ADT excerpt shipped beside the project (read in place, never copied); exported, so the
-# tests and the benchmarks read the same one (pipeline.adt.sample.excerpt.excerpt_path reads $ADT_EXCERPT).
+# demo, the tests and the benchmarks read the same one (pipeline.adt.sample.excerpt.excerpt_path reads it).
 ADT_EXCERPT ?= ../shared/data/adt_sample/aria_digital_twin_test_data
 export ADT_EXCERPT
 # The samples' splits file (pipeline.runner.splits.SAMPLE_RELEASE): the demo is a release run of it, so
@@ -32,14 +32,7 @@ $(VENV)/.installed: pyproject.toml
 	touch $@
 
 demo: setup
-	$(PY) -m pipeline.run --source drivetrack --runner DirectRunner --output $(OUT) --release $(SAMPLE_RELEASE)
-	$(PY) -m pipeline.run --source pstudio --runner DirectRunner --output $(OUT) --release $(SAMPLE_RELEASE)
-	@if [ -d "$(ADT_EXCERPT)" ]; then \
-	  $(PY) -m pipeline.run --source adt --runner DirectRunner --output $(OUT) --input $(ADT_EXCERPT) \
-	    --set adt.chunk_frames=2 --set adt.min_frames=2 --set adt.max_gt_offset_ms=40 --release $(SAMPLE_RELEASE); \
-	else echo "no ADT excerpt at $(ADT_EXCERPT): ADT skipped (python -m pipeline.run --source adt says how to get ADT)"; fi
-	$(PY) -m pipeline.validate $(OUT)
-	$(PY) -m pipeline.audit release $(OUT)
+	$(PY) -m pipeline.demo --output $(OUT) --release $(SAMPLE_RELEASE)
 
 # typecheck: mypy over pipeline/ alone (configured in pyproject.toml; make test runs it too).
 typecheck: setup

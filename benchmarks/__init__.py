@@ -13,11 +13,13 @@ The framework, one file per job:
   hostile_files.py  every hostile file and fault case run as a user would: exit, peak RSS, files
                  touched outside --output (``python -m benchmarks.hostile_files [FOLDER]``)
 
-One entry per source, ``<source>.py`` (drivetrack.py, adt.py, pstudio.py), found through the
-registry (``sources.get(name).bench_module``; a plug-in names its own with ``Source.bench``); the
-bench runs the sources in ``sources.names()``'s order. An entry defines:
+One entry per source, in the source's own folder (``pipeline/<source>/bench.py``), found through
+the registry (``sources.get(name).bench_module``, which ``Source.bench`` names); the bench runs the
+sources in ``sources.names()``'s order. An entry defines:
   TARGETS                           {table column: target}: its own targets, ``ms_per_frame`` and
                                     ``peak_rss_gib`` (the others are every source's: ``table.py``)
+  RELEASE_SHAPE                     (candidates per clip, (fewest, most) frames per clip) of the
+                                    release's clips: the audit page's bench draws tables that size
   FIXED_IN_WORK                     ((module, function), ...): what each repeated run pays again,
                                     clocked inside the runs and taken out of the per-frame cost
   prepare(workdir, size)            -> UnitSetup, or None (skipped): its unit's inputs, written once
@@ -31,6 +33,10 @@ bench runs the sources in ``sources.names()``'s order. An entry defines:
   micro(frames)                     prints its micro-benchmarks (``--micro``)
   beam_run_args(units)              -> the ``pipeline.run`` arguments that make these units, or
                                     None: not run through Beam (``--beam``)
+and may define:
+  release_size_clip(spec, config)   -> a ``ClipRecord`` as long as a release unit's: its filter,
+                                    encode and write stage is timed apart (``write_unit_s``), for
+                                    a unit whose measured clips are shorter (ADT's excerpt)
 A ``spec`` is one unit's, as ``units.py`` writes it for the worker: source, entry, input_root,
 unit (a group of the source's units, JSON), overrides, output, and the setup's ``extra``.
 """

@@ -30,6 +30,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from benchmarks.entry import entry
 from pipeline import sources
 from pipeline.audit.sweep import evaluate, load_statistics
 from pipeline.commandline import StrictParser
@@ -42,9 +43,6 @@ FLAGS = (
     "--headless=new --no-sandbox --disable-gpu --disable-dev-shm-usage --disable-background-networking "
     "--disable-component-update --no-first-run --disable-sync"
 ).split()
-# source -> (candidates per clip, (fewest, most) frames per clip), as in the release.
-SHAPES = {"adt": (4096, (300, 300)), "drivetrack": (1024, (24, 199)), "pstudio": (400, (150, 150))}
-TEMPLATE_OF = {"adt": "drivetrack"}  # without a run of its own, ADT borrows the widest-spread tables
 MOVE_SCRIPT = """
 const input = document.querySelector("input[type=range]"), times = [];
 for (let i = 0; i < 9; i++) {
@@ -71,7 +69,7 @@ def templates(runs: list[str]) -> dict[str, tuple[list[pa.Table], str]]:
 
 def synthetic_table(template: pa.Table, source: str, clip: str, rng: np.random.Generator) -> pa.Table:
     """One clip's audit table drawn from ``template``'s rows at the source's release shape."""
-    count, (fewest, most) = SHAPES[source]
+    count, (fewest, most) = entry(source).RELEASE_SHAPE
     frames = int(rng.integers(fewest, most + 1))
     rows = rng.integers(0, template.num_rows, count)
     scale = frames / template.column("num_frames")[0].as_py()
@@ -98,7 +96,8 @@ def synthetic_release(runs: list[str], splits_json: str, folder: str, seed: int 
     found = templates(runs)
     rng = np.random.default_rng(seed)
     for source, named in sorted(release.clips.items()):
-        tables, clip_file = found.get(source) or found[TEMPLATE_OF[source]]
+        # A source without a run of its own borrows the first found's tables (the registry's order).
+        tables, clip_file = found.get(source) or next(iter(found.values()))
         for path in (audit_path(folder, source, "x"), clip_path(folder, source, "x")):
             os.makedirs(os.path.dirname(path), exist_ok=True)
         for clip in sorted(named):

@@ -28,7 +28,7 @@ reused.
 
 Micro-benchmarks (``--micro``, with ``--frames``): each source's entry's ``micro``.
 
-Per source, its benchmark entry (``benchmarks/<source>.py`` for a built-in source):
+Per source, its benchmark entry (``pipeline/<source>/bench.py`` for a built-in source):
 """
 
 from __future__ import annotations

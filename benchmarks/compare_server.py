@@ -33,13 +33,15 @@ def write_clips(workdir: str, count: int) -> tuple[str, str, str]:
     """(REF folder, NEW folder, clip list) holding ``count`` clips, written once."""
     import cv2
 
+    from pipeline import sources
     from pipeline.export.npz_writer import encode_npz
 
     ref, new = os.path.join(workdir, "ref"), os.path.join(workdir, "new")
     listing = os.path.join(workdir, f"clips_{count}.txt")
     jpeg = cv2.imencode(".jpg", np.full((128, 192, 3), 90, np.uint8))[1].tobytes()
+    source = sources.names()[0]  # the clips' folder: any registered source's
     for index in range(count):
-        name = f"drivetrack/bench_{index:05d}.npz"
+        name = f"{source}/bench_{index:05d}.npz"
         if os.path.exists(os.path.join(new, name)):
             continue
         rng = np.random.default_rng(index)
@@ -53,12 +55,18 @@ def write_clips(workdir: str, count: int) -> tuple[str, str, str]:
             }
         )
         for root in (ref, new):
-            os.makedirs(os.path.join(root, "drivetrack"), exist_ok=True)
+            os.makedirs(os.path.join(root, source), exist_ok=True)
             with open(os.path.join(root, name), "wb") as out:
                 out.write(data)
     with open(listing, "w") as out:
-        out.writelines(f"drivetrack/bench_{index:05d}.npz\n" for index in range(count))
+        out.writelines(f"{source}/bench_{index:05d}.npz\n" for index in range(count))
     return ref, new, listing
+
+
+def clip_names(listing: str) -> list[str]:
+    """The clip paths (``<source>/bench_<index>.npz``) a listing written by ``write_clips`` holds."""
+    with open(listing) as lines:
+        return [line.strip() for line in lines]
 
 
 def timed_compare(base: str, new: str, listing: str, out: str, extra: list[str]) -> tuple[int, float, str]:
@@ -93,7 +101,7 @@ def bench(args: argparse.Namespace) -> list[str]:
             server.reset()
         if args.dead:
             for index in range(args.clips):
-                server.fail(f"drivetrack/bench_{index:05d}.npz", *["503"] * 50)
+                server.fail(clip_names(listing)[index], *["503"] * 50)
             out = os.path.join(args.workdir, "compare_dead")
             jobs = str(max(args.jobs))
             status, seconds, last = timed_compare(

@@ -21,9 +21,9 @@ import dataclasses
 import os
 from statistics import fmean
 
-from benchmarks.entry import UnitSetup
 from benchmarks.processes import UnitRun
 from benchmarks.table import SPEEDUP_TARGET, targets
+from pipeline.core.benchmark import UnitSetup
 
 GIB = 1024**3
 # A floor process's timed figures (the entry's ``floor``), averaged over the floor runs.

@@ -23,9 +23,10 @@ import sys
 import tempfile
 import time
 
-from benchmarks.entry import UnitSetup, entry, entry_name
+from benchmarks.entry import entry, entry_name
 from benchmarks.processes import run_processes, single_threaded_env
 from benchmarks.report import Runs, print_speedup, report
+from pipeline.core.benchmark import UnitSetup
 
 
 def _specs(setup: UnitSetup, workdir: str, tag: str) -> list[dict]:

@@ -115,6 +115,8 @@ class Source(Generic[U]):
       refused before any work, with ``sample_input``'s NoSample message.
     reclaim_scratch: config -> bytes freed: delete what killed workers left in the source's scratch
       folder (a run stopped by Ctrl-C or SIGTERM calls it once its worker processes are gone).
+    demo_args: () -> what ``python -m pipeline.demo`` adds to ``--source <name>`` (an input and
+      settings; NoSample saying why when it cannot run here); None: a run on the sample world.
     mask_min_agreement: config -> the mask filter's threshold for this source's clips.
     sweepable: config keys of this source's filter thresholds (``pipeline.audit sweep``).
     group_of: unit -> the key of the units annotated together, in one worker, when inputs they
@@ -122,7 +124,7 @@ class Source(Generic[U]):
       unit alone.
     settings: the dataclass of the source's settings section (``--set <name>.<field>``), or None.
     bench: the module of the source's benchmark entry (``python -m benchmarks <name>``, see
-      ``benchmarks/__init__.py``); default ``benchmarks.<name>``.
+      ``benchmarks/__init__.py``): a built-in source's ``pipeline/<name>/bench.py``.
     """
 
     name: str
@@ -136,10 +138,14 @@ class Source(Generic[U]):
     bench: str = ""
     has_sample: bool = True
     reclaim_scratch: Callable[[RunConfig], int] | None = None
+    demo_args: Callable[[], list[str]] | None = None
 
     @property
     def bench_module(self) -> str:
-        return self.bench or f"benchmarks.{self.name}"
+        """The benchmark entry's module; a source without one has none to benchmark."""
+        if not self.bench:
+            raise LookupError(f"source {self.name!r} names no benchmark entry (Source.bench)")
+        return self.bench
 
     def group_key(self, unit: U) -> str:
         """The key ``pipeline.runner.graph`` groups ``unit`` under: its group's, else its own name."""

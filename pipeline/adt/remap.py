@@ -1,7 +1,7 @@
 """Sampling tables that reproduce projectaria-tools' ``distort_by_calibration`` family exactly,
 applied as gathers (numba loops for the bilinear kinds, NumPy for nearest): the same pixels,
 on the excerpt about 6 (RGB) to 15 (depth, ids) times faster than the library's calls
-(``micro`` in ``benchmarks/adt.py``).
+(``micro`` in ``pipeline/adt/bench.py``).
 
 What the library does (core/calibration/utility/Distort.cpp, core/image/utility/Distort.cpp,
 core/image/Image.h), with its pixel centres at integers: target pixel (x, y) samples the source

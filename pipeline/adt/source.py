@@ -8,7 +8,7 @@ import operator
 
 from pipeline.adt.annotate import annotate_group
 from pipeline.adt.download import reclaim_scratch
-from pipeline.adt.sample.excerpt import no_sample_message
+from pipeline.adt.sample.excerpt import demo_args, no_sample_message
 from pipeline.adt.settings import AdtConfig
 from pipeline.adt.units import SequenceChunk, list_units, scratch_folder
 from pipeline.sources import NoSample, Source
@@ -21,12 +21,14 @@ def sample_input(folder: str) -> str:
 
 SOURCE: Source[SequenceChunk] = Source(
     name="adt",
+    bench="pipeline.adt.bench",
     list_units=list_units,
     annotate_group=annotate_group,
     sample_input=sample_input,
     mask_min_agreement=lambda config: config.section(AdtConfig).mask_min_agreement,
     sweepable=("adt.mask_min_agreement",),
     has_sample=False,
+    demo_args=demo_args,
     reclaim_scratch=lambda config: reclaim_scratch(scratch_folder(config.section(AdtConfig))),
     settings=AdtConfig,
     group_of=operator.attrgetter("group"),

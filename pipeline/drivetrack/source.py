@@ -20,6 +20,7 @@ def sample_input(folder: str) -> str:
 
 SOURCE: Source[SegmentCamera] = Source(
     name="drivetrack",
+    bench="pipeline.drivetrack.bench",
     list_units=list_units,
     annotate_group=annotate_group,
     sample_input=sample_input,

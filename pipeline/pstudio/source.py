@@ -21,6 +21,7 @@ def sample_input(folder: str) -> str:
 
 SOURCE: Source[SequenceCamera] = Source(
     name="pstudio",
+    bench="pipeline.pstudio.bench",
     list_units=list_units,
     annotate_group=annotate_group,
     sample_input=sample_input,

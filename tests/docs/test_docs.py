@@ -16,6 +16,8 @@ import pytest
 
 from pipeline import sources
 from pipeline.commandline import StrictParser, UsageError, beam_parser
+from pipeline.demo import commands as demo_commands
+from pipeline.runner.splits import SAMPLE_RELEASE
 from pipeline.settings import doc as settings_doc
 from pipeline.settings import sections as registry
 from pipeline.settings.fields import setting_keys, with_overrides
@@ -302,5 +304,15 @@ def test_each_command_the_makefile_runs_is_accepted(module, words):
 
 
 def test_the_makefile_commands_are_found():
-    assert ("pipeline.audit", ["release", "out/demo"]) in MAKEFILE_COMMANDS
-    assert sum(module == "pipeline.run" for module, _ in MAKEFILE_COMMANDS) == 3
+    demo = ("pipeline.demo", ["--output", "out/demo", "--release", "pipeline/runner/sample_splits.json"])
+    assert demo in MAKEFILE_COMMANDS
+
+
+DEMO_COMMANDS = [(command[0], command[1:]) for command in demo_commands("out/demo", SAMPLE_RELEASE)]
+
+
+@pytest.mark.parametrize(
+    ("module", "words"), DEMO_COMMANDS, ids=[f"{m} {shlex.join(w)[:80]}" for m, w in DEMO_COMMANDS]
+)
+def test_each_command_the_demo_runs_is_accepted(module, words):
+    check_command(module, words)

@@ -14,6 +14,7 @@ import shutil
 
 import pytest
 
+from pipeline import demo, sources
 from pipeline.audit.__main__ import main as audit_main
 from pipeline.runner.splits import SAMPLE_RELEASE, read_release
 from tests.support import golden
@@ -136,10 +137,54 @@ def test_the_demo_is_a_release_run_of_the_packaged_sample_splits():
     makefile = open(os.path.join(REPO, "Makefile")).read()
     assert f"SAMPLE_RELEASE := {os.path.relpath(SAMPLE_RELEASE, REPO)}" in makefile
     demo = re.search(r"^demo:.*?(?=^\S)", makefile, re.M | re.S)[0]
-    assert demo.count("$(PY) -m pipeline.run ") == demo.count("--release $(SAMPLE_RELEASE)") == 3
-    assert "-m pipeline.audit release $(OUT)" in demo
+    assert "$(PY) -m pipeline.demo --output $(OUT) --release $(SAMPLE_RELEASE)" in demo
     pyproject = open(os.path.join(REPO, "pyproject.toml")).read()
     assert '"pipeline.runner" = ["sample_splits.json"]' in pyproject  # in a wheel too
+
+
+def demo_runs(capsys) -> tuple[dict[str, list[str]], list[list[str]], str]:
+    """The demo's ``pipeline.run`` commands by source, its other commands, and what it said."""
+    made = demo.commands("OUT", "SPLITS")
+    runs = {command[2]: command for command in made if command[0] == "pipeline.run"}
+    return runs, [command for command in made if command[0] != "pipeline.run"], capsys.readouterr().err
+
+
+def test_the_demo_runs_every_registered_source_then_validates_and_shows_the_verdicts(capsys, monkeypatch):
+    """Every source of the registry runs as a release run of the splits file, on its sample; ADT, on
+    the excerpt read in place with the settings its two frames need, or is skipped with its reason."""
+    monkeypatch.setenv("ADT_EXCERPT", os.path.join(REPO, "no-such-excerpt"))
+    runs, after, said = demo_runs(capsys)
+    assert sorted(runs) == sorted(set(sources.names()) - {"adt"})
+    for name, command in runs.items():
+        assert command == [
+            "pipeline.run",
+            "--source",
+            name,
+            "--runner",
+            "DirectRunner",
+            "--output",
+            "OUT",
+            "--release",
+            "SPLITS",
+        ]
+    assert after == [["pipeline.validate", "OUT"], ["pipeline.audit", "release", "OUT"]]
+    assert "demo: adt skipped: no ADT excerpt at " in said and "no-such-excerpt" in said
+
+
+@needs_excerpt
+def test_the_demo_runs_adt_on_the_excerpt(capsys):
+    runs, _, said = demo_runs(capsys)
+    assert runs["adt"][-8:] == [
+        "--input",
+        str(SAMPLE),
+        "--set",
+        "adt.chunk_frames=2",
+        "--set",
+        "adt.min_frames=2",
+        "--set",
+        "adt.max_gt_offset_ms=40",
+    ]
+    assert "skipped" not in said
 
 
 def test_a_rerun_keeps_the_agreement_of_each_clip_whose_file_is_the_one_compared(sample_release, tmp_path):

@@ -14,9 +14,10 @@ import os
 import tempfile
 import time
 
-from benchmarks.entry import UnitSetup, wall_and_cpu
+from pipeline.core.benchmark import UnitSetup, wall_and_cpu
 
 TARGETS = {"ms_per_frame": 50.0}  # per input frame on one core
+RELEASE_SHAPE = (64, (8, 8))  # candidates per clip, (fewest, most) frames per clip, as a release would
 FIXED_IN_WORK = ()  # nothing a repeated run pays again: the unit runs once
 UNIT = "walk"  # the sample's one unit
 

@@ -10,7 +10,8 @@ import os
 # settings its two frames need. Tests, the Makefile's ADT_EXCERPT and the benchmarks use these.
 SHARED_EXCERPT = "../shared/data/adt_sample/aria_digital_twin_test_data"
 EXCERPT_SETTINGS = ("adt.chunk_frames=2", "adt.min_frames=2", "adt.max_gt_offset_ms=40")
-_REPOSITORY = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", "..", ".."))  # pipeline/adt/sample/
+# This file is pipeline/adt/sample/excerpt.py.
+_REPOSITORY = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", "..", ".."))
 
 
 def excerpt_path() -> str | None:
@@ -19,6 +20,18 @@ def excerpt_path() -> str | None:
     path = os.environ.get("ADT_EXCERPT") or os.path.join(_REPOSITORY, SHARED_EXCERPT)
     path = os.path.normpath(os.path.abspath(path))
     return path if os.path.isdir(path) else None
+
+
+def demo_args() -> list[str]:
+    """A demo run's arguments: the excerpt read in place with the settings its two frames need;
+    NoSample when it is not there."""
+    from pipeline.sources import NoSample
+
+    path = excerpt_path()
+    if path is None:
+        where = os.environ.get("ADT_EXCERPT") or SHARED_EXCERPT
+        raise NoSample(f"no ADT excerpt at {where} (python -m pipeline.run --source adt says how to get ADT)")
+    return ["--input", path, *(word for setting in EXCERPT_SETTINGS for word in ("--set", setting))]
 
 
 def no_sample_message() -> str:

@@ -37,13 +37,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from benchmarks.entry import UnitSetup, wall_and_cpu
+from pipeline.core.benchmark import UnitSetup, wall_and_cpu
 
 if TYPE_CHECKING:
     from pipeline.settings.run_config import RunConfig
 
 # Per input frame on one core.
 TARGETS = {"ms_per_frame": 60.0}
+RELEASE_SHAPE = (4096, (300, 300))  # the release's candidates per clip, (fewest, most) frames per clip
 # Each repeated run opens and closes the sequence again (warm: the tables cached); the worker times
 # these inside the runs and the report takes them out of the per-frame cost.
 FIXED_IN_WORK = (("pipeline.adt.annotate", "open_sequence"), ("pipeline.adt.annotate", "close_sequence"))
@@ -126,25 +127,23 @@ def _first_calls(sequence: str, config: RunConfig) -> tuple[float, float]:
     return time.perf_counter() - wall, time.process_time() - cpu
 
 
-def _release_size_write(spec: dict, config: RunConfig, runs: int = 3) -> tuple[float, float]:
-    """Wall and CPU seconds (mean of ``runs``) of the filter, encode and write stage of a release
-    unit: the unit's own clip with its frames repeated to 300 (JPEGs, tracks, visibility,
-    extrinsics), through ``pipeline.runner.stages.filter_unit`` and ``write_unit`` into a scratch folder."""
+def release_size_clip(spec: dict, config: RunConfig):
+    """The unit's own clip with its frames repeated to a release unit's 300 (JPEGs, tracks,
+    visibility, extrinsics): the harness times its filter, encode and write stage apart
+    (``write_unit_s``), as a release unit pays it once."""
     import dataclasses
-    import shutil
-    import tempfile
-    import time as clock
 
     from pipeline import sources
-    from pipeline.core.outcomes import UnitClips
-    from pipeline.runner.stages import Annotated, UnitJob, filter_unit, write_unit
 
     source = sources.get("adt")
     ((sequence, chunk),) = spec["unit"]
     (made,) = source.annotate_group(spec["input_root"], [unit_of([sequence, chunk])], config, [None])
+    if isinstance(made, Exception):
+        raise made
     (clip,) = made.clips
+    assert clip.extrinsics_w2c is not None, "ADT clips hold their extrinsics"
     take = np.arange(CHUNK_FRAMES) % clip.num_frames
-    release = dataclasses.replace(
+    return dataclasses.replace(
         clip,
         images_jpeg=[clip.images_jpeg[i] for i in take],
         extrinsics_w2c=clip.extrinsics_w2c[take],
@@ -152,16 +151,6 @@ def _release_size_write(spec: dict, config: RunConfig, runs: int = 3) -> tuple[f
         visibility=clip.visibility[take],
         frame_ids=np.arange(CHUNK_FRAMES),
     )
-    scratch = tempfile.mkdtemp(prefix="write-", dir=os.path.dirname(spec["output"]))
-    try:
-        job = UnitJob(source, spec["input_root"], config, scratch, resume=False)
-        wall, cpu = time.perf_counter(), time.process_time()
-        for _ in range(runs):
-            annotated = Annotated("release_size", UnitClips((release,)), clock.time())
-            write_unit(job, filter_unit(job, annotated))
-        return (time.perf_counter() - wall) / runs, (time.process_time() - cpu) / runs
-    finally:
-        shutil.rmtree(scratch, ignore_errors=True)
 
 
 def measure_fixed_cost(spec: dict, config: RunConfig) -> dict:
@@ -173,17 +162,13 @@ def measure_fixed_cost(spec: dict, config: RunConfig) -> dict:
     open_s / open_cpu_s: that whole opening and closing; first_calls_s / first_calls_cpu_s: numba's
     first dispatch of the re-rendering loops (once per worker process, reported, not counted);
     (fixed_in_work_s / fixed_in_work_cpu_s, the openings and closings the ``repeat`` runs pay inside
-    their work, are timed in the runs themselves: ``FIXED_IN_WORK``);
-    write_unit_s / write_unit_cpu_s: the filter, encode and write stage of a 300-frame clip
-    (``_release_size_write``): a unit writes one clip, so the 2-frame runs' own write stage (its
-    audit table and record are a 300-frame unit's too) is taken out of the per-frame cost and this
-    counted once per unit."""
+    their work, are timed in the runs themselves: ``FIXED_IN_WORK``). The write stage of a
+    300-frame clip (``release_size_clip``) is timed by the harness."""
     from pipeline.adt.units import CHUNKS_PER_GROUP
 
     ((sequence, _),) = spec["unit"]
     open_wall, open_cpu = _open_and_close_once(sequence, config)
     first_wall, first_cpu = _first_calls(sequence, config)
-    write_wall, write_cpu = _release_size_write(spec, config)
     return {
         "fixed_s": open_wall / CHUNKS_PER_GROUP,
         "fixed_cpu_s": open_cpu / CHUNKS_PER_GROUP,
@@ -191,8 +176,6 @@ def measure_fixed_cost(spec: dict, config: RunConfig) -> dict:
         "open_cpu_s": open_cpu,
         "first_calls_s": first_wall,
         "first_calls_cpu_s": first_cpu,
-        "write_unit_s": write_wall,
-        "write_unit_cpu_s": write_cpu,
     }
 
 
@@ -208,16 +191,16 @@ def floor(spec: dict) -> dict:
 
     config = with_overrides(RunConfig(), spec["overrides"])
     ((sequence, chunk),) = spec["unit"]
-    opened = {}
+    opened: list = []
 
     def open_sequence() -> None:
         reader = open_reader(sequence, _settings(config))
-        opened["reader"], opened["stamps"] = reader, reader.frame_timestamps()
+        opened[:] = reader, reader.frame_timestamps()
 
     open_wall, open_cpu = wall_and_cpu(open_sequence)
-    reader = opened["reader"]
+    reader, all_stamps = opened
     size = _settings(config).chunk_frames
-    stamps = opened["stamps"][chunk * size : (chunk + 1) * size]
+    stamps = all_stamps[chunk * size : (chunk + 1) * size]
     repeat = spec.get("repeat", 1)
 
     def read() -> None:
@@ -259,7 +242,7 @@ def micro(frames: int) -> None:
         where = os.environ.get("ADT_EXCERPT") or SHARED_EXCERPT
         print(f"adt bench: no ADT excerpt at {where}; set ADT_EXCERPT to a sequence folder")
         return
-    config = with_overrides(RunConfig(), EXCERPT_SETTINGS)
+    config = with_overrides(RunConfig(), list(EXCERPT_SETTINGS))
     settings = _settings(config)
     open_time, reader = _timed(open_reader, path, settings)
     stamps = reader.frame_timestamps()

@@ -58,16 +58,24 @@ import time
 
 import numpy as np
 
-from benchmarks.entry import UnitSetup, wall_and_cpu
+from pipeline.core.benchmark import UnitSetup, wall_and_cpu
 
 # Per input frame on one core; the peak memory of the unit's process.
 TARGETS = {"ms_per_frame": 150.0, "peak_rss_gib": 2.5}
+RELEASE_SHAPE = (1024, (24, 199))  # the release's candidates per clip, (fewest, most) frames per clip
 FIXED_IN_WORK = ()  # nothing a repeated run pays again: the unit runs once
 
 SEGMENT = "1000000000000000001_0_000_20_000"
-FULL = {"frames": 199, "width": 1920, "height": 1280, "columns": 2650, "short_range": (200, 600), "scale": 4}
+FULL: dict = {
+    "frames": 199,
+    "width": 1920,
+    "height": 1280,
+    "columns": 2650,
+    "short_range": (200, 600),
+    "scale": 4,
+}
 DEFAULT = dict(FULL, frames=30)
-QUICK = {"frames": 30, "width": 480, "height": 320, "columns": 900, "short_range": (20, 60), "scale": 2}
+QUICK: dict = {"frames": 30, "width": 480, "height": 320, "columns": 900, "short_range": (20, 60), "scale": 2}
 FOCAL_AT_1920 = 2055.0
 IMAGE_NOISE = 6.0
 VERSION = "3"  # 2: the sample writer's lens distortion and rolling shutter; 3: side-camera vehicles

@@ -1,0 +1,49 @@
+"""What a source's benchmark entry (``pipeline/<source>/bench.py``) hands the benchmark harness
+(``benchmarks/``, which is not installed and imports the package, never the other way round): the
+``UnitSetup`` its ``prepare`` returns, and the clock its measurements use.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+
+@dataclasses.dataclass
+class UnitSetup:
+    """One source's benchmark unit, as ``prepare`` builds it.
+
+    units: the units of the scaling run (the first one is "the" unit); each is a group of the
+      source's units, each unit a JSON list of its fields (one ADT chunk: ``[[sequence, 0]]``).
+    frames: frames of one unit's input as measured (for the per-frame figure).
+    extrapolate_frames: when set, the release's unit of that many frames is extrapolated from the
+      measured one: fixed cost (ADT: opening the sequence, measured apart; else 0) + per-frame
+      cost x frames (ADT: its excerpt holds 2 frames; DriveTrack and Panoptic Studio at the
+      default size: shorter inputs than the release's).
+    full_units: units of the whole benchmark for the CPU-hours line, with ``full_units_note``.
+    size: "quick", "default" or "full" (ADT: its excerpt whatever the size).
+    variants: name -> settings added to ``overrides``: each unit of the 1-worker runs is run once
+      more with each, one process right after its floor's, and their time printed beside the
+      unit's (not in the table).
+    """
+
+    source: str
+    input_root: str
+    units: list
+    overrides: list[str]
+    frames: int
+    description: list[str]
+    full_units: int
+    full_units_note: str
+    extrapolate_frames: int | None = None
+    size: str = "excerpt"
+    notes: list[str] = dataclasses.field(default_factory=list)
+    extra: dict = dataclasses.field(default_factory=dict)  # passed to the worker in its spec
+    variants: dict[str, list[str]] = dataclasses.field(default_factory=dict)
+
+
+def wall_and_cpu(function, *args) -> tuple[float, float]:
+    """Wall and CPU seconds of ``function(*args)``."""
+    wall, cpu = time.perf_counter(), time.process_time()
+    function(*args)
+    return time.perf_counter() - wall, time.process_time() - cpu
