@@ -145,10 +145,10 @@ def _section(key: str) -> str:
 
 
 def markdown() -> str:
-    """The page: the header, then one table per section (run-wide first), built-in sources with
-    settings only."""
-    built_in = registry.BUILT_IN
-    sections = {name: kind() for name in built_in if (kind := registry.settings_of(name)) is not None}
+    """The page: the header, then one table per section (run-wide first), then each registered
+    source's with settings (the built-in ones, and plug-ins named in ``TAPVID3D_SOURCES``)."""
+    names = registry.names()
+    sections = {name: kind() for name in names if (kind := registry.settings_of(name)) is not None}
     config = RunConfig(source_sections=sections)
     table = rows(config)
     titles = {
@@ -156,7 +156,7 @@ def markdown() -> str:
         "flicker": "`flicker`: the flicker filter",
         "http": "`http`: every HTTP transfer (the release's files, ADT's downloads)",
     }
-    titles |= {name: f"`{name}`: {registry.title_of(name)}" for name in built_in}
+    titles |= {name: f"`{name}`: {registry.title_of(name)}" for name in sections}
     parts = [HEADER]
     for section in dict.fromkeys(_section(key) for key, *_ in table):
         parts.append(f"\n## {titles[section]}\n\n")

@@ -78,6 +78,9 @@ def settings_of(name: str) -> type | None:
 
 
 def title_of(name: str) -> str:
-    """The title of built-in source ``name``'s section on the settings page (its settings module's
-    ``TITLE``)."""
+    """The title of source ``name``'s section on the settings page: a built-in source's settings
+    module's ``TITLE``, a plug-in's settings section's first docstring line."""
+    source = registered(name)
+    if source is not None:
+        return (source.settings.__doc__ or name).strip().splitlines()[0].rstrip(".")
     return importlib.import_module(f"{BUILT_IN[name]}.settings").TITLE

@@ -3,7 +3,8 @@ one object and nothing else in the package (docs/adding-a-source.md), its settin
 (``ToyConfig``: ``--set toy.<field>=...``) and its benchmark entry (``tests/support/toy_bench.py``:
 ``python -m benchmarks toy``) included.
 
-Input: a folder of ``<name>.json`` files, each a unit: ``{"frames": T, "points": [[x, y, z], ...],
+Input: a folder of ``<name>.json`` files, each a unit (on a release run, those the release names a
+clip of): ``{"frames": T, "points": [[x, y, z], ...],
 "velocity": [vx, vy, vz]}``: points moving at constant velocity (metres per frame, times
 ``toy.speed_scale``) in front of a static 64x48 pinhole camera. Each unit makes one clip
 ``toy_<name>`` of every point, visible while it projects into the frame; with ``--queries-from``,
@@ -45,9 +46,13 @@ class ToyConfig:
 
 @dataclasses.dataclass(frozen=True, order=True)
 class SpecFile:
-    """A toy unit: the file ``<name>.json`` of the input folder."""
+    """A toy unit: the file ``<name>.json`` of the input folder; each is a group of its own."""
 
     name: str
+
+    @property
+    def group(self) -> str:
+        return self.name
 
 
 def list_units(
@@ -56,7 +61,13 @@ def list_units(
     names = sorted(name[: -len(".json")] for name in os.listdir(input_root) if name.endswith(".json"))
     if not names:
         raise InputError(f"{input_root}: no <unit>.json files")
-    return UnitPlan([SpecFile(name) for name in names])
+    units = [SpecFile(name) for name in names]
+    if release is None:
+        return UnitPlan(units)
+    kept = [unit for unit in units if f"toy_{unit.name}" in release]
+    made = {f"toy_{unit.name}" for unit in kept}
+    absent = {clip: f"no {clip.removeprefix('toy_')}.json in --input" for clip in sorted(release - made)}
+    return UnitPlan(kept, expected={unit.name: (f"toy_{unit.name}",) for unit in kept}, absent=absent)
 
 
 def truth(spec: dict, speed_scale: float = 1.0) -> np.ndarray:
