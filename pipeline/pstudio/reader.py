@@ -15,7 +15,7 @@ from pipeline.core.errors import InputError
 from pipeline.core.images import check_jpeg
 from pipeline.io.files import open_binary, read_input
 from pipeline.io.npz_reader import NpzArchive, NpzError
-from pipeline.pstudio.masks import MASKS, unpack_mask
+from pipeline.pstudio.mask_cache import MASKS, unpack_mask
 from pipeline.pstudio.records import Gaussians, Views
 from pipeline.pstudio.settings import PstudioConfig
 
@@ -185,7 +185,7 @@ def read_gaussians(path: str, frames: int) -> Gaussians:
 class SequenceFiles:
     """Images and masks of one sequence, by (camera column, frame) as train_meta's ``fn`` names them.
     Each mask file is read once per opened sequence (the units of a group share it), and decoded
-    once per process (``pipeline.pstudio.masks``)."""
+    once per process (``pipeline.pstudio.mask_cache``)."""
 
     def __init__(self, input_root: str, sequence: str, meta: dict, views: Views):
         self.folder = FileSystems.join(data_root(input_root), sequence)

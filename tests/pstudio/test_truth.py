@@ -133,11 +133,11 @@ def test_a_sequences_cameras_share_one_read_and_make_the_same_clips(clips, pstud
     mask decoded at most once, and every clip is the one its camera makes alone."""
     import pipeline.pstudio.annotate as source
     import pipeline.pstudio.reader as reader
-    from pipeline.pstudio import masks
+    from pipeline.pstudio import mask_cache
 
     root, _ = pstudio_sample
     reads, decodes = [], []
-    read_gaussians, decode = source.read_gaussians, masks.decode_image
+    read_gaussians, decode = source.read_gaussians, mask_cache.decode_image
 
     def counted_read(*args):
         reads.append(args)
@@ -148,8 +148,8 @@ def test_a_sequences_cameras_share_one_read_and_make_the_same_clips(clips, pstud
         return decode(data, *args, **kwargs)
 
     monkeypatch.setattr(source, "read_gaussians", counted_read)
-    monkeypatch.setattr(masks, "decode_image", counted_decode)
-    monkeypatch.setattr(reader, "MASKS", masks.MaskCache())  # cold, as in a fresh worker
+    monkeypatch.setattr(mask_cache, "decode_image", counted_decode)
+    monkeypatch.setattr(reader, "MASKS", mask_cache.MaskCache())  # cold, as in a fresh worker
     units = list_units(root, RunConfig()).units
     grouped = list(source.annotate_group(root, units, RunConfig()))
     assert len(reads) == 1

@@ -1,4 +1,4 @@
-"""Masks decoded once per process (pipeline/pstudio/masks.py): within a unit each (camera, frame)
+"""Masks decoded once per process (pipeline/pstudio/mask_cache.py): within a unit each (camera, frame)
 mask is decoded at most once, the next unit of the sequence decodes none, and the cache returns
 exactly what decoding returns, within its memory bound."""
 
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from pipeline.core.errors import InputError
-from pipeline.pstudio import masks, reader
+from pipeline.pstudio import mask_cache, reader
 from pipeline.pstudio.settings import PstudioConfig
 from pipeline.pstudio.tracks import annotate_unit
 from pipeline.pstudio.units import list_units
@@ -24,14 +24,14 @@ from tests.support.units import pstudio_input
 def decoded(monkeypatch):
     """A fresh cache for the readers, and a Counter of the files (``what``) it decodes."""
     counts = collections.Counter()
-    decode = masks.decode_image
+    decode = mask_cache.decode_image
 
     def counting(data, width, height, what, **kwargs):
         counts[what] += 1
         return decode(data, width, height, what, **kwargs)
 
-    monkeypatch.setattr(masks, "decode_image", counting)
-    monkeypatch.setattr(reader, "MASKS", masks.MaskCache())
+    monkeypatch.setattr(mask_cache, "decode_image", counting)
+    monkeypatch.setattr(reader, "MASKS", mask_cache.MaskCache())
     return counts
 
 
@@ -58,9 +58,9 @@ def test_each_mask_is_decoded_once_per_sequence(pstudio_sample, decoded):
 def test_a_hit_is_the_decoded_mask_and_a_fresh_array(decoded):
     rng = np.random.default_rng(0)
     mask = rng.random((36, 52)) < 0.3
-    cache = masks.MaskCache()
+    cache = mask_cache.MaskCache()
     for _ in range(3):
-        got = masks.unpack_mask(cache.packed(png(mask), 52, 36, "m.png"), 52, 36)
+        got = mask_cache.unpack_mask(cache.packed(png(mask), 52, 36, "m.png"), 52, 36)
         np.testing.assert_array_equal(got, mask)
         got[:] = False  # the caller's to change
     assert decoded["m.png"] == 1
@@ -70,7 +70,7 @@ def test_the_cache_stays_within_its_bound(decoded):
     rng = np.random.default_rng(1)
     files = [png(rng.random((40, 64)) < 0.5) for _ in range(6)]
     one = len(files[0]) + 40 * 64 // 8
-    cache = masks.MaskCache(max_bytes=3 * one)
+    cache = mask_cache.MaskCache(max_bytes=3 * one)
     for data in files:
         cache.packed(data, 64, 40, "m.png")
     assert cache.bytes <= 3 * one
@@ -81,7 +81,7 @@ def test_the_cache_stays_within_its_bound(decoded):
 
 
 def test_bad_files_are_refused_every_time(decoded):
-    cache = masks.MaskCache()
+    cache = mask_cache.MaskCache()
     good = png(np.ones((20, 30), bool))
     for _ in range(2):
         with pytest.raises(InputError, match="bad.png: corrupt mask"):
