@@ -29,10 +29,10 @@ from pipeline.drivetrack.camera_model import (
 from pipeline.drivetrack.lidar import CameraPass, LidarEvidence, gather_lidar_cameras
 from pipeline.drivetrack.objects import select_objects
 from pipeline.drivetrack.reader import SegmentReader
-from pipeline.drivetrack.records import CameraFrames, UnitInput, clip_name
+from pipeline.drivetrack.records import CameraFrames, UnitInput
 from pipeline.drivetrack.settings import DriveTrackConfig
 from pipeline.drivetrack.tracks import track_object
-from pipeline.drivetrack.units import SegmentCamera
+from pipeline.drivetrack.units import SegmentCamera, clip_name
 from pipeline.sources import RunChoices, Wanted
 
 if TYPE_CHECKING:

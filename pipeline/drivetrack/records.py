@@ -101,12 +101,3 @@ class UnitInput:
     world_from_vehicle: dict[int, np.ndarray]
     boxes: BoxLabels
     lidar_frames: Callable[[list[int]], Iterable[LidarFrame]]
-
-    @property
-    def name(self) -> str:
-        return f"{self.segment}/camera_{self.camera}"
-
-
-def clip_name(segment: str, camera: int, object_id: str) -> str:
-    """The release's DriveTrack clip name."""
-    return f"tapvid3d_{segment}_{camera}_{object_id}"

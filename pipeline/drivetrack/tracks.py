@@ -25,10 +25,11 @@ from pipeline.drivetrack.queries import (
     point_keys,
     point_pool,
 )
-from pipeline.drivetrack.records import UnitInput, clip_name
+from pipeline.drivetrack.records import UnitInput
 from pipeline.drivetrack.refined_visibility import refined_visibility
 from pipeline.drivetrack.settings import DriveTrackConfig
 from pipeline.drivetrack.surface_normals import fitted_normals
+from pipeline.drivetrack.units import SegmentCamera, clip_name
 from pipeline.drivetrack.visibility import track_visibility
 from pipeline.export.depth_export import sparse_export
 from pipeline.filters.mask import agreement, on_mask
@@ -128,9 +129,10 @@ def track_object(
     stored_jpegs: the stored frame per unit frame index, for the run's frames.
     """
     name = clip_name(unit.segment, unit.camera, run.object_id)
+    unit_name = SegmentCamera(unit.segment, unit.camera).name
     pool = point_pool(evidence, run, unit.frames.timestamps)
     if pool is None:
-        log.info("%s: object %s has no lidar points in its box; no clip", unit.name, run.object_id)
+        log.info("%s: object %s has no lidar points in its box; no clip", unit_name, run.object_id)
         return NotMade(f"object {run.object_id}'s box holds no lidar point on its frames")
     keys = point_keys(choices.seed, name, pool.timestamps, pool.pixels)
     frames = range(run.start, run.stop)
@@ -146,7 +148,7 @@ def track_object(
     return ClipRecord(
         source="drivetrack",
         name=name,
-        unit=unit.name,
+        unit=unit_name,
         images_jpeg=[stored_jpegs[t] for t in frames],
         fx_fy_cx_cy=unit.calibration.fx_fy_cx_cy.copy(),
         image_size=(unit.calibration.width, unit.calibration.height),

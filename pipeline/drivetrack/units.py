@@ -9,7 +9,6 @@ import re
 from typing import TYPE_CHECKING
 
 from pipeline.drivetrack.reader import list_segments
-from pipeline.drivetrack.records import clip_name
 from pipeline.drivetrack.settings import DriveTrackConfig
 from pipeline.sources import UnitPlan
 
@@ -19,6 +18,11 @@ if TYPE_CHECKING:
 # A release clip name: tapvid3d_<segment>_<camera>_<object id>, the segment named as Waymo names
 # them (<context>_<start>_<ms>_<end>_<ms>); the object id may itself hold '_'.
 RELEASE_NAME = re.compile(r"tapvid3d_([^_]+_\d+_\d+_\d+_\d+)_(\d+)_(.+)")
+
+
+def clip_name(segment: str, camera: int, object_id: str) -> str:
+    """The release's DriveTrack clip name."""
+    return f"tapvid3d_{segment}_{camera}_{object_id}"
 
 
 @dataclasses.dataclass(frozen=True, order=True)

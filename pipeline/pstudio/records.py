@@ -54,11 +54,6 @@ class GaussianConstants:
     cutoff: np.ndarray
 
 
-def clip_name(sequence: str, camera: int) -> str:
-    """The release's Panoptic Studio clip name."""
-    return f"{sequence}_{camera}"
-
-
 @dataclasses.dataclass
 class UnitInput:
     """Everything one unit reads. ``constants``: the Gaussians' (``splats.gaussian_constants``, once
@@ -72,7 +67,3 @@ class UnitInput:
     constants: GaussianConstants
     frames_jpeg: list[bytes]
     mask: Callable[[int, int], np.ndarray]
-
-    @property
-    def clip_name(self) -> str:
-        return clip_name(self.sequence, self.camera_id)

@@ -31,6 +31,7 @@ from pipeline.pstudio.records import UnitInput
 from pipeline.pstudio.render import render_depth_at, render_depth_image
 from pipeline.pstudio.settings import PstudioConfig
 from pipeline.pstudio.splats import Splats2D, project_splats
+from pipeline.pstudio.units import SequenceCamera, clip_name
 from pipeline.sources import RunChoices
 
 
@@ -68,7 +69,7 @@ def attach_queries(
     intrinsics = unit.views.fx_fy_cx_cy[view]
     world_from_cam = invert_se3(unit.views.w2c[view])
     foreground = np.nonzero(unit.gaussians.foreground)[0]
-    rng = rng_for(seed, f"{unit.clip_name}/queries")
+    rng = rng_for(seed, f"{clip_name(unit.sequence, unit.camera_id)}/queries")
     frames = rng.integers(0, unit.gaussians.num_frames, size=attempts)
     draws = rng.random(attempts)
     gaussian = np.full(attempts, -1)
@@ -103,7 +104,8 @@ def match_given_queries(unit: UnitInput, queries: np.ndarray) -> np.ndarray:
     intrinsics = unit.views.fx_fy_cx_cy[view]
     world_from_cam = invert_se3(unit.views.w2c[view])
     foreground = np.nonzero(unit.gaussians.foreground)[0]
-    frames = given_query_frames(queries, unit.gaussians.num_frames, unit.clip_name)
+    name = clip_name(unit.sequence, unit.camera_id)
+    frames = given_query_frames(queries, unit.gaussians.num_frames, name)
     chosen = np.empty(len(queries), np.int64)
     for t in np.unique(frames):
         rows = np.nonzero(frames == t)[0]
@@ -122,7 +124,7 @@ def match_given_queries(unit: UnitInput, queries: np.ndarray) -> np.ndarray:
                 chosen[row] = foreground[nearest_centres(unit.gaussians.means[t], foreground, point)[1][0]]
             else:
                 raise InputError(
-                    f"{unit.clip_name}: given query {row} at ({pixel[0]:.1f}, {pixel[1]:.1f}, t={t}) "
+                    f"{name}: given query {row} at ({pixel[0]:.1f}, {pixel[1]:.1f}, t={t}) "
                     "has no splat surface and no foreground centre within half a pixel"
                 )
     return chosen
@@ -214,7 +216,7 @@ def annotate_unit(unit: UnitInput, settings: PstudioConfig, choices: RunChoices)
     ``--queries-from`` holds no clip of its name."""
     wanted = settings.tracks_per_clip * settings.oversample
     delta, export_depth = settings.depth_delta_m, choices.export_depth
-    queries = choices.given.of(unit.clip_name)
+    queries = choices.given.of(clip_name(unit.sequence, unit.camera_id))
     if choices.given.active and queries is None:
         return []
     read_masks(unit)
@@ -237,8 +239,8 @@ def annotate_unit(unit: UnitInput, settings: PstudioConfig, choices: RunChoices)
     frame_ids = np.arange(unit.gaussians.num_frames, dtype=np.int64)
     clip = ClipRecord(
         source="pstudio",
-        name=unit.clip_name,
-        unit=f"{unit.sequence}/camera_{unit.camera_id}",
+        name=clip_name(unit.sequence, unit.camera_id),
+        unit=SequenceCamera(unit.sequence, unit.camera_id).name,
         images_jpeg=unit.frames_jpeg,
         fx_fy_cx_cy=intrinsics,
         image_size=(unit.views.width, unit.views.height),

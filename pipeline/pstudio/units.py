@@ -8,7 +8,6 @@ from typing import TYPE_CHECKING
 
 from pipeline.core.errors import InputError
 from pipeline.pstudio.reader import list_sequences, read_views
-from pipeline.pstudio.records import clip_name
 from pipeline.pstudio.settings import PstudioConfig
 from pipeline.sources import UnitPlan
 
@@ -26,6 +25,11 @@ ALL_CAMERAS = -1
 CAMERAS_PER_GROUP = 3
 # The cameras Dynamic 3D Gaussians holds out for testing (its test_meta.json): no training masks.
 HELD_OUT_CAMERAS = (0, 10, 15, 30)
+
+
+def clip_name(sequence: str, camera: int) -> str:
+    """The release's Panoptic Studio clip name."""
+    return f"{sequence}_{camera}"
 
 
 @dataclasses.dataclass(frozen=True, order=True)
