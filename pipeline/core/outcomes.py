@@ -2,7 +2,7 @@
 
 A unit's annotation is ``UnitClips`` (its candidate clips and, for clips it was asked for but did not
 make, why); once written, a unit's ``UnitOutcome`` holds a ``ClipReport`` per clip and a ``Failure`` per
-error. The unit's checkpoint on disk (``pipeline/runner/resume.py``) is its outcome as JSON (``to_json`` /
+error. The unit's checkpoint on disk (``pipeline/runner/checkpoint.py``) is its outcome as JSON (``to_json`` /
 ``from_json``), so the main process finishes a run from the checkpoints alone, on any runner.
 """
 

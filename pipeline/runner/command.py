@@ -146,9 +146,7 @@ def run_pipeline(prepared: PreparedRun, job: UnitJob, plan: UnitPlan):
     monitor = None
     try:
         with workers_silenced() as report:
-            monitor = RunMonitor(
-                job.output, job.source.name, names, job.run_id, started, report, max_failures_in_a_row=limit
-            )
+            monitor = RunMonitor(job.ledger, names, started, report, max_failures_in_a_row=limit)
             with monitor:
                 result = _run_graph(prepared, job, plan)
     except BaseException:  # the monitor stopped the main thread: Beam may wrap it in another error

@@ -1,5 +1,5 @@
 """Finishing a run, in the main process, once: from the checkpoints its units left
-(``pipeline/runner/resume.py``), the failures file, the release verdicts, the manifests and the run's
+(``pipeline/runner/ledger.py``), the failures file, the release verdicts, the manifests and the run's
 provenance file.
 
 Every unit of a run ends with its checkpoint, written or stamped by this run (a resumed unit's is
@@ -28,7 +28,6 @@ from pipeline.export.layout import (
 from pipeline.export.manifests import split_clips
 from pipeline.io.file_set import output_lock, write_together
 from pipeline.io.files import exists, list_files, read_bytes
-from pipeline.runner.resume import read_checkpoint
 from pipeline.runner.splits import Release
 from pipeline.runner.stages import UnitJob
 from pipeline.runner.verdicts import (
@@ -89,7 +88,7 @@ def unit_outcomes(job: UnitJob, names: list[str]) -> tuple[dict[str, UnitOutcome
     outcomes: dict[str, UnitOutcome | None] = {}
     digests: dict[str, str] = {}
     for name in names:
-        found = read_checkpoint(job.output, job.source.name, name)
+        found = job.ledger.read(name)
         outcomes[name] = None
         if found is not None and found.run == job.run_id:
             outcomes[name] = found.outcome

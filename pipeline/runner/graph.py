@@ -112,9 +112,9 @@ class Write(_JobStep):
         yield outcome
 
 
-def count_written(kept, outcome, digest) -> None:
+def count_written(kept, outcome, written) -> None:
     """The Write step's counters for one written clip."""
-    counter("clips_written").inc(digest is not None)
+    counter("clips_written").inc(written is not None)
     counter("tracks_written").inc(kept.num_tracks)
     for filter_name, count in outcome.dropped_by().items():
         counter(f"tracks_dropped_{filter_name}").inc(count)

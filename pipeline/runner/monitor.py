@@ -24,7 +24,7 @@ from tqdm import tqdm
 from pipeline.core.outcomes import FailureStreak, UnitOutcome
 from pipeline.export.layout import checkpoint_path
 from pipeline.pipes import READER_GONE
-from pipeline.runner.resume import read_checkpoint
+from pipeline.runner.ledger import UnitLedger
 
 
 def clock(seconds: float) -> str:
@@ -49,7 +49,7 @@ def describe(outcome: UnitOutcome) -> str:
 
 
 class RunMonitor:
-    """Reports the units of a run (``names``) as their checkpoints, stamped with ``run_id``, appear: a
+    """Reports the units of a run (``names``) as their checkpoints, stamped with the ledger's run, appear: a
     line each on ``lines`` (default stdout), a live bar on ``bar_stream`` when it is a terminal, and
     each note a unit brings (``UnitOutcome.notes``) once, on ``bar_stream``.
     Once ``max_failures_in_a_row`` units in a row (0: no limit) failed with one cause
@@ -57,20 +57,18 @@ class RunMonitor:
 
     def __init__(
         self,
-        output: str,
-        source: str,
+        ledger: UnitLedger,
         names: list[str],
-        run_id: str,
         started: float,
         bar_stream=None,
         lines=None,
         max_failures_in_a_row: int = 0,
     ):
-        self.output, self.source, self.run_id, self.started = output, source, run_id, started
+        self.ledger, self.started = ledger, started
         self.lines = lines if lines is not None else sys.stdout
         bar_stream = bar_stream if bar_stream is not None else sys.stderr
-        self.paths = {checkpoint_path(output, source, name): name for name in names}
-        self.pattern = f"{output}/units/{source}/*.json"
+        self.paths = {checkpoint_path(ledger.output, ledger.source, name): name for name in names}
+        self.pattern = f"{ledger.output}/units/{ledger.source}/*.json"
         self.seen: dict[str, float] = {}
         self.done: dict[str, UnitOutcome] = {}
         self.closed = False
@@ -102,7 +100,7 @@ class RunMonitor:
             self.bar.close()
 
     def _watch(self) -> None:
-        interval = 0.5 if "://" not in self.output else 5.0  # an object store is listed less often
+        interval = 0.5 if "://" not in self.ledger.output else 5.0  # an object store is listed less often
         while not self._stop.wait(interval):
             self.poll()
             if self.closed or self.gave_up:
@@ -120,8 +118,8 @@ class RunMonitor:
             ):
                 continue
             self.seen[match.path] = match.last_updated_in_seconds
-            found = read_checkpoint(self.output, self.source, name)
-            if found is not None and found.run == self.run_id:
+            found = self.ledger.read(name)
+            if found is not None and found.run == self.ledger.run:
                 self.done[name] = found.outcome
                 self._note(found.outcome)
                 self._say(self.done[name])

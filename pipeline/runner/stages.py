@@ -3,7 +3,7 @@
 The Beam graph (``pipeline.runner.graph``) runs these stages as its named steps, the benchmarks call
 ``run_group`` for the same work without Beam, and resume is the first stage. Units of one group
 (``Source.group_of``) are annotated together, each keeping its own outcome. Every unit ends with its
-checkpoint (``pipeline/runner/resume.py``): written after all its clips, also when it failed, so the
+checkpoint (``pipeline/runner/ledger.py``): written after all its clips, also when it failed, so the
 main process finishes the run (``pipeline.runner.finish``) from the checkpoints alone. A unit with a
 failure is redone by the next run. Failures never escape a stage: they become ``Failure`` records
 (the run goes on).
@@ -12,6 +12,7 @@ failure is redone by the next run. Failures never escape a stage: they become ``
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 import traceback
 from collections.abc import Iterator, Mapping
@@ -27,15 +28,9 @@ from pipeline.export.layout import audit_path, check_clip_name, clip_path, depth
 from pipeline.export.npz_writer import clip_members, encode_npz
 from pipeline.filters.select import FilterOutcome, apply_filters
 from pipeline.io.files import remove_quietly, write_atomic
-from pipeline.runner.resume import (
-    UnitCheckpoint,
-    finished_outcome,
-    read_checkpoint,
-    remove_stale_clips,
-    run_fingerprint,
-    sha256,
-    write_checkpoint,
-)
+from pipeline.runner.checkpoint import ClipFile
+from pipeline.runner.ledger import UnitLedger
+from pipeline.runner.resume import run_fingerprint
 from pipeline.sources import Source, Wanted
 
 if TYPE_CHECKING:
@@ -56,9 +51,11 @@ class UnitJob:
     run_id: str = ""
     expected: Mapping[str, tuple[str, ...]] | None = None
 
-    @property
-    def fingerprint(self) -> str:
-        return run_fingerprint(self.source.name, self.config)
+    @functools.cached_property
+    def ledger(self) -> UnitLedger:
+        """The checkpoints of this run's units."""
+        fingerprint = run_fingerprint(self.source.name, self.config)
+        return UnitLedger(self.output, self.source.name, fingerprint, self.run_id, self.config.export_depth)
 
     def wanted(self, name: str) -> Wanted:
         """The clips unit ``name`` is to make on a release run; None: every clip it can make."""
@@ -106,13 +103,8 @@ def finished_earlier(job: UnitJob, name: str) -> UnitOutcome | None:
     on disk, every wanted clip accounted for), else None. Its checkpoint is stamped with this run."""
     if not job.resume:
         return None
-    previous = read_checkpoint(job.output, job.source.name, name)
-    outcome = finished_outcome(
-        previous, job.output, job.source.name, job.fingerprint, job.config.export_depth, job.wanted(name)
-    )
-    if outcome is not None and previous is not None:
-        stamped = dataclasses.replace(previous, run=job.run_id, resumed=True)
-        write_checkpoint(job.output, job.source.name, stamped)
+    outcome = job.ledger.resume(name, job.wanted(name))
+    if outcome is not None:
         progress(f"unit {name}: finished by an earlier run with these settings; skipped")
     return outcome
 
@@ -139,29 +131,26 @@ def filter_clip(job: UnitJob, clip: ClipRecord) -> tuple[ClipRecord, FilterOutco
     return apply_filters(clip, job.config, job.source.mask_min_agreement(job.config))
 
 
-def _write(path: str, data: bytes) -> None:
-    try:
-        write_atomic(path, data)
-    except OSError as error:
-        raise OutputError(f"cannot write {path}: {error}") from error
-
-
-def write_clip(output: str, kept: ClipRecord, outcome: FilterOutcome) -> tuple[ClipReport, str | None]:
+def write_clip(output: str, kept: ClipRecord, outcome: FilterOutcome) -> tuple[ClipReport, ClipFile | None]:
     """Write a filtered clip's audit table, its exported depth if any, then its .npz (each
     atomically, in that order, so an existing .npz always has its companions). Returns the clip's
-    report and the SHA-256 of its .npz (None when no track was kept: then no .npz of that name
-    is left in the folder)."""
+    report and its .npz's file (None when no track was kept: then no .npz of that name is left in
+    the folder)."""
     source, name = kept.source, check_clip_name(kept.name)
-    _write(audit_path(output, source, name), encode_parquet(outcome_table(outcome)))
-    digest = None
+    files = {audit_path(output, source, name): encode_parquet(outcome_table(outcome))}
+    written = None
     if kept.num_tracks:
         if kept.depth_export is not None:
-            _write(depth_path(output, source, name), encode_depth(kept.depth_export))
+            files[depth_path(output, source, name)] = encode_depth(kept.depth_export)
         data = encode_npz(clip_members(kept))
-        _write(clip_path(output, source, name), data)
-        digest = sha256(data)
-    else:
-        # an earlier run's clip of this name, under other settings
+        files[clip_path(output, source, name)] = data
+        written = ClipFile.of(data)
+    for path, content in files.items():
+        try:
+            write_atomic(path, content)
+        except OSError as error:
+            raise OutputError(f"cannot write {path}: {error}") from error
+    if not kept.num_tracks:  # an earlier run's clip of this name, under other settings
         remove_quietly([clip_path(output, source, name), depth_path(output, source, name)])
     report = ClipReport(
         clip=name,
@@ -174,33 +163,15 @@ def write_clip(output: str, kept: ClipRecord, outcome: FilterOutcome) -> tuple[C
         written_tracks=kept.num_tracks,
         target_tracks=kept.target_tracks,
     )
-    return report, digest
+    return report, written
 
 
-def checkpoint(job: UnitJob, outcome: UnitOutcome, digests: Mapping[str, str]) -> UnitOutcome:
-    """Write the unit's checkpoint (after all its clips; a finished unit first removes the files of
-    clips an earlier checkpoint listed that this run no longer makes). Returns the outcome, with a
-    ``checkpoint`` Failure when the checkpoint cannot be written."""
-    source = job.source.name
-    wanted = job.wanted(outcome.name)
+def checkpoint(job: UnitJob, outcome: UnitOutcome, files: Mapping[str, ClipFile]) -> UnitOutcome:
+    """Commit the unit: its checkpoint, after all its clips (``UnitLedger.commit``; ``files``: each
+    written clip's file). Returns the outcome, with a ``checkpoint`` Failure when the checkpoint
+    cannot be written."""
     try:
-        if not outcome.failed:
-            previous = read_checkpoint(job.output, source, outcome.name)
-            made = {report.clip for report in outcome.reports}
-            remove_stale_clips(previous, job.output, source, made, wanted)
-        written = UnitCheckpoint(
-            unit=outcome.name,
-            fingerprint=job.fingerprint,
-            run=job.run_id,
-            seconds=outcome.seconds,
-            wanted=None if wanted is None else tuple(sorted(wanted)),
-            reports=outcome.reports,
-            clips=dict(digests),
-            failures=outcome.failures,
-            not_made=dict(outcome.not_made),
-            notes=outcome.notes,
-        )
-        write_checkpoint(job.output, source, written)
+        job.ledger.commit(outcome, files, job.wanted(outcome.name))
     except OSError as error:
         problem = failure(
             outcome.name, "checkpoint", OutputError(f"cannot write the unit's checkpoint: {error}")
@@ -224,24 +195,24 @@ def filter_unit(job: UnitJob, annotated: Annotated) -> Filtered:
 
 def write_unit(job: UnitJob, filtered: Filtered, on_written=None) -> UnitOutcome:
     """Write a unit's filtered clips, then its checkpoint (the unit's commit point). ``on_written(kept,
-    outcome, digest)`` is called per clip written."""
+    outcome, file)`` is called per clip written (``file``: its .npz's, None when it kept no track)."""
     failures = [item for item in filtered.items if isinstance(item, Failure)]
-    reports, digests = [], {}
+    reports, files = [], {}
     for item in filtered.items:
         if isinstance(item, Failure):
             continue
         kept, verdicts = item
         try:
-            report, digest = write_clip(job.output, kept, verdicts)
+            report, written = write_clip(job.output, kept, verdicts)
         except Exception as error:  # noqa: BLE001
             failures.append(failure(filtered.name, "clip", error, kept.name))
             progress(f"clip {kept.name} FAILED: {error}")
             continue
         if on_written is not None:
-            on_written(kept, verdicts, digest)
+            on_written(kept, verdicts, written)
         reports.append(report)
-        if digest:
-            digests[report.clip] = digest
+        if written is not None:
+            files[report.clip] = written
     outcome = UnitOutcome(
         filtered.name,
         tuple(sorted(reports, key=lambda report: report.clip)),
@@ -250,7 +221,7 @@ def write_unit(job: UnitJob, filtered: Filtered, on_written=None) -> UnitOutcome
         seconds=time.time() - filtered.started,
         notes=filtered.notes,
     )
-    return checkpoint(job, outcome, digests)
+    return checkpoint(job, outcome, files)
 
 
 def annotate_units(job: UnitJob, units: list) -> Iterator[UnitOutcome | Annotated]:

@@ -1,6 +1,7 @@
-"""Resume and crash safety: a rerun skips the units an earlier run finished (clips intact and
-valid, same settings), a run killed with SIGKILL leaves no visible partial file, and its rerun
-completes the set with the bytes of an uninterrupted run."""
+"""Resume and crash safety: a rerun skips the units an earlier run finished (clips as their
+checkpoints recorded them, same settings), a run killed with SIGKILL leaves no visible partial file,
+and its rerun completes the set with the bytes of an uninterrupted run. The ledger's checks one by
+one: tests/run/test_ledger.py."""
 
 import json
 import os
