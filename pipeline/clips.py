@@ -8,19 +8,20 @@
 
 Every file is read through the bounded reader (``pipeline/io/clip_reader.py``: nothing is unpickled,
 sizes are capped from the headers) and checked to be a clip (keys, dtypes, shapes) before it is
-handed over; the release's own files open the same way.
+handed over; the release's own files open the same way. A reader of some members only (``audit
+compare``) hands them over as a ``Clip`` too (``from_members``).
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 
 import cv2
 import numpy as np
 
 from pipeline import sources
-from pipeline.export.invariants import structure_problems
+from pipeline.export import invariants
 from pipeline.export.layout import clip_path, manifest_path
 from pipeline.io.clip_reader import DEFAULT_LIMITS, FRAMES, ReadLimits, read_clip_file
 from pipeline.io.files import read_bytes
@@ -32,35 +33,42 @@ MAX_MANIFEST_BYTES = 64 << 20
 
 @dataclasses.dataclass(frozen=True)
 class Clip:
-    """One clip in the TAPVid-3D schema, its arrays read-only.
+    """One clip in the TAPVid-3D schema, its arrays read-only. ``open`` fills every field (``extrinsics``
+    where the file holds them); a reader of some members only (``audit compare``, of a published clip
+    or a prediction) leaves the others empty or None.
 
     name: the file's name without ``.npz``.
     source: the source whose folder holds it (``<out>/<source>/<clip>.npz``), else None.
-    frames: the T frames, each as JPEG bytes.
-    queries: [N, 3] float, (x, y, t): where track i is queried, in pixels of frame t.
+    frames: the T frames, each as JPEG bytes; empty where they were not read.
+    queries: [N, 3] float, (x, y, t): where track i is queried, in pixels of frame t; None where not
+      read (a prediction file holds tracks and visibility only).
     tracks: [T, N, 3] float, metres, in each frame's camera frame (x right, y down, z forward).
     visibility: [T, N] bool.
-    intrinsics: [4] float64, fx, fy, cx, cy of the stored frames (pixel centres at +0.5).
+    intrinsics: [4] float64, fx, fy, cx, cy of the stored frames (pixel centres at +0.5); None where
+      not read (the release's ADT and Panoptic Studio files hold annotations only).
     extrinsics: [T, 4, 4] float, world-to-camera per frame; None where the file has none (Panoptic
-      Studio, the release's ADT files).
+      Studio, the release's ADT files) or they were not read.
+    frame_size: (height, width) of the frames, from the first one's JPEG header; None where the file
+      holds no frames.
     """
 
     name: str
     source: str | None
     frames: tuple[bytes, ...]
-    queries: np.ndarray
+    queries: np.ndarray | None
     tracks: np.ndarray
     visibility: np.ndarray
-    intrinsics: np.ndarray
+    intrinsics: np.ndarray | None
     extrinsics: np.ndarray | None
+    frame_size: tuple[int, int] | None
 
     @property
     def num_frames(self) -> int:
-        return len(self.frames)
+        return int(self.tracks.shape[0])
 
     @property
     def num_tracks(self) -> int:
-        return len(self.queries)
+        return int(self.tracks.shape[1])
 
     def image(self, t: int) -> np.ndarray:
         """Frame ``t`` decoded: [H, W, 3] uint8, RGB."""
@@ -75,26 +83,38 @@ def _read_only(array: np.ndarray) -> np.ndarray:
     return array
 
 
-def open(path: str, limits: ReadLimits = DEFAULT_LIMITS) -> Clip:
-    """The clip in the file at ``path`` (any Beam filesystem); ValueError naming the file when it is
-    refused by the reader's caps, would need pickle, or is not shaped like a clip."""
-    arrays = read_clip_file(path, limits)
-    problems = structure_problems(arrays)
-    if problems:
-        raise ValueError(f"{path}: not a TAPVid-3D clip: {problems[0]}")
+def from_members(path: str, members: Mapping[str, np.ndarray], frame_size: tuple[int, int] | None) -> Clip:
+    """The clip of the members a reader read from the file at ``path`` (its name and source from the
+    path), by their names in the file (``pipeline.io.clip_reader.CLIP_KEYS``: ``tracks_XYZ`` and
+    ``visibility`` at least), and its frames' (height, width) as the reader found it: visibility as
+    bool, intrinsics as float64, every array read-only. Nothing is checked: ``open`` checks a whole
+    clip first."""
     folder, _, file_name = path.rstrip("/").rpartition("/")
     source = folder.rpartition("/")[2]
-    extrinsics = arrays.get("extrinsics_w2c")
+    queries, intrinsics = members.get("queries_xyt"), members.get("fx_fy_cx_cy")
+    extrinsics = members.get("extrinsics_w2c")
     return Clip(
         name=file_name[: -len(".npz")] if file_name.endswith(".npz") else file_name,
         source=source if source in sources.names() else None,
-        frames=tuple(bytes(frame) for frame in arrays[FRAMES]),
-        queries=_read_only(arrays["queries_xyt"]),
-        tracks=_read_only(arrays["tracks_XYZ"]),
-        visibility=_read_only(arrays["visibility"]),
-        intrinsics=_read_only(arrays["fx_fy_cx_cy"].astype(np.float64)),
+        frames=tuple(bytes(frame) for frame in members.get(FRAMES, ())),
+        queries=None if queries is None else _read_only(queries),
+        tracks=_read_only(members["tracks_XYZ"]),
+        visibility=_read_only(members["visibility"].astype(bool, copy=False)),
+        intrinsics=None if intrinsics is None else _read_only(intrinsics.astype(np.float64)),
         extrinsics=None if extrinsics is None else _read_only(extrinsics),
+        frame_size=frame_size,
     )
+
+
+def open(path: str, limits: ReadLimits = DEFAULT_LIMITS) -> Clip:
+    """The clip in the file at ``path`` (any Beam filesystem), every field filled but ``extrinsics``
+    where it holds none; ValueError naming the file when it is refused by the reader's caps, would
+    need pickle, or is not shaped like a clip."""
+    members = read_clip_file(path, limits)
+    problems = invariants.structure_problems(members)
+    if problems:
+        raise ValueError(f"{path}: not a TAPVid-3D clip: {problems[0]}")
+    return from_members(path, members, invariants.frame_size(members))
 
 
 def split_paths(output: str, split: str) -> list[str]:

@@ -9,6 +9,8 @@ import math
 
 import numpy as np
 
+from pipeline.clips import Clip
+
 # A clip agrees fully when its query frames and visibility are the published ones and its tracks lie
 # within this of them (p95, millimetres): ``audit compare --agree-mm`` changes it.
 AGREE_MM = 1.0
@@ -31,16 +33,14 @@ class Agreement:
         return self.query_frames_equal == 1.0 and self.visibility == 1.0 and self.p95_mm <= tolerance_mm
 
 
-def agreement(ref: dict[str, np.ndarray], new: dict[str, np.ndarray]) -> Agreement:
-    """The agreement of clip ``new`` with the published ``ref`` (members by their release names: both
-    ``tracks_XYZ`` [T, N, 3] and ``visibility`` [T, N] of one shape; ``queries_xyt`` [N, 3], NEW's
-    optional)."""
-    ref_tracks, new_tracks = (np.asarray(arrays["tracks_XYZ"], np.float64) for arrays in (ref, new))
-    visible = np.asarray(ref["visibility"], bool) == np.asarray(new["visibility"], bool)
-    queries = new.get("queries_xyt")
+def agreement(ref: Clip, new: Clip) -> Agreement:
+    """The agreement of clip ``new`` with the published ``ref``: both tracks [T, N, 3] and visibility
+    [T, N] of one shape; the queries [N, 3] of both, where both hold them, for the query frames."""
+    ref_tracks, new_tracks = (np.asarray(clip.tracks, np.float64) for clip in (ref, new))
+    visible = ref.visibility == new.visibility
     same_frames = math.nan
-    if queries is not None and np.shape(queries) == np.shape(ref["queries_xyt"]):
-        same_frames = float(np.mean(np.asarray(queries)[:, 2] == np.asarray(ref["queries_xyt"])[:, 2]))
+    if new.queries is not None and ref.queries is not None and new.queries.shape == ref.queries.shape:
+        same_frames = float(np.mean(new.queries[:, 2] == ref.queries[:, 2]))
     distance = np.linalg.norm(new_tracks - ref_tracks, axis=-1)
     finite = distance[np.isfinite(distance)] * 1000.0
     median, p95 = (float(np.percentile(finite, q)) if finite.size else math.nan for q in (50, 95))

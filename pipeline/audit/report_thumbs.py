@@ -8,10 +8,9 @@ import os
 
 import cv2
 
-from pipeline.export.invariants import frame_size
 from pipeline.export.layout import clip_path
 from pipeline.io.files import list_files
-from pipeline.viz.clip_figure import IMAGES_KEY, load_clip, render_clip, select_tracks
+from pipeline.viz.clip_figure import camera_of, load_clip, render_clip, select_tracks
 
 WIDTH = 320  # pixels
 QUALITY = 80  # JPEG quality
@@ -21,8 +20,8 @@ MAX_TRACKS = 50  # tracks drawn, evenly spaced over the clip's
 def thumbnail(path: str, width: int = WIDTH) -> str:
     """Base64 JPEG of the clip at ``path``: its middle frame [H, W] with tracks drawn, ``width`` wide."""
     clip = load_clip(path)
-    middle = len(clip[IMAGES_KEY]) // 2
-    height, frame_width = frame_size(clip)  # every frame's
+    middle = clip.num_frames // 2
+    height, frame_width = camera_of(clip)[1]  # every frame's
     name = os.path.basename(path)[: -len(".npz")]
     (composed,) = render_clip(clip, name, [middle], MAX_TRACKS, tail=5)
     frame = composed[:height, :frame_width]  # the frame sits at the top-left of the composed figure

@@ -1,6 +1,7 @@
 """Scoring one benchmark clip for ``audit compare``: REF's clip read (over HTTP, only the members
-scored and the start of its first JPEG), NEW's prediction read within REF's sizes, tapnet's metrics
-and the agreement computed, and the clip's row (``pipeline.audit.compare_rows``) made.
+scored and the start of its first JPEG), NEW's prediction read within REF's sizes, each as a
+``pipeline.clips.Clip`` of the members read, tapnet's metrics and the agreement computed, and the
+clip's row (``pipeline.audit.compare_rows``) made.
 
 Nothing is unpickled and every size is bounded (``pipeline.io.clip_reader``): a prediction's members
 may hold no more than REF's T frames and N tracks need. The frame size that sets the evaluation scale
@@ -11,6 +12,7 @@ Panoptic Studio files hold annotations only) takes them from NEW's clip of the s
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import hashlib
 import math
 
@@ -25,6 +27,7 @@ from pipeline.audit.metrics import (
     query_frame_indices,
     tapvid3d_metrics,
 )
+from pipeline.clips import Clip, from_members
 from pipeline.io.clip_reader import (
     DEFAULT_LIMITS,
     FRAME_HEAD_BYTES,
@@ -48,20 +51,18 @@ class ClipError(Exception):
     """A clip that cannot be read or scored, with the reason."""
 
 
-def check_numbers(path: str, arrays: dict[str, np.ndarray], keys: tuple[str, ...]) -> None:
-    """ClipError when one of ``keys`` holds bytes (no arithmetic applies to them)."""
-    strings = [key for key in keys if arrays[key].dtype.kind == "S"]
+def check_numbers(path: str, members: dict[str, np.ndarray], keys: tuple[str, ...]) -> None:
+    """ClipError when one of the file's members ``keys`` holds bytes (no arithmetic applies to them)."""
+    strings = [key for key in keys if members[key].dtype.kind == "S"]
     if strings:
         raise ClipError(f"{path}: {strings} hold bytes, not numbers")
 
 
-def read_reference(
-    path: str, limits: ReadLimits, client: HttpClient | None = None
-) -> tuple[dict[str, np.ndarray], tuple[int, int] | None]:
-    """REF's numeric arrays, checked to be a clip's queries [N, 3], tracks [T, N, 3], visibility
-    [T, N] and intrinsics [4] when it has them, and its frame (height, width) from the first JPEG's
-    header (None when it holds no frames). Over HTTP (``client``) only those members and the start
-    of the first JPEG are fetched; HttpError when the file cannot be (kind not_found: REF has none)."""
+def read_reference(path: str, limits: ReadLimits, client: HttpClient | None = None) -> Clip:
+    """REF's clip: its queries, tracks [T, N, 3], visibility [T, N] and intrinsics [4] when it has
+    them, and its ``frame_size`` from the first JPEG's header (None when it holds no frames; the
+    frames are not read). Over HTTP (``client``) only those members and the start of the first JPEG
+    are fetched; HttpError when the file cannot be (kind not_found: REF has none)."""
     try:
         if is_http(path):
             with open_remote(client or HttpClient(), path, limits.max_file_bytes) as remote:
@@ -73,9 +74,7 @@ def read_reference(
         raise ClipError(f"{path}: cannot be read ({error.strerror or error})") from error
 
 
-def _reference(
-    archive: NpzArchive, limits: ReadLimits
-) -> tuple[dict[str, np.ndarray], tuple[int, int] | None]:
+def _reference(archive: NpzArchive, limits: ReadLimits) -> Clip:
     path = archive.name
     wanted: dict[str, int | None] = dict.fromkeys(NUMERIC_KEYS) | {FRAMES: FRAME_HEAD_BYTES}
     archive.prefetch(wanted, MERGED_FETCH_BYTES)  # over HTTP: the members and the first JPEG's start at once
@@ -94,19 +93,17 @@ def _reference(
     size = first_frame_size(archive, limits)
     if size is None and "images_jpeg_bytes" in archive.keys:
         raise ClipError(f"{path}: no readable JPEG header in the first frame")
-    return arrays, size
+    return from_members(path, arrays, size)
 
 
 OPTIONAL_PREDICTION_KEYS = ("queries_xyt", "fx_fy_cx_cy")
 
 
-def read_prediction(
-    path: str, num_frames: int, num_tracks: int, limits: ReadLimits
-) -> tuple[dict[str, np.ndarray], tuple[int, int] | None, str]:
-    """NEW's ``tracks_XYZ`` and ``visibility``, each refused before reading when it claims more than
-    REF's T frames and N tracks need; ClipError saying why they cannot be read. Also, where they can
-    be read within the same bounds (else they are left out), its queries and intrinsics, its first
-    frame's size (None without), and the SHA-256 of its file."""
+def read_prediction(path: str, num_frames: int, num_tracks: int, limits: ReadLimits) -> tuple[Clip, str]:
+    """NEW's clip of its ``tracks_XYZ`` and ``visibility``, each refused before reading when it claims
+    more than REF's T frames and N tracks need (ClipError saying why they cannot be read), and, where
+    they can be read within the same bounds (else None), its queries and intrinsics and its
+    ``frame_size``; and the SHA-256 of its file."""
     caps = member_caps(num_frames, num_tracks, limits)
     why = f"REF's clip has T = {num_frames} frames and N = {num_tracks} tracks"
     try:
@@ -130,25 +127,30 @@ def read_prediction(
         size = first_frame_size(archive, limits)
     except NpzError:
         size = None
-    return arrays, size, hashlib.sha256(data).hexdigest()
+    return from_members(path, arrays, size), hashlib.sha256(data).hexdigest()
 
 
-def compare_clip(ref: dict[str, np.ndarray], new: dict[str, np.ndarray], height: int, width: int) -> Scores:
-    """Scores of NEW's tracks [T, N, 3] / visibility [T, N] against REF's (REF's queries and
-    intrinsics); ClipError when the shapes differ."""
-    gt_tracks, pred_tracks = ref["tracks_XYZ"], new["tracks_XYZ"]
-    gt_visible, pred_visible = ref["visibility"].astype(bool), new["visibility"].astype(bool)
+def compare_clip(ref: Clip, new: Clip) -> Scores:
+    """Scores of NEW's tracks [T, N, 3] / visibility [T, N] against REF's (REF's queries, intrinsics
+    and frame size: ``with_camera`` completes them); ClipError when the shapes differ or REF lacks
+    its intrinsics or frame size."""
+    gt_tracks, pred_tracks = ref.tracks, new.tracks
+    gt_visible, pred_visible = ref.visibility, new.visibility
     if gt_tracks.shape != pred_tracks.shape or gt_visible.shape != pred_visible.shape:
         raise ClipError(
             f"shapes differ: REF tracks {gt_tracks.shape} visibility {gt_visible.shape}, "
             f"NEW tracks {pred_tracks.shape} visibility {pred_visible.shape}"
         )
+    if ref.intrinsics is None or ref.frame_size is None:
+        raise ClipError("REF's clip holds no intrinsics or no frame size")
     num_frames, num_tracks = gt_visible.shape
-    queries = ref["queries_xyt"]
+    queries = ref.queries
     query_frames = (
-        query_frame_indices(queries[:, 2], num_frames) if queries.shape == (num_tracks, 3) else None
+        query_frame_indices(queries[:, 2], num_frames)
+        if queries is not None and queries.shape == (num_tracks, 3)
+        else None
     )
-    intrinsics = eval_intrinsics(ref["fx_fy_cx_cy"], height, width)
+    intrinsics = eval_intrinsics(ref.intrinsics, *ref.frame_size)
     aj: dict[str, float] = {}
     apd: dict[str, float] = {}
     oa, note = math.nan, ""
@@ -192,20 +194,20 @@ def score_pair(
         return client.fetched - before if client is not None else None
 
     try:
-        ref, size = read_reference(ref_path, limits, client)
+        ref = read_reference(ref_path, limits, client)
     except HttpError as error:
         status = Status.NOT_IN_REF if error.kind == "not_found" else Status.REF_ERROR
         return RefUnread(source, clip, status, f"{error.url}: {error}", at, fetched())
     except ClipError as error:
         return RefUnread(source, clip, Status.REF_ERROR, str(error), at, fetched())
-    num_frames, num_tracks = ref["visibility"].shape
+    num_frames, num_tracks = ref.visibility.shape
     fetched_bytes = fetched()
     if new_path is None:
         return Zero(source, clip, num_frames, num_tracks, "no prediction file", at, fetched_bytes)
     try:
-        new, new_size, digest = read_prediction(new_path, num_frames, num_tracks, limits)
-        ref, size, note = _with_camera(ref, size, new, new_size)
-        scores = compare_clip(ref, new, *size)
+        new, digest = read_prediction(new_path, num_frames, num_tracks, limits)
+        ref, note = with_camera(ref, new)
+        scores = compare_clip(ref, new)
     except ClipError as error:
         return Zero(source, clip, num_frames, num_tracks, str(error), at, fetched_bytes)
     measured = agreement(ref, new)
@@ -215,24 +217,21 @@ def score_pair(
     )
 
 
-def _with_camera(
-    ref: dict[str, np.ndarray],
-    size: tuple[int, int] | None,
-    new: dict[str, np.ndarray],
-    new_size: tuple[int, int] | None,
-) -> tuple[dict[str, np.ndarray], tuple[int, int], str]:
-    """REF with intrinsics, its frame size, and a note when either came from NEW's clip (the
+def with_camera(ref: Clip, new: Clip) -> tuple[Clip, str]:
+    """REF with intrinsics and a frame size, and a note when either came from NEW's clip (the
     release's ADT and Panoptic Studio files hold annotations only); ClipError when neither has them."""
     taken = []
+    size = ref.frame_size
     if size is None:
-        size = new_size
+        size = new.frame_size
         taken.append("frame size")
-    if "fx_fy_cx_cy" not in ref:
-        if "fx_fy_cx_cy" not in new or new["fx_fy_cx_cy"].shape != (4,):
+    intrinsics = ref.intrinsics
+    if intrinsics is None:
+        if new.intrinsics is None or new.intrinsics.shape != (4,):
             raise ClipError("neither clip holds intrinsics (fx_fy_cx_cy)")
-        ref = {**ref, "fx_fy_cx_cy": new["fx_fy_cx_cy"]}
+        intrinsics = new.intrinsics
         taken.append("intrinsics")
     if size is None:
         raise ClipError("neither clip holds frames to read the frame size from")
     note = f"{' and '.join(taken)} from the regenerated clip (the reference holds none)" if taken else ""
-    return ref, size, note
+    return dataclasses.replace(ref, intrinsics=intrinsics, frame_size=size), note

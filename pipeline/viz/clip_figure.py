@@ -17,11 +17,11 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from PIL import Image
 
+import pipeline.clips
+from pipeline.clips import Clip
 from pipeline.core.geometry import invert_se3, project
-from pipeline.export.invariants import frame_size, structure_problems
-from pipeline.io.clip_reader import CLIP_KEYS, DEFAULT_LIMITS, ReadLimits, read_clip_file
+from pipeline.io.clip_reader import DEFAULT_LIMITS, ReadLimits
 
-IMAGES_KEY = "images_jpeg_bytes"
 COLORMAP = "gist_rainbow"
 PANEL_MIN_PX = 480  # the 3D panel is square, max(frame height, this) pixels a side
 PANEL_INCHES = 6.4  # fixed figure size in inches, so fonts keep their share of the panel
@@ -33,23 +33,23 @@ TITLE_WIDTH = 60  # characters per line of the 3D panel's title
 OUTPUT_KINDS = (".png", ".gif", ".mp4")
 
 
-def load_clip(
-    path: str, with_images: bool = True, limits: ReadLimits = DEFAULT_LIMITS
-) -> dict[str, np.ndarray]:
-    """The arrays of a clip ``.npz`` (nothing unpickled, sizes bounded by the clip's T and N);
-    ValueError naming the file when it cannot be drawn as a clip."""
-    keys = CLIP_KEYS if with_images else tuple(key for key in CLIP_KEYS if key != IMAGES_KEY)
-    clip = read_clip_file(path, limits, keys)
-    if with_images:
-        problems = structure_problems(clip)
-        if problems:
-            raise ValueError(f"{path}: not a clip that can be drawn: {problems[0]}")
-        height, width = frame_size(clip)
-        if height * width > limits.max_image_pixels:
-            raise ValueError(
-                f"{path}: frames of {width}x{height} pixels, more than {limits.max_image_pixels}"
-            )
+def load_clip(path: str, limits: ReadLimits = DEFAULT_LIMITS) -> Clip:
+    """The clip in a ``.npz`` (``pipeline.clips.open``: nothing unpickled, sizes bounded by the clip's
+    T and N); ValueError naming the file when it is not a clip or its frames hold more pixels than
+    ``limits.max_image_pixels``."""
+    clip = pipeline.clips.open(path, limits)
+    height, width = camera_of(clip)[1]
+    if height * width > limits.max_image_pixels:
+        raise ValueError(f"{path}: frames of {width}x{height} pixels, more than {limits.max_image_pixels}")
     return clip
+
+
+def camera_of(clip: Clip) -> tuple[np.ndarray, tuple[int, int]]:
+    """The intrinsics [4] (float64) and the frames' (height, width) of a clip to draw; ValueError
+    naming it when it holds no frames or no intrinsics (a reader of some members made it)."""
+    if not clip.frames or clip.intrinsics is None or clip.frame_size is None:
+        raise ValueError(f"{clip.name}: no frames or no intrinsics to draw")
+    return clip.intrinsics, clip.frame_size
 
 
 def world_tracks(tracks_xyz: np.ndarray, extrinsics_w2c: np.ndarray) -> np.ndarray:
@@ -223,30 +223,29 @@ def compose(frame: np.ndarray, panel: np.ndarray) -> np.ndarray:
     return canvas
 
 
-def render_clip(
-    clip: dict[str, np.ndarray], name: str, frames: list[int], max_tracks: int, tail: int
-) -> Iterator[np.ndarray]:
+def render_clip(clip: Clip, name: str, frames: list[int], max_tracks: int, tail: int) -> Iterator[np.ndarray]:
     """Yields the composed RGB image [H', W', 3] of each frame index in ``frames``."""
-    tracks = clip["tracks_XYZ"].astype(np.float64)
+    intrinsics = camera_of(clip)[0]
+    tracks = clip.tracks.astype(np.float64)
     chosen = select_tracks(tracks.shape[1], max_tracks)
     tracks = tracks[:, chosen]
-    visibility = clip["visibility"][:, chosen]
+    visibility = clip.visibility[:, chosen]
     colors = track_colors(len(chosen))
-    images = clip[IMAGES_KEY]
+    images = clip.frames
     height, width = decode_frame(images[0]).shape[:2]
-    pixels = project(tracks, clip["fx_fy_cx_cy"].astype(np.float64))
+    pixels = project(tracks, intrinsics)
     with np.errstate(invalid="ignore"):
         near = (np.abs(pixels - [width / 2, height / 2]) <= [width, height]).all(axis=-1)
     drawable = (tracks[..., 2] > 0) & near
-    if "extrinsics_w2c" in clip:
-        w2c0 = clip["extrinsics_w2c"][0].astype(np.float64)
-        world = world_tracks(tracks, clip["extrinsics_w2c"])
+    if clip.extrinsics is not None:
+        w2c0 = clip.extrinsics[0].astype(np.float64)
+        world = world_tracks(tracks, clip.extrinsics)
         points = np.einsum("ij,tnj->tni", w2c0[:3, :3], world) + w2c0[:3, 3]
         frame_name = "world coordinates (axes of the frame-0 camera)"
     else:
         points = tracks
         frame_name = "camera coordinates"
-    title = f"{name}: {len(chosen)} of {clip['tracks_XYZ'].shape[1]} tracks"
+    title = f"{name}: {len(chosen)} of {clip.num_tracks} tracks"
     view = TrajectoryView(points, visibility, colors, max(height, PANEL_MIN_PX), title, frame_name)
     for t in frames:
         frame = draw_tracks(decode_frame(images[t]), pixels, drawable, visibility, colors, t, tail)
@@ -270,7 +269,7 @@ def write_clip_figure(
     if kind not in OUTPUT_KINDS:
         raise ValueError(f"unsupported output {out!r}: use one of {', '.join(OUTPUT_KINDS)}")
     clip = load_clip(clip_path, limits=limits)
-    num_frames = len(clip[IMAGES_KEY])
+    num_frames = clip.num_frames
     name = os.path.splitext(os.path.basename(clip_path))[0]
     if kind == ".png":
         index = num_frames // 2 if frame is None else frame

@@ -33,10 +33,10 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from pipeline.clips import Clip
 from pipeline.core.geometry import invert_se3, project
-from pipeline.export.invariants import frame_size
 from pipeline.io.clip_reader import DEFAULT_LIMITS, ReadLimits
-from pipeline.viz.clip_figure import IMAGES_KEY, load_clip, occluded_colors, select_tracks, track_colors
+from pipeline.viz.clip_figure import camera_of, load_clip, occluded_colors, select_tracks, track_colors
 
 APPLICATION_ID = "tapvid3d"
 TIMELINE = "frame"
@@ -53,11 +53,11 @@ def point_style(visible: np.ndarray, colors: np.ndarray) -> tuple[np.ndarray, np
     return shown, np.where(visible, -VISIBLE_RADIUS_UI, -OCCLUDED_RADIUS_UI)
 
 
-def camera_to_world(clip: dict[str, np.ndarray]) -> np.ndarray:
+def camera_to_world(clip: Clip) -> np.ndarray:
     """Camera-to-world poses [T, 4, 4] (float64); the identity at every frame without extrinsics."""
-    if "extrinsics_w2c" in clip:
-        return invert_se3(clip["extrinsics_w2c"].astype(np.float64))
-    return np.tile(np.eye(4), (len(clip["tracks_XYZ"]), 1, 1))
+    if clip.extrinsics is not None:
+        return invert_se3(clip.extrinsics.astype(np.float64))
+    return np.tile(np.eye(4), (clip.num_frames, 1, 1))
 
 
 def recording_blueprint() -> rrb.Blueprint:
@@ -83,13 +83,11 @@ def inside_image(pixels: np.ndarray, depth: np.ndarray, width: int, height: int)
     return (depth > 0) & (x >= 0) & (x < width) & (y >= 0) & (y < height)
 
 
-def log_camera(
-    recording: rr.RecordingStream, clip: dict[str, np.ndarray], c2w: np.ndarray, size: tuple[int, int]
-) -> None:
-    """The static pinhole (``size``: height, width of the frames), and the camera's pose: per frame
+def log_camera(recording: rr.RecordingStream, clip: Clip, c2w: np.ndarray) -> None:
+    """The static pinhole (the clip's intrinsics and frame size), and the camera's pose: per frame
     with extrinsics, else static identity."""
-    height, width = size
-    fx, fy, cx, cy = clip["fx_fy_cx_cy"].astype(np.float64)
+    intrinsics, (height, width) = camera_of(clip)
+    fx, fy, cx, cy = intrinsics
     pinhole = rr.Pinhole(
         focal_length=[fx, fy],
         principal_point=[cx, cy],
@@ -98,7 +96,7 @@ def log_camera(
         camera_xyz=rr.ViewCoordinates.RDF,
     )
     rr.log("world/camera/image", pinhole, static=True, recording=recording)
-    if "extrinsics_w2c" not in clip:
+    if clip.extrinsics is None:
         rr.log("world", rr.ViewCoordinates.RDF, static=True, recording=recording)
         identity = rr.Transform3D(translation=c2w[0, :3, 3], mat3x3=c2w[0, :3, :3])
         rr.log("world/camera", identity, static=True, recording=recording)
@@ -119,20 +117,21 @@ def write_recording(
     """Writes the clip's recording to ``out`` (.rrd): every track, or ``max_tracks`` evenly spaced
     ones; trails through the last ``tail`` frames. Returns the number of frames."""
     clip = load_clip(clip_path, limits=limits)
-    tracks = clip["tracks_XYZ"].astype(np.float64)
+    assert clip.queries is not None, "load_clip opens whole clips (pipeline.clips.open)"
+    intrinsics, (height, width) = camera_of(clip)
+    tracks = clip.tracks.astype(np.float64)
     num_frames, num_tracks = tracks.shape[:2]
     chosen = np.arange(num_tracks) if max_tracks is None else select_tracks(num_tracks, max_tracks)
     tracks = tracks[:, chosen]
-    visibility = clip["visibility"][:, chosen]
-    query_frames = np.round(clip["queries_xyt"][chosen, 2]).astype(np.int64)
+    visibility = clip.visibility[:, chosen]
+    query_frames = np.round(clip.queries[chosen, 2]).astype(np.int64)
     colors = track_colors(len(chosen))
     c2w = camera_to_world(clip)
     world = np.einsum("tij,tnj->tni", c2w[:, :3, :3], tracks) + c2w[:, None, :3, 3]
     # Rerun draws an image's pixel [r, c] over [c, c + 1) x [r, r + 1) of its 2D space (top-left
     # corner at (0, 0), centre at (c + 0.5, r + 0.5)): the clip's own convention, so its pixel
     # coordinates are logged as they are, with no half-pixel shift.
-    pixels = project(tracks, clip["fx_fy_cx_cy"].astype(np.float64))
-    height, width = frame_size(clip)
+    pixels = project(tracks, intrinsics)
 
     name = os.path.splitext(os.path.basename(clip_path))[0]
     recording = rr.new_recording(APPLICATION_ID, recording_id=name)
@@ -140,10 +139,10 @@ def write_recording(
         rr.save(out, default_blueprint=recording_blueprint(), recording=recording)
     except RuntimeError as error:  # rerun's file sink cannot create the file
         raise OSError(str(error)) from error
-    log_camera(recording, clip, c2w, (height, width))
+    log_camera(recording, clip, c2w)
     for t in range(num_frames):
         rr.set_time_sequence(TIMELINE, t, recording=recording)
-        image = rr.EncodedImage(contents=bytes(clip[IMAGES_KEY][t]), media_type="image/jpeg")
+        image = rr.EncodedImage(contents=clip.frames[t], media_type="image/jpeg")
         rr.log("world/camera/image", image, recording=recording)
         shown, radii = point_style(visibility[t], colors)
         rr.log("world/tracks", rr.Points3D(world[t], colors=shown, radii=radii), recording=recording)

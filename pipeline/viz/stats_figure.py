@@ -18,6 +18,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from pipeline.clips import Clip
 from pipeline.io.clip_reader import DEFAULT_LIMITS, ReadLimits
 from pipeline.viz.clip_figure import load_clip, world_tracks
 
@@ -28,16 +29,16 @@ STATIC_CRITERION = (
 )
 
 
-def track_motion(clip: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, str]:
+def track_motion(clip: Clip) -> tuple[np.ndarray, np.ndarray, str]:
     """Per track whether it is static [N] (bool, ``STATIC_CRITERION``) and its mean step length [N]
     (metres per frame).
 
     World coordinates when the clip has ``extrinsics_w2c``, else camera coordinates (named
     in the third value). The step length is NaN for a one-frame clip.
     """
-    tracks = clip["tracks_XYZ"].astype(np.float64)
-    if "extrinsics_w2c" in clip:
-        points, frame = world_tracks(tracks, clip["extrinsics_w2c"]), "world"
+    tracks = clip.tracks.astype(np.float64)
+    if clip.extrinsics is not None:
+        points, frame = world_tracks(tracks, clip.extrinsics), "world"
     else:
         points, frame = tracks, "camera"
     spread = np.linalg.norm(points - np.median(points, axis=0), axis=-1).max(axis=0)
@@ -63,8 +64,8 @@ def dataset_stats(directory: str, limits: ReadLimits = DEFAULT_LIMITS) -> dict[s
         for path in paths:
             clip = load_clip(path, limits=limits)
             static, speed, frame = track_motion(clip)
-            frames.append(clip["tracks_XYZ"].shape[0])
-            tracks.append(clip["tracks_XYZ"].shape[1])
+            frames.append(clip.num_frames)
+            tracks.append(clip.num_tracks)
             static_share.append(float(np.mean(static)))
             speeds.append(speed)
             coordinates.add(frame)

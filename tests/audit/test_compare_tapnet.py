@@ -1,6 +1,7 @@
 """``compare`` scores as tapnet's ``evaluate_model.py`` does where scoring can go astray: NaN
-predictions, missing and unreadable prediction files, prediction-only files, clips of different
-lengths. Every expected value is worked out by hand in the comments."""
+predictions, missing and unreadable prediction files, prediction-only files, references holding
+annotations only (as the release's ADT and Panoptic Studio files), clips of different lengths. Every
+expected value is worked out by hand in the comments."""
 
 import io
 import json
@@ -10,8 +11,9 @@ import cv2
 import numpy as np
 import pytest
 
-from pipeline.audit.compare import Status, compare_dirs, main
+from pipeline.audit.compare import Status, compare_dirs, main, read_reference
 from pipeline.export.npz_writer import encode_npz
+from pipeline.io.clip_reader import DEFAULT_LIMITS
 
 # Frames of 16 x 32 px with f = 0.625 px: the evaluation scale 256 / min(16, 32) = 16 makes f = 10 px,
 # so a d-pixel threshold is the 3D radius d * z / 10 m, at z = 2 m: 0.2, 0.4, 0.8, 1.6, 3.2 m.
@@ -173,6 +175,43 @@ def test_a_prediction_only_file_is_scored(tmp_path):
     assert row.scores.oa == 1.0
     # Median of the errors 0, 0.3, 1.0, 5.0 -> (0.3 + 1.0) / 2.
     assert row.scores.median_error_m == pytest.approx(0.65)
+
+
+def test_a_reference_of_annotations_only_takes_the_camera_of_the_run_s_clip(tmp_path):
+    # REF as the release's ADT files: queries, tracks and visibility, no frames, intrinsics or poses.
+    # NEW a run's whole clip of 16 x 32 frames with f = 0.625 px: the radii are those of the module
+    # doc. 4 tracks at z = 2 m, NEW's off in x by 0, 0.3, 1.0, 5.0 m.
+    ref, new = tmp_path / "ref", tmp_path / "new"
+    gt = at_2m(1, 4)
+    queries = np.tile(np.array([[8.0, 8.0, 0.0]], np.float32), (4, 1))
+    (ref / "adt").mkdir(parents=True)
+    annotations = {"queries_xyt": queries, "tracks_XYZ": gt.astype(np.float32), "visibility": np.ones((1, 4))}
+    (ref / "adt" / "a.npz").write_bytes(encode_npz(annotations))
+    pred = gt.copy()
+    pred[0, :, 0] += [0.0, 0.3, 1.0, 5.0]
+    write_prediction(
+        new, "adt/a.npz", pred, images_jpeg_bytes=np.array([JPEG]), queries_xyt=queries, fx_fy_cx_cy=K
+    )
+    clip = read_reference(str(ref / "adt" / "a.npz"), DEFAULT_LIMITS)
+    assert (clip.name, clip.source, clip.frames, clip.frame_size) == ("a", "adt", (), None)
+    assert clip.intrinsics is None and clip.extrinsics is None
+    assert clip.visibility.dtype == bool and clip.visibility.all()  # stored as float64 ones
+    row = compare_dirs(str(ref), str(new)).clips[0]
+    assert row.status is Status.SCORED
+    assert row.note == "frame size and intrinsics from the regenerated clip (the reference holds none)"
+    # As for the prediction-only file: within 1, 2, 2, 3, 3 of 4 per threshold -> APD 0.55, AJ 0.401905.
+    assert row.scores.apd["none"] == pytest.approx(0.55)
+    assert row.scores.aj["none"] == pytest.approx(0.401905, abs=1e-6)
+    # Agreement: the same query frames and visibility; distances 0, 300, 1000, 5000 mm: median 650,
+    # p95 at rank 0.95 x 3 = 2.85, 1000 + 0.85 x 4000 = 4400.
+    measured = row.agreement
+    assert (measured.query_frames_equal, measured.visibility) == (1.0, 1.0)
+    assert measured.median_mm == pytest.approx(650.0)
+    assert measured.p95_mm == pytest.approx(4400.0)
+    # A prediction of tracks and visibility only gives no camera either: counted 0, saying why.
+    write_prediction(new, "adt/a.npz", pred)
+    row = compare_dirs(str(ref), str(new)).clips[0]
+    assert (row.status, row.error) == (Status.ZERO, "neither clip holds intrinsics (fx_fy_cx_cy)")
 
 
 def test_prediction_members_are_capped_by_the_ref_clips_size(tmp_path):

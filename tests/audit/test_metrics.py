@@ -163,8 +163,7 @@ def ref_dir(tmp_path):
 
 
 def test_frame_size_comes_from_the_first_jpeg_header(ref_dir):
-    _, size = read_reference(str(ref_dir / "adt" / "a_0.npz"), DEFAULT_LIMITS)
-    assert size == (HEIGHT, WIDTH)
+    assert read_reference(str(ref_dir / "adt" / "a_0.npz"), DEFAULT_LIMITS).frame_size == (HEIGHT, WIDTH)
 
 
 def test_compare_a_folder_with_itself_scores_one_and_never_unpickles(ref_dir, tmp_path, monkeypatch):

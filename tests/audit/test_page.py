@@ -34,7 +34,7 @@ from pipeline.drivetrack.sample.waymo_world import SEGMENT
 from pipeline.runner.command import main as run_main
 from pipeline.settings.fields import with_overrides
 from pipeline.viz.__main__ import main as viz_main
-from pipeline.viz.clip_figure import IMAGES_KEY, decode_frame, load_clip
+from pipeline.viz.clip_figure import load_clip
 
 CHROMIUM, CHROMEDRIVER = "/usr/bin/chromium", "/usr/bin/chromedriver"
 FLAGS = (
@@ -234,7 +234,7 @@ def test_writes_only_its_page_with_evenly_spaced_thumbnails(out, tmp_path):
     figure = tmp_path / "figure.png"  # python -m pipeline.viz draws the clip's middle frame
     assert viz_main([str(out / "pstudio" / "dome_8.npz"), "--out", str(figure)]) == 0
     drawn = cv2.cvtColor(cv2.imread(str(figure)), cv2.COLOR_BGR2RGB)
-    height, width = decode_frame(load_clip(str(out / "pstudio" / "dome_8.npz"))[IMAGES_KEY][0]).shape[:2]
+    height, width = load_clip(str(out / "pstudio" / "dome_8.npz")).image(0).shape[:2]
     jpeg = np.frombuffer(base64.b64decode(pages["pstudio"]["thumbnails"]["dome_8"]), np.uint8)
     thumb = cv2.cvtColor(cv2.imdecode(jpeg, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
     expected = cv2.resize(drawn[:height, :width], thumb.shape[1::-1], interpolation=cv2.INTER_AREA)

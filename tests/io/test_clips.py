@@ -125,7 +125,7 @@ def test_tapnets_loaders_read_a_runs_clips(reference_run, source):
             evaluator = np.load(handle, allow_pickle=True)
             frames, queries, tracks, visible, intrinsics = (evaluator[key] for key in KEYS)
         height, width = np.asarray(Image.open(io.BytesIO(frames[0])).convert("RGB")).shape[:2]
-        assert (height, width) == clip.image(0).shape[:2]
+        assert (height, width) == clip.image(0).shape[:2] == clip.frame_size
         assert tracks.shape == (len(frames), len(queries), 3) and visible.shape == tracks.shape[:2]
         assert np.array_equal(tracks, clip.tracks) and np.array_equal(intrinsics, clip.intrinsics)
         with open(path, "rb") as handle, np.load(handle) as colab:
