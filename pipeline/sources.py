@@ -96,6 +96,12 @@ class RunChoices:
     def of(cls, config: RunConfig, source: str) -> RunChoices:
         return cls(config.seed, GivenQueries(config.queries_from, source, config.http), config.export_depth)
 
+    def wants(self, clip: str, wanted: Wanted) -> bool:
+        """Whether a unit is to make clip ``clip``: the run wants it (``wanted``: a release run's
+        names, None: every clip) and ``--queries-from``, when given, holds it. A clip not wanted is
+        not made, and the run says why (``pipeline.runner.stages.annotate_group``)."""
+        return (wanted is None or clip in wanted) and self.given.admits(clip)
+
 
 @dataclasses.dataclass(frozen=True)
 class Source(Generic[U]):
@@ -104,11 +110,12 @@ class Source(Generic[U]):
     name: the ``--source`` value and the folder of its clips (``<out>/<name>/<clip>.npz``).
     list_units: (input root, config, release clip names or None) -> its UnitPlan; InputError when
       the input cannot be listed.
-    annotate_group: (input root, units of one group, config, per unit its Wanted) -> per unit, in
-      order, its ``UnitClips`` or the exception that failed it (one unit's bad input fails that unit
-      only, unless the input is shared); a list, or a generator that hands each unit on as soon as
-      it is made (it is written before the next is annotated). A source that works unit by unit
-      wraps its per-unit function with ``one_by_one``.
+    annotate_group: (input root, units of one group, config, per unit its Wanted) -> an iterator:
+      per unit, in order, its ``UnitClips`` or the exception that failed it (one unit's bad input
+      fails that unit only, unless the input is shared), each handed on as soon as it is made (it is
+      written before the next is annotated). A unit makes only the clips ``RunChoices.wants``; the
+      run says why for each wanted name it does not make. A source that works unit by unit wraps
+      its per-unit function with ``one_by_one``.
     sample_input: folder -> input root of the embedded sample world written (once) there;
       raises NoSample when the source has none.
     has_sample: False for a source without an embedded sample world: a run without ``--input`` is
@@ -156,12 +163,16 @@ def one_by_one(
     annotate: Callable[[str, U, RunConfig], list[ClipRecord]],
 ) -> Callable[[str, list[U], RunConfig, list[Wanted]], Iterator[UnitClips | Exception]]:
     """The ``annotate_group`` of a source that annotates each unit alone with ``annotate(input root,
-    unit, config) -> its candidate clips``: per unit its clips, or the exception that failed it."""
+    unit, config) -> its candidate clips``: per unit its clips, or the exception that failed it; a
+    unit of which the run wants no clip is not annotated."""
 
     def annotate_each(
         input_root: str, units: list[U], config: RunConfig, wanted: list[Wanted]
     ) -> Iterator[UnitClips | Exception]:
-        for unit in units:
+        for unit, keep in zip(units, wanted, strict=True):
+            if keep is not None and not keep:
+                yield UnitClips(())
+                continue
             try:
                 yield UnitClips(tuple(annotate(input_root, unit, config)))
             except Exception as error:  # noqa: BLE001 - every failure becomes data

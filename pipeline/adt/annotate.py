@@ -16,7 +16,7 @@ from pipeline.adt.frames import OpenedSequence, close_sequence, open_sequence
 from pipeline.adt.reader import required_files
 from pipeline.adt.records import Chunk
 from pipeline.adt.settings import AdtConfig
-from pipeline.adt.tracks import annotate_chunk
+from pipeline.adt.tracks import candidate_clip
 from pipeline.adt.units import (
     ALL_CHUNKS,
     SequenceChunk,
@@ -64,7 +64,7 @@ def annotate_opened(
     frames = opened.frames
     record = Chunk(name=clip_name(sequence, chunk), unit=name, timestamps=stamps)
     try:
-        return [annotate_chunk(record, frames.frame, frames.jpeg, frames.instances, settings, choices)]
+        return [candidate_clip(record, frames.frame, frames.jpeg, frames.instances, settings, choices)]
     except InputError as error:
         raise _named(error, sequence, name) from error
 
@@ -84,16 +84,17 @@ def chunk_clips(opened: OpenedSequence, chunk: int, settings: AdtConfig, choices
 
 
 def annotate_local(
-    units: list[SequenceChunk], settings: AdtConfig, choices: RunChoices
+    units: list[SequenceChunk], settings: AdtConfig, choices: RunChoices, wanted: list[Wanted]
 ) -> Iterator[UnitClips | Exception]:
     """Chunks of one local sequence: the sequence opened once (on the first chunk that makes a
-    clip) and closed after the last (or when the caller stops early). With ``--queries-from``, a
-    chunk it holds no clip of makes none."""
+    clip) and closed after the last (or when the caller stops early). A chunk whose clip is not
+    wanted (``wanted``: a release run's, or not in ``--queries-from``) makes none; the run says why."""
     opened: OpenedSequence | Exception | None = None
     try:
-        for unit in units:
+        for unit, keep in zip(units, wanted, strict=True):
             sequence, chunk = unit.sequence, unit.chunk
-            if chunk != ALL_CHUNKS and not choices.given.admits(clip_name(sequence, chunk)):
+            name = clip_name(sequence, chunk)
+            if chunk != ALL_CHUNKS and not choices.wants(name, keep):
                 yield UnitClips(())
                 continue
             if opened is None:
@@ -116,7 +117,12 @@ def annotate_local(
 
 
 def annotate_fetched(
-    input_root: str, units: list[SequenceChunk], settings: AdtConfig, choices: RunChoices, http: HttpConfig
+    input_root: str,
+    units: list[SequenceChunk],
+    settings: AdtConfig,
+    choices: RunChoices,
+    wanted: list[Wanted],
+    http: HttpConfig,
 ) -> Iterator[UnitClips | Exception]:
     """Chunks of one sequence of the download-URLs JSON ``input_root``: the files the annotation
     reads fetched into the scratch folder, the chunks annotated, the folder deleted (also when the
@@ -130,11 +136,13 @@ def annotate_fetched(
             for unit in units:
                 yield _unit_error(error, name, unit.name)
             return
-        yield from annotate_local([SequenceChunk(folder, unit.chunk) for unit in units], settings, choices)
+        yield from annotate_local(
+            [SequenceChunk(folder, unit.chunk) for unit in units], settings, choices, wanted
+        )
 
 
 def annotate_group(
-    input_root: str, units: list[SequenceChunk], config: RunConfig, wanted: list[Wanted] | None = None
+    input_root: str, units: list[SequenceChunk], config: RunConfig, wanted: list[Wanted]
 ) -> Iterator[UnitClips | Exception]:
     """Chunks of one sequence annotated together (``Source.annotate_group``); per unit, as soon as
     it is made, its clip or the exception that failed it."""
@@ -143,6 +151,6 @@ def annotate_group(
         raise ValueError(f"annotate_group takes the chunks of one sequence, got {sorted(sequences)}")
     settings, choices = config.section(AdtConfig), RunChoices.of(config, "adt")
     if is_fetched(units[0].sequence):
-        yield from annotate_fetched(input_root, units, settings, choices, config.http)
+        yield from annotate_fetched(input_root, units, settings, choices, wanted, config.http)
     else:
-        yield from annotate_local(units, settings, choices)
+        yield from annotate_local(units, settings, choices, wanted)

@@ -336,13 +336,13 @@ def _print_steps(steps: dict, largest: dict, frames: int, size: int) -> None:
 def _clip_cost(path: str, sequence, stamps, config) -> None:
     """Print the annotation cost of the excerpt's first chunk, per frame and for a 300-frame chunk."""
     from pipeline.adt.records import Chunk
-    from pipeline.adt.tracks import annotate_chunk
+    from pipeline.adt.tracks import candidate_clip
     from pipeline.adt.units import SequenceChunk, clip_name
     from pipeline.sources import RunChoices
 
     chunk = Chunk(clip_name(path, 0), SequenceChunk(path, 0).name, stamps[: _settings(config).chunk_frames])
     reads = (sequence.frame, sequence.jpeg, sequence.instances)
-    seconds, clip = _timed(annotate_chunk, chunk, *reads, _settings(config), RunChoices.of(config, "adt"))
+    seconds, clip = _timed(candidate_clip, chunk, *reads, _settings(config), RunChoices.of(config, "adt"))
     per_frame = seconds / clip.num_frames
     print(
         f"annotation of one clip ({clip.num_frames} frames, {clip.num_tracks} candidate tracks; RGB, depth, "

@@ -209,12 +209,12 @@ def carry_tracks(
     tracks = np.zeros((len(kept), count, 3))
     visibility = np.zeros((len(kept), count), bool)
     on_own_object = np.zeros((len(kept), count), bool)
-    unique_ids, track_object = np.unique(queries.object_ids, return_inverse=True)
+    unique_ids, candidate_clip = np.unique(queries.object_ids, return_inverse=True)
     for t, (frame, human) in enumerate(kept):
         missing = [i for i in unique_ids.tolist() if i not in frame.world_from_object]
         if missing:
             raise InputError(f"{chunk.unit}: object {missing[0]} has no pose at t={frame.timestamp} ns")
-        poses = np.stack([frame.world_from_object[i] for i in unique_ids.tolist()])[track_object]
+        poses = np.stack([frame.world_from_object[i] for i in unique_ids.tolist()])[candidate_clip]
         points = carry(queries.points_object, frame.cam_from_world, poses)
         tracks[t] = points
         visibility[t], on_own_object[t] = frame_visibility(
@@ -223,7 +223,7 @@ def carry_tracks(
     return tracks, visibility, on_own_object
 
 
-def annotate_chunk(
+def candidate_clip(
     chunk: Chunk,
     read_frame: Callable[[int], Frame[np.ndarray]],
     read_jpeg: Callable[[int], bytes],

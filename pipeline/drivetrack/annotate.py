@@ -14,6 +14,7 @@ segment's units, selects their objects, gathers the lidar once and runs ``tracks
 from __future__ import annotations
 
 import logging
+from collections.abc import Iterator
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -31,7 +32,7 @@ from pipeline.drivetrack.objects import select_objects
 from pipeline.drivetrack.reader import SegmentReader
 from pipeline.drivetrack.records import CameraFrames, UnitInput
 from pipeline.drivetrack.settings import DriveTrackConfig
-from pipeline.drivetrack.tracks import track_object
+from pipeline.drivetrack.tracks import candidate_clip
 from pipeline.drivetrack.units import SegmentCamera, clip_name
 from pipeline.sources import RunChoices, Wanted
 
@@ -136,13 +137,16 @@ def camera_clips(
     choices: RunChoices,
     why: dict[str, str],
 ) -> UnitClips:
-    """One camera's clips, one per object run; ``why`` (clip name -> reason) gains the objects that
-    made none."""
+    """One camera's clips, one per object run (but those ``--queries-from`` holds no clip of: the
+    run says why); ``why`` (clip name -> reason) gains the objects that made none."""
     clips, not_made = [], dict(why)
     for run in item.runs:
-        made = track_object(item.unit, run, evidence, item.camera, frames, rules, choices)
+        name = clip_name(item.unit.segment, item.unit.camera, run.object_id)
+        if not choices.wants(name, None):  # the wanted objects alone were selected
+            continue
+        made = candidate_clip(item.unit, run, evidence, item.camera, frames, rules, choices)
         if isinstance(made, NotMade):
-            not_made[clip_name(item.unit.segment, item.unit.camera, run.object_id)] = made.reason
+            not_made[name] = made.reason
         else:
             clips.append(made)
     return UnitClips(tuple(clips), not_made)
@@ -191,17 +195,17 @@ def load_units(input_root: str, segment: str, cameras: list[int]) -> list[UnitIn
 
 
 def annotate_group(
-    input_root: str, units: list[SegmentCamera], config: RunConfig, wanted: list[Wanted] | None = None
-) -> list[UnitClips | Exception]:
+    input_root: str, units: list[SegmentCamera], config: RunConfig, wanted: list[Wanted]
+) -> Iterator[UnitClips | Exception]:
     """The units of one segment annotated together (its lidar decoded once): per unit, its clips
     or the exception that failed it; ``wanted``: per unit, the clips to make (None: every one)."""
     segments = {unit.segment for unit in units}
     if len(segments) != 1:
         raise ValueError(f"annotate_group takes the units of one segment, got {sorted(segments)}")
     loaded = load_units(input_root, units[0].segment, [unit.camera for unit in units])
-    wanted = wanted or [None] * len(units)
     readable = [item for item in loaded if not isinstance(item, Exception)]
     readable_wanted = [w for item, w in zip(loaded, wanted, strict=True) if not isinstance(item, Exception)]
     rules, choices = config.section(DriveTrackConfig), RunChoices.of(config, "drivetrack")
     annotated = iter(annotate_cameras(readable, rules, choices, readable_wanted))
-    return [item if isinstance(item, Exception) else next(annotated) for item in loaded]
+    for item in loaded:
+        yield item if isinstance(item, Exception) else next(annotated)

@@ -114,7 +114,7 @@ def mask_agreement(
     return agreement(on_object, visibility, has_mask)
 
 
-def track_object(
+def candidate_clip(
     unit: UnitInput,
     run: ObjectRun,
     evidence: LidarEvidence,
@@ -123,8 +123,9 @@ def track_object(
     rules: DriveTrackConfig,
     choices: RunChoices,
 ) -> ClipRecord | NotMade:
-    """Candidate tracks on one vehicle, with visibility, queries and filter statistics; or why there
-    are none: its box holds no lidar point, or ``--queries-from`` holds no clip of its name.
+    """One vehicle's candidate clip: its candidate tracks with visibility, queries (those of
+    ``--queries-from``'s clip of its name, when it holds one) and filter statistics; or why there is
+    none: its box holds no lidar point.
 
     stored_jpegs: the stored frame per unit frame index, for the run's frames.
     """
@@ -137,8 +138,6 @@ def track_object(
     keys = point_keys(choices.seed, name, pool.timestamps, pool.pixels)
     frames = range(run.start, run.stop)
     given = choices.given.of(name)
-    if choices.given.active and given is None:
-        return NotMade("--queries-from holds no clip of this name")  # only the clips it holds are redone
     count = rules.oversample * rules.tracks_per_clip
     chosen = choose_points(pool.points, keys, given, run, camera, name, count)
     seen = camera.project_frames(frames, transform_points_batch(run.world_from_box, pool.points[chosen]))

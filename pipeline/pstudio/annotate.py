@@ -15,8 +15,8 @@ from pipeline.pstudio.reader import SequenceFiles, params_path, read_gaussians, 
 from pipeline.pstudio.records import GaussianConstants, Gaussians, UnitInput, Views
 from pipeline.pstudio.settings import PstudioConfig
 from pipeline.pstudio.splats import gaussian_constants
-from pipeline.pstudio.tracks import annotate_unit
-from pipeline.pstudio.units import SequenceCamera
+from pipeline.pstudio.tracks import candidate_clip
+from pipeline.pstudio.units import SequenceCamera, clip_name
 from pipeline.sources import RunChoices, Wanted
 
 if TYPE_CHECKING:
@@ -60,12 +60,13 @@ def camera_input(opened: LoadedSequence, camera: int) -> UnitInput:
 
 
 def annotate_group(
-    input_root: str, units: list[SequenceCamera], config: RunConfig, wanted: list[Wanted] | None = None
+    input_root: str, units: list[SequenceCamera], config: RunConfig, wanted: list[Wanted]
 ) -> Iterator[UnitClips | Exception]:
     """The cameras of one sequence annotated together (``Source.annotate_group``): its Gaussians
     read once, each mask decoded once (the multi-view mask statistic reads every camera's); per
     unit, as soon as it is made, its clip or the exception that failed it (a bad train_meta.json or
-    params.npz fails them all)."""
+    params.npz fails them all). A camera whose clip is not wanted (``wanted``: a release run's, or
+    not in ``--queries-from``) makes none; the run says why."""
     sequences = {unit.sequence for unit in units}
     if len(sequences) != 1:
         raise ValueError(f"annotate_group takes the units of one sequence, got {sorted(sequences)}")
@@ -75,10 +76,14 @@ def annotate_group(
     except Exception as error:  # noqa: BLE001 - becomes each unit's failure
         yield from [error] * len(units)
         return
-    for camera in (unit.camera for unit in units):
+    for unit, keep in zip(units, wanted, strict=True):
+        name = clip_name(unit.sequence, unit.camera)
+        if not choices.wants(name, keep):
+            yield UnitClips(())
+            continue
         result: UnitClips | Exception
         try:
-            result = UnitClips(tuple(annotate_unit(camera_input(opened, camera), settings, choices)))
+            result = UnitClips((candidate_clip(camera_input(opened, unit.camera), settings, choices),))
         except Exception as error:  # noqa: BLE001 - this camera's failure only
             result = error
         yield result

@@ -353,13 +353,13 @@ def _renders(unit: UnitInput, frames: int) -> float:
 def _annotation(unit: UnitInput, full_frame_s: float) -> None:
     """Print the time to annotate the unit's clip, and what full-frame renders would have cost."""
     from pipeline.pstudio.settings import PstudioConfig
-    from pipeline.pstudio.tracks import annotate_unit
+    from pipeline.pstudio.tracks import candidate_clip
     from pipeline.settings.run_config import RunConfig
     from pipeline.sources import RunChoices
 
     config = RunConfig()
     start = time.perf_counter()
-    (clip,) = annotate_unit(unit, config.section(PstudioConfig), RunChoices.of(config, "pstudio"))
+    clip = candidate_clip(unit, config.section(PstudioConfig), RunChoices.of(config, "pstudio"))
     elapsed = time.perf_counter() - start
     print(
         f"annotate one {FRAMES}-frame clip: {elapsed:.1f} s ({1000 * elapsed / FRAMES:.0f} ms/frame), "

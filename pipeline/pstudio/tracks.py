@@ -211,14 +211,12 @@ def read_masks(unit: UnitInput) -> None:
             unit.mask(view, t)
 
 
-def annotate_unit(unit: UnitInput, settings: PstudioConfig, choices: RunChoices) -> list[ClipRecord]:
-    """One candidate clip (oversampled tracks with their statistics) for the unit; none when
-    ``--queries-from`` holds no clip of its name."""
+def candidate_clip(unit: UnitInput, settings: PstudioConfig, choices: RunChoices) -> ClipRecord:
+    """The unit's candidate clip: oversampled tracks with their statistics (the queries of
+    ``--queries-from``'s clip of its name, when it holds one)."""
     wanted = settings.tracks_per_clip * settings.oversample
     delta, export_depth = settings.depth_delta_m, choices.export_depth
     queries = choices.given.of(clip_name(unit.sequence, unit.camera_id))
-    if choices.given.active and queries is None:
-        return []
     read_masks(unit)
     if queries is not None:
         gaussians = match_given_queries(unit, queries)
@@ -257,4 +255,4 @@ def annotate_unit(unit: UnitInput, settings: PstudioConfig, choices: RunChoices)
         given_queries=queries is not None,
         depth_export=dense_export(depth_maps, frame_ids) if export_depth else None,
     )
-    return [clip]
+    return clip

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 
 from pipeline.core.outcomes import ClipReport, Failure, UnitOutcome
 from pipeline.export.layout import is_clip_name
+from pipeline.runner.verdicts import unmade_reason
 
 if TYPE_CHECKING:
     from pipeline.sources import Wanted
@@ -90,7 +91,7 @@ class UnitCheckpoint:
             reports=tuple(report for report in outcome.reports if report.clip in wanted),
             not_made={
                 **{name: why for name, why in outcome.not_made.items() if name in wanted},
-                **dict.fromkeys(unexplained, f"unit {outcome.name} makes no clip of this name"),
+                **{name: unmade_reason(outcome.name)(name) for name in unexplained},
             },
         )
 

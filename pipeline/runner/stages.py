@@ -15,7 +15,7 @@ import dataclasses
 import functools
 import time
 import traceback
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from typing import TYPE_CHECKING
 
 from pipeline.core.clip import ClipRecord
@@ -31,7 +31,8 @@ from pipeline.io.files import remove_quietly, write_atomic
 from pipeline.runner.checkpoint import ClipFile
 from pipeline.runner.ledger import UnitLedger
 from pipeline.runner.resume import run_fingerprint
-from pipeline.sources import Source, Wanted
+from pipeline.runner.verdicts import unmade_reason
+from pipeline.sources import RunChoices, Source, Wanted
 
 if TYPE_CHECKING:
     from pipeline.settings.run_config import RunConfig
@@ -116,14 +117,25 @@ def annotate_group(job: UnitJob, units: list) -> Iterator[UnitClips | Exception]
     if not units:
         return  # every unit of the group finished earlier
     wanted = [job.wanted(unit.name) for unit in units]
+    given = RunChoices.of(job.config, job.source.name).given
     made = job.source.annotate_group(job.input_root, units, job.config, wanted)
-    for result, keep in zip(made, wanted, strict=True):
+    for unit, result, keep in zip(units, made, wanted, strict=True):
         if isinstance(result, UnitClips) and keep is not None:
-            result = UnitClips(
-                tuple(clip for clip in result.clips if clip.name in keep),
-                {name: why for name, why in result.not_made.items() if name in keep},
-            )
+            result = only_wanted(result, keep, unmade_reason(unit.name, given))
         yield result
+
+
+def only_wanted(made: UnitClips, wanted: frozenset[str], reason: Callable[[str], str]) -> UnitClips:
+    """A unit's clips of the names ``wanted``; each wanted name it neither made nor explained gets
+    ``reason(name)``, the same words whatever the source."""
+    names = {clip.name for clip in made.clips} | set(made.not_made)
+    return UnitClips(
+        tuple(clip for clip in made.clips if clip.name in wanted),
+        {
+            **{name: why for name, why in made.not_made.items() if name in wanted},
+            **{name: reason(name) for name in sorted(wanted - names)},
+        },
+    )
 
 
 def filter_clip(job: UnitJob, clip: ClipRecord) -> tuple[ClipRecord, FilterOutcome]:

@@ -11,9 +11,13 @@ from __future__ import annotations
 import dataclasses
 import json
 from collections import Counter
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
+from typing import TYPE_CHECKING
 
 from pipeline.core.outcomes import FILTER_ORDER, ClipReport, UnitOutcome
+
+if TYPE_CHECKING:
+    from pipeline.io.given_queries import GivenQueries
 
 STATUSES = ("written", "not_produced", "input_absent", "failed")
 # A verdict file larger than this is not one a run wrote (a release's is about 1 KB a clip).
@@ -70,6 +74,18 @@ def _from_report(clip: str, split: str, report: ClipReport, min_tracks: int) -> 
     )
 
 
+def unmade_reason(unit: str, given: GivenQueries | None = None) -> Callable[[str], str]:
+    """Why unit ``unit`` made no clip of a name the run asked for when its source said nothing: the
+    same words for every source (``--queries-from`` holds none of that name, or the unit made none)."""
+
+    def reason(clip: str) -> str:
+        if given is not None and not given.admits(clip):
+            return "--queries-from holds no clip of this name"
+        return f"unit {unit} made no clip of this name"
+
+    return reason
+
+
 def verdicts(
     named: Mapping[str, str],
     absent: Mapping[str, str],
@@ -113,9 +129,8 @@ def _from_outcome(clip: str, split: str, unit: str | None, outcome: UnitOutcome 
         return _from_report(clip, split, report, min_tracks)
     if failure is not None:
         return Verdict(clip, split, "failed", 0, failure.error)
-    if clip in outcome.not_made:
-        return Verdict(clip, split, "not_produced", 0, outcome.not_made[clip])
-    return Verdict(clip, split, "not_produced", 0, f"unit {unit} made no clip of this name")
+    reason = outcome.not_made.get(clip) or unmade_reason(unit)(clip)
+    return Verdict(clip, split, "not_produced", 0, reason)
 
 
 def tally(rows: Iterable[Verdict]) -> dict[str, int]:

@@ -1,5 +1,5 @@
 """ADT geometry on synthetic arrays with analytic truth: the upright rotation, rigid attachment,
-depth-test visibility with the hand term, and a whole chunk through ``annotate_chunk``."""
+depth-test visibility with the hand term, and a whole chunk through ``candidate_clip``."""
 
 import numpy as np
 import pytest
@@ -15,7 +15,7 @@ from pipeline.adt.rectify import (
     unrotate_pixels_cw,
 )
 from pipeline.adt.settings import AdtConfig
-from pipeline.adt.tracks import annotate_chunk, attach, carry
+from pipeline.adt.tracks import attach, candidate_clip, carry
 from pipeline.adt.visibility import frame_visibility, interior, sample_depth
 from pipeline.settings.fields import with_overrides
 from pipeline.settings.run_config import RunConfig
@@ -244,7 +244,7 @@ def test_annotate_chunk_matches_the_card_world():
         reads.append(t)
         return world.frame(t)
 
-    clip = annotate_chunk(
+    clip = candidate_clip(
         Chunk("card_0", "card/chunk_0", np.arange(4)),
         read_frame,
         lambda t: b"jpeg",

@@ -43,11 +43,11 @@ def test_a_group_opens_its_sequence_once_and_makes_each_chunks_own_clip(monkeypa
     assert len(units) == 2
     assert len({unit.group for unit in units}) == 1
     opened, closed = _count_openings_and_closings(monkeypatch)
-    alone = [list(annotate.annotate_group(str(SAMPLE), [unit], config))[0].clips for unit in units]
+    alone = [list(annotate.annotate_group(str(SAMPLE), [unit], config, [None]))[0].clips for unit in units]
     assert len(opened) == 2
     assert closed == opened  # a unit alone opens and closes its sequence
     del opened[:], closed[:]
-    made = annotate.annotate_group(str(SAMPLE), units, config)
+    made = annotate.annotate_group(str(SAMPLE), units, config, [None] * len(units))
     together = [next(made)]
     assert len(opened) == 1
     assert not closed  # still open for the group's next chunk
@@ -66,7 +66,8 @@ def test_a_group_opens_its_sequence_once_and_makes_each_chunks_own_clip(monkeypa
 def test_a_group_stopped_early_still_closes_its_sequence(monkeypatch):
     config = with_overrides(RunConfig(), list(ONE_FRAME_CHUNKS))
     opened, closed = _count_openings_and_closings(monkeypatch)
-    made = annotate.annotate_group(str(SAMPLE), adt_units.list_units(str(SAMPLE), config).units, config)
+    units = adt_units.list_units(str(SAMPLE), config).units
+    made = annotate.annotate_group(str(SAMPLE), units, config, [None] * len(units))
     next(made)
     made.close()  # the caller stops after the first chunk (a Ctrl-C, a failed write)
     assert len(opened) == 1
@@ -77,7 +78,7 @@ def test_an_unreadable_sequence_fails_each_chunk_under_its_own_name(tmp_path):
     sequence = tmp_path / "Apartment_release_broken_seq001"
     sequence.mkdir()
     units = [SequenceChunk(str(sequence), chunk) for chunk in range(3)]
-    results = list(annotate.annotate_group(str(tmp_path), units, RunConfig()))
+    results = list(annotate.annotate_group(str(tmp_path), units, RunConfig(), [None] * len(units)))
     assert len(results) == 3
     for unit, result in zip(units, results, strict=True):
         assert isinstance(result, InputError)

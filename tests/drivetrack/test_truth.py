@@ -11,7 +11,7 @@ from pipeline.drivetrack.objects import select_objects
 from pipeline.drivetrack.queries import match_given_queries, point_pool
 from pipeline.drivetrack.sample.waymo_world import SEGMENT
 from pipeline.drivetrack.settings import DriveTrackConfig
-from pipeline.drivetrack.tracks import track_object
+from pipeline.drivetrack.tracks import candidate_clip
 from pipeline.filters.select import apply_filters, decide
 from pipeline.settings.fields import with_overrides
 from pipeline.settings.run_config import RunConfig
@@ -154,7 +154,7 @@ def test_mask_filter_drops_planted_off_object_tracks(sample_split, world):
     views = evidence.refined.body_views[run.object_id]  # seen from above, as the lidar sees the ground
     views[frame] = np.concatenate([views[frame], np.tile([0.0, 0.0, 1.0], (12, 1))])
     stored = A.stored_frames(unit, list(range(run.start, run.stop)), A.undistorts(unit, True))
-    clip = track_object(unit, run, evidence, camera, stored, rules, RunChoices.of(config, "drivetrack"))
+    clip = candidate_clip(unit, run, evidence, camera, stored, rules, RunChoices.of(config, "drivetrack"))
     box_from_world = np.linalg.inv(run.world_from_box[0])
     body = (
         world_points(world, 1, run.start, clip.tracks_xyz[0]) @ box_from_world[:3, :3].T
@@ -184,8 +184,10 @@ def test_a_segments_cameras_share_one_lidar_read_and_make_the_same_clips(clips, 
         return original(self, timestamps)
 
     monkeypatch.setattr(SegmentReader, "top_lidar_frames", counted)
-    grouped = annotate_group(
-        sample_split[0], [SegmentCamera(SEGMENT, camera) for camera in (1, 2, 3)], RunConfig()
+    grouped = list(
+        annotate_group(
+            sample_split[0], [SegmentCamera(SEGMENT, camera) for camera in (1, 2, 3)], RunConfig(), [None] * 3
+        )
     )
     assert len(streamed) == 1
     assert len(set(streamed[0])) == len(streamed[0])

@@ -13,7 +13,7 @@ import pytest
 from pipeline.core.errors import InputError
 from pipeline.pstudio import mask_cache, reader
 from pipeline.pstudio.settings import PstudioConfig
-from pipeline.pstudio.tracks import annotate_unit
+from pipeline.pstudio.tracks import candidate_clip
 from pipeline.pstudio.units import list_units
 from pipeline.settings.run_config import RunConfig
 from pipeline.sources import RunChoices
@@ -45,13 +45,13 @@ def test_each_mask_is_decoded_once_per_sequence(pstudio_sample, decoded):
     first, second = list_units(root, config).units[:2]
     unit = pstudio_input(root, first.sequence, first.camera, config)
     settings, choices = config.section(PstudioConfig), RunChoices.of(config, "pstudio")
-    (clip,) = annotate_unit(unit, settings, choices)
+    clip = candidate_clip(unit, settings, choices)
     assert clip.num_tracks > 0
     cameras, frames = len(unit.views.camera_ids), unit.gaussians.num_frames
     assert set(decoded.values()) == {1}
     assert 0 < len(decoded) <= cameras * frames
     decoded.clear()
-    annotate_unit(pstudio_input(root, second.sequence, second.camera, config), settings, choices)
+    candidate_clip(pstudio_input(root, second.sequence, second.camera, config), settings, choices)
     assert not decoded
 
 

@@ -11,7 +11,7 @@ from pipeline.export.npz_writer import clip_arrays
 from pipeline.filters.select import apply_filters
 from pipeline.pstudio.sample.studio_world import FRAMES
 from pipeline.pstudio.settings import PstudioConfig
-from pipeline.pstudio.tracks import annotate_unit, multiview_mask_fraction
+from pipeline.pstudio.tracks import candidate_clip, multiview_mask_fraction
 from pipeline.pstudio.units import list_units
 from pipeline.settings.run_config import RunConfig
 from pipeline.sources import RunChoices
@@ -27,7 +27,7 @@ def clips(pstudio_sample):
     for unit in list_units(root, config).units:
         unit_input = pstudio_input(root, unit.sequence, unit.camera, config)
         settings = config.section(PstudioConfig)
-        (clip,) = annotate_unit(unit_input, settings, RunChoices.of(config, "pstudio"))
+        clip = candidate_clip(unit_input, settings, RunChoices.of(config, "pstudio"))
         kept, outcome = apply_filters(clip, config, settings.mask_min_agreement)
         camera = next(c for c in studio.cameras if c.camera_id == unit.camera)
         result.append((camera, clip, kept, outcome, unit_input))
@@ -151,7 +151,7 @@ def test_a_sequences_cameras_share_one_read_and_make_the_same_clips(clips, pstud
     monkeypatch.setattr(mask_cache, "decode_image", counted_decode)
     monkeypatch.setattr(reader, "MASKS", mask_cache.MaskCache())  # cold, as in a fresh worker
     units = list_units(root, RunConfig()).units
-    grouped = list(source.annotate_group(root, units, RunConfig()))
+    grouped = list(source.annotate_group(root, units, RunConfig(), [None] * len(units)))
     assert len(reads) == 1
     assert len(decodes) == len(set(decodes)) > 0
     for (_, alone, _, _, _), (together,) in zip(clips, [made.clips for made in grouped], strict=True):

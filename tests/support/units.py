@@ -51,4 +51,4 @@ def pstudio_input(input_root: str, sequence: str, camera: int, config: RunConfig
 
 def adt_clips(input_root: str, unit: SequenceChunk, config: RunConfig) -> list[ClipRecord]:
     """The candidate clips of one ADT (sequence, chunk) unit (raises its failure)."""
-    return list(_ok(next(iter(annotate_group(input_root, [unit], config)))).clips)
+    return list(_ok(next(iter(annotate_group(input_root, [unit], config, [None])))).clips)
