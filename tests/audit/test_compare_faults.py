@@ -27,7 +27,7 @@ from pipeline.audit.compare import main as compare_main
 from pipeline.export.npz_writer import encode_npz
 from pipeline.runner.verdicts import Verdict, verdict_lines
 from tests.support.cli import REPO, call_main
-from tests.support.toy_source import TOY
+from tests.support.toy.source import TOY
 
 CLIPS = [f"c{i:02d}" for i in range(12)]
 NOT_MADE = "c99"
@@ -205,7 +205,7 @@ def test_an_encrypted_member_in_the_reference_is_one_line_and_the_other_clips_ar
 KILLED_COMPARE = """
 import os, signal, sys
 from pipeline import sources
-from tests.support.toy_source import TOY
+from tests.support.toy.source import TOY
 import pipeline.io.file_set as file_set
 sources.register(TOY)
 moves = [0]

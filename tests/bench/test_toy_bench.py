@@ -1,4 +1,4 @@
-"""The toy source's benchmark entry (``tests/support/toy_bench.py``, named by ``Source(bench=...)``):
+"""The toy source's benchmark entry (``tests/support/toy/bench.py``, named by ``Source(bench=...)``):
 with the toy registered as a plug-in (``TAPVID3D_SOURCES``), ``python -m benchmarks toy`` finds the
 entry through the registry and benchmarks it like a built-in source's (worker and floor processes
 included, and its variant's line), with no change to ``benchmarks/``."""
@@ -33,7 +33,7 @@ def test_the_toy_is_benchmarked_through_its_own_entry(tmp_path):
         "--json",
         str(path),
     ]
-    env = dict(os.environ, **{PLUGINS_ENV: "tests.support.toy_source"})
+    env = dict(os.environ, **{PLUGINS_ENV: "tests.support.toy.source"})
     done = subprocess.run(command, cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     summary = done.stdout[done.stdout.index("=== summary") :].splitlines()
@@ -59,7 +59,8 @@ def test_a_warm_up_run_takes_what_only_a_processs_first_unit_pays_out_of_the_tim
     into a folder of its own, removed after it."""
     from benchmarks import worker
     from pipeline import sources
-    from tests.support import toy_bench, toy_source
+    from tests.support.toy import bench as toy_bench
+    from tests.support.toy import source as toy_source
 
     def first_use_costs(input_root, unit, config):
         if not paid:

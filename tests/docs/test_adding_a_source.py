@@ -22,8 +22,8 @@ from pipeline.audit.sweep import main as sweep_main
 from pipeline.runner.command import main as run_main
 from pipeline.settings import fields
 from pipeline.sources import PLUGINS_ENV, Source
-from tests.support import toy_source
 from tests.support.cli import REPO, run_in_process
+from tests.support.toy import source as toy_source
 
 PAGE = os.path.join(REPO, "docs", "adding-a-source.md")
 NAME = "doctoy"
@@ -94,7 +94,7 @@ def test_the_pages_settings_are_checked_before_any_work(documented, tmp_path):
 
 def plugin(*command: str, check: bool = True) -> subprocess.CompletedProcess:
     """``python -m <command>`` with the toy named in TAPVID3D_SOURCES, nothing else."""
-    env = dict(os.environ, **{PLUGINS_ENV: "tests.support.toy_source"})
+    env = dict(os.environ, **{PLUGINS_ENV: "tests.support.toy.source"})
     done = subprocess.run(
         [sys.executable, "-m", *command], cwd=REPO, env=env, capture_output=True, text=True, timeout=300
     )

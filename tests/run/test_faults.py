@@ -16,13 +16,12 @@ import pytest
 
 from pipeline import sources
 from pipeline.core.errors import InputError
-from pipeline.export.layout import check_clip_name
+from pipeline.export.layout import check_clip_name, temporary_patterns
 from pipeline.io import files
 from pipeline.io.file_set import complete_commits
-from pipeline.io.files import remove_quietly, temporary_path, write_atomic
-from pipeline.runner.resume import remove_partial_files
+from pipeline.io.files import remove_abandoned, remove_quietly, temporary_path, write_atomic
 from tests.support.cli import REPO, command_in_process, run_in_process
-from tests.support.toy_source import TOY
+from tests.support.toy.source import TOY
 
 
 def test_replace_is_atomic_and_never_deletes_first(tmp_path, monkeypatch):
@@ -60,7 +59,7 @@ def test_temporaries_of_a_live_run_survive_another_runs_clean_up(tmp_path):
             (out / "pstudio" / name).write_bytes(b"partial")
         old = time.time() - 2 * files.REMOTE_GRACE_SECONDS
         os.utime(out / "pstudio" / names["remote_old"], (old, old))
-        assert remove_partial_files(str(out), "pstudio") == 2
+        assert remove_abandoned(temporary_patterns(str(out), "pstudio", files.PARTIAL)) == 2
         left = sorted(p.name for p in (out / "pstudio").iterdir())
         assert left == sorted([names["live"], names["remote_fresh"]])
     finally:
@@ -244,7 +243,7 @@ def test_a_run_killed_while_it_writes_its_finish_leaves_one_set_and_a_rerun_comp
     argv = ["--input", str(source), "--output", str(out)]
     assert run_in_process("toy", *argv, "--set", "minival_per_source=1").returncode == 0
     assert finish_set(out) == (1, 1)
-    env = {**os.environ, "TAPVID3D_SOURCES": "tests.support.toy_source"}
+    env = {**os.environ, "TAPVID3D_SOURCES": "tests.support.toy.source"}
     killed = [sys.executable, "-c", KILLED_FINISH, str(kill_at), "--source", "toy", *argv]
     done = subprocess.run(
         [*killed, "--set", "minival_per_source=2"],

@@ -18,7 +18,7 @@ from pipeline.io import clip_reader
 from pipeline.runner.checkpoint import UnitCheckpoint
 from pipeline.runner.stages import UnitJob, run_group
 from pipeline.settings.run_config import RunConfig
-from tests.support.toy_source import TOY, SpecFile, write_sample
+from tests.support.toy.source import TOY, SpecFile, write_sample
 
 UNIT, CLIP = "walk", "toy_walk"
 

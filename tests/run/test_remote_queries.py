@@ -13,7 +13,7 @@ import pytest
 from benchmarks.file_server import serve
 from pipeline import sources
 from tests.support.cli import run_in_process
-from tests.support.toy_source import TOY
+from tests.support.toy.source import TOY
 
 UNITS = ("a", "b", "c", "d")
 TOKEN = "tok-SECRET-99e1"

@@ -20,7 +20,7 @@ from pipeline.pstudio.units import SequenceCamera
 from pipeline.runner.stages import UnitJob, annotate_group, only_wanted
 from pipeline.runner.verdicts import unmade_reason
 from pipeline.settings.run_config import RunConfig
-from tests.support.toy_source import TOY, write_sample
+from tests.support.toy.source import TOY, write_sample
 
 
 @pytest.mark.parametrize("name", sources.BUILT_IN)

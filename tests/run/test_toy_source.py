@@ -15,7 +15,7 @@ from pipeline.audit.sweep import main as sweep_main
 from pipeline.runner.command import main as run_main
 from pipeline.validate import main as validate_main
 from tests.support.cli import run_in_process
-from tests.support.toy_source import TOY, truth, write_sample
+from tests.support.toy.source import TOY, truth, write_sample
 
 
 @pytest.fixture

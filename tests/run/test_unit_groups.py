@@ -19,7 +19,7 @@ from pipeline.pstudio.units import SequenceCamera
 from pipeline.runner.command import main as run_main
 from pipeline.runner.stages import UnitJob, run_group
 from pipeline.settings.run_config import RunConfig
-from tests.support.toy_source import TOY, SpecFile, annotate, write_sample
+from tests.support.toy.source import TOY, SpecFile, annotate, write_sample
 
 CALLS: list[list[str]] = []
 

@@ -1,4 +1,4 @@
-"""The toy source's benchmark entry (``tests/support/toy_source.py`` names it with
+"""The toy source's benchmark entry (``tests/support/toy/source.py`` names it with
 ``Source(bench=...)``), found by ``python -m benchmarks toy`` through the registry like a built-in
 source's. Unit: the toy's sample unit (3 points over 12 frames), annotated, filtered and written, and
 once more with another seed (a variant); its floor, reading the unit's JSON.
@@ -24,7 +24,7 @@ UNIT = "walk"  # the sample's one unit
 
 def prepare(workdir: str, size: str) -> UnitSetup:
     """The toy's sample written under ``workdir`` (the same at every size), and its unit."""
-    from tests.support.toy_source import write_sample
+    from tests.support.toy.source import write_sample
 
     root = write_sample(os.path.join(workdir, "sample"))
     with open(os.path.join(root, f"{UNIT}.json")) as handle:
@@ -63,7 +63,7 @@ def floor(spec: dict) -> dict:
 
 def unit_of(fields: list):
     """The toy's unit of a spec's JSON fields (``[name]``)."""
-    from tests.support.toy_source import SpecFile
+    from tests.support.toy.source import SpecFile
 
     return SpecFile(*fields)
 
@@ -71,7 +71,7 @@ def unit_of(fields: list):
 def micro(frames: int) -> None:
     """Print the time to annotate the sample unit, the mean of ``frames`` calls."""
     from pipeline.settings.run_config import RunConfig
-    from tests.support.toy_source import SpecFile, annotate, write_sample
+    from tests.support.toy.source import SpecFile, annotate, write_sample
 
     with tempfile.TemporaryDirectory() as folder:
         root, config = write_sample(folder), RunConfig()

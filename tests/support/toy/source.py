@@ -1,6 +1,6 @@
 """A toy source, defined entirely here and registered at run time: the proof that a source needs
 one object and nothing else in the package (docs/adding-a-source.md), its settings section
-(``ToyConfig``: ``--set toy.<field>=...``) and its benchmark entry (``tests/support/toy_bench.py``:
+(``ToyConfig``: ``--set toy.<field>=...``) and its benchmark entry (``tests/support/toy/bench.py``:
 ``python -m benchmarks toy``) included.
 
 Input: a folder of ``<name>.json`` files, each a unit (on a release run, those the release names a
@@ -136,6 +136,6 @@ TOY: Source[SpecFile] = Source(
     sample_input=write_sample,
     mask_min_agreement=lambda config: MASK_THRESHOLD,
     settings=ToyConfig,
-    bench="tests.support.toy_bench",
+    bench="tests.support.toy.bench",
 )
 SOURCE = TOY
