@@ -59,7 +59,7 @@ class ClipRecord:
     T frames, N tracks. Tracks live in the camera frame of each frame (OpenCV axes, metres).
 
     Attributes:
-      source: 'adt', 'drivetrack' or 'pstudio'.
+      source: the name of the registered source that made it (its folder, ``<out>/<source>/``).
       name: clip name without '.npz' (the release's naming).
       unit: the unit of work this clip came from, for tracing and error messages.
       images_jpeg: T JPEG-encoded frames, passed through from the source.
