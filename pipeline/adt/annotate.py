@@ -93,8 +93,12 @@ def annotate_local(
     try:
         for unit, keep in zip(units, wanted, strict=True):
             sequence, chunk = unit.sequence, unit.chunk
-            name = clip_name(sequence, chunk)
-            if chunk != ALL_CHUNKS and not choices.wants(name, keep):
+            try:
+                skipped = chunk != ALL_CHUNKS and not choices.wants(clip_name(sequence, chunk), keep)
+            except Exception as error:  # noqa: BLE001 - this chunk's failure only (a bad --queries-from file)
+                yield _unit_error(error, sequence, unit.name)
+                continue
+            if skipped:
                 yield UnitClips(())
                 continue
             if opened is None:

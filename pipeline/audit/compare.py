@@ -74,7 +74,7 @@ from pipeline.core.outcomes import FailureStreak
 from pipeline.export.layout import release_verdicts_path
 from pipeline.io.clip_reader import DEFAULT_LIMITS, ReadLimits, add_limit_argument, limits_from
 from pipeline.io.file_set import complete_commits, output_lock, reclaim_temporaries, write_together
-from pipeline.io.files import is_local, list_files, read_bytes
+from pipeline.io.files import exists, is_local, list_files, read_bytes
 from pipeline.io.http import HttpClient, is_http, join, shown
 from pipeline.settings.fields import SettingsError, add_set_argument, not_in_clips, with_overrides
 from pipeline.settings.run_config import MAX_FAILURES_IN_A_ROW, HttpConfig
@@ -333,8 +333,10 @@ def write_outputs(report: CompareReport, prefix: str, new_dir: str) -> list[str]
         for row in report.clips
         if not isinstance(row, Carried)
     }
-    with output_lock(new_dir):
-        verdicts = amended_verdicts(new_dir, findings)
+    # NEW_DIR is written, and locked, only when it is a release run's folder with verdicts to amend.
+    amends = any(exists(release_verdicts_path(new_dir, source)) for source in registry.names())
+    with output_lock(new_dir if amends else _folder(prefix)):
+        verdicts = amended_verdicts(new_dir, findings) if amends else {}
         files = {
             f"{prefix}.md": markdown(report).encode(),
             f"{prefix}.json": json.dumps(report.to_json(), indent=1, allow_nan=False).encode(),

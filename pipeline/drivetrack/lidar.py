@@ -264,21 +264,29 @@ def _normals(points, ranges, pixels, max_jump, normals):
         normals[k, 0], normals[k, 1], normals[k, 2] = nx, ny, nz
 
 
+@dataclasses.dataclass(frozen=True)
+class BodyPoints:
+    """An object's lidar points in one camera frame's sweep (those inside its shrunk box), in the
+    sweep's row-major order: points [K, 3] (box frame), normals [K, 3] unit normals facing the lidar
+    (box frame), pixels [K] int64 range-image pixel (row * W + column) of each point, which with the
+    frame's timestamp names the point."""
+
+    points: np.ndarray
+    normals: np.ndarray
+    pixels: np.ndarray
+
+
 @dataclasses.dataclass
 class LidarEvidence:
     """Per camera frame: lidar depth samples in the image, and each object's body points.
 
-    depth_uv[t]: [M, 2] pixels; depth_z[t]: [M] camera z; body_points[object][t]: [K, 3];
-    body_normals[object][t]: [K, 3] unit normals facing the lidar (box frame);
-    body_pixels[object][t]: [K] int64 range-image pixel (row * W + column) of each body point,
-    which with the frame's timestamp names the point.
+    depth_uv[t]: [M, 2] pixels; depth_z[t]: [M] camera z; bodies[object][t]: the object's
+    ``BodyPoints`` in frame t's sweep (absent: the frame's sweep was not read for it).
     """
 
     depth_uv: dict[int, np.ndarray]
     depth_z: dict[int, np.ndarray]
-    body_points: dict[str, dict[int, np.ndarray]]
-    body_normals: dict[str, dict[int, np.ndarray]]
-    body_pixels: dict[str, dict[int, np.ndarray]]
+    bodies: dict[str, dict[int, BodyPoints]]
     depth_grids: dict[int, CellGrid | None] = dataclasses.field(default_factory=dict)
     refined: RefinedEvidence | None = None
 
@@ -390,9 +398,7 @@ def gather_lidar_cameras(
     for i, item in enumerate(passes):
         for t in item.needed:
             users.setdefault(int(item.unit.frames.timestamps[t]), []).append((i, t))
-    evidence = [
-        LidarEvidence({}, {}, _per_object(item), _per_object(item), _per_object(item)) for item in passes
-    ]
+    evidence = [LidarEvidence({}, {}, {run.object_id: {} for run in item.runs}) for item in passes]
     if not passes:
         return evidence
     refined_parts: list[tuple[RefinedEvidence, BoxMotions]] = []  # per pass, with ``refined``
@@ -465,9 +471,8 @@ def _camera_frame(
         if run.start <= t < run.stop:
             inside, points, box_from_vehicle = box_points(vehicle, run.lidar_boxes[t - run.start], shrink)
             box_from_world = box_from_vehicle[:3, :3] @ vehicle_from_world[:3, :3]
-            evidence.body_points[run.object_id][t] = points
-            evidence.body_normals[run.object_id][t] = sweep.normals(inside) @ box_from_world.T
-            evidence.body_pixels[run.object_id][t] = pixels[inside]
+            normals = sweep.normals(inside) @ box_from_world.T
+            evidence.bodies[run.object_id][t] = BodyPoints(points, normals, pixels[inside])
             bodies[run.object_id] = inside, box_from_vehicle
     return np.flatnonzero(in_camera), bodies
 

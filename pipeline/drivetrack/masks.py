@@ -88,7 +88,8 @@ def object_masks(
             for t in frames
         ]
     else:
-        bodies = [evidence.body_points[run.object_id].get(t, np.zeros((0, 3))) for t in frames]
+        found = evidence.bodies[run.object_id]
+        bodies = [found[t].points if t in found else np.zeros((0, 3)) for t in frames]
         world = [transform_points(run.world_from_box[i], body) for i, body in enumerate(bodies)]
         uvs = [seen.pixels[seen.in_view] for seen in camera.project_frames(frames, world)]
         closing = rules.mask_closing_px

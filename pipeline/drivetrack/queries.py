@@ -41,16 +41,16 @@ class PointPool:
 def point_pool(evidence: LidarEvidence, run: ObjectRun, timestamps: np.ndarray) -> PointPool | None:
     """The object's pool from ``evidence`` (camera frame timestamps [T] name the sweeps); None when
     no sweep has a point in its box."""
-    points = evidence.body_points[run.object_id]
-    frames = [t for t in range(run.start, run.stop) if len(points.get(t, ()))]
+    bodies = evidence.bodies[run.object_id]
+    frames = [t for t in range(run.start, run.stop) if t in bodies and len(bodies[t].points)]
     if not frames:
         return None
     refined = evidence.refined
     return PointPool(
-        np.concatenate([points[t] for t in frames]),
-        np.concatenate([evidence.body_normals[run.object_id][t] for t in frames]),
-        np.concatenate([np.full(len(points[t]), timestamps[t], np.int64) for t in frames]),
-        np.concatenate([evidence.body_pixels[run.object_id][t] for t in frames]),
+        np.concatenate([bodies[t].points for t in frames]),
+        np.concatenate([bodies[t].normals for t in frames]),
+        np.concatenate([np.full(len(bodies[t].points), timestamps[t], np.int64) for t in frames]),
+        np.concatenate([bodies[t].pixels for t in frames]),
         None if refined is None else np.concatenate([refined.body_views[run.object_id][t] for t in frames]),
     )
 

@@ -38,11 +38,11 @@ class LoadedSequence:
 
 def load_sequence(input_root: str, sequence: str, settings: PstudioConfig) -> LoadedSequence:
     """Read a sequence's train_meta.json and Gaussians (params.npz); masks are read when asked."""
-    views, meta = read_views(input_root, sequence)
-    files = SequenceFiles(input_root, sequence, meta, views)
-    gaussians = read_gaussians(params_path(input_root, sequence, settings), len(meta["fn"]))
+    meta = read_views(input_root, sequence)
+    files = SequenceFiles(input_root, sequence, meta)
+    gaussians = read_gaussians(params_path(input_root, sequence, settings), meta.num_frames)
     constants = gaussian_constants(gaussians.scales, gaussians.opacities)
-    return LoadedSequence(sequence, views, files, len(meta["fn"]), gaussians, constants)
+    return LoadedSequence(sequence, meta.views, files, meta.num_frames, gaussians, constants)
 
 
 def camera_input(opened: LoadedSequence, camera: int) -> UnitInput:
@@ -77,13 +77,12 @@ def annotate_group(
         yield from [error] * len(units)
         return
     for unit, keep in zip(units, wanted, strict=True):
-        name = clip_name(unit.sequence, unit.camera)
-        if not choices.wants(name, keep):
-            yield UnitClips(())
-            continue
         result: UnitClips | Exception
         try:
-            result = UnitClips((candidate_clip(camera_input(opened, unit.camera), settings, choices),))
-        except Exception as error:  # noqa: BLE001 - this camera's failure only
+            if choices.wants(clip_name(unit.sequence, unit.camera), keep):
+                result = UnitClips((candidate_clip(camera_input(opened, unit.camera), settings, choices),))
+            else:
+                result = UnitClips(())
+        except Exception as error:  # noqa: BLE001 - this camera's failure only (a bad --queries-from file too)
             result = error
         yield result

@@ -16,7 +16,7 @@ from pipeline.core.images import check_jpeg
 from pipeline.io.files import open_binary, read_input
 from pipeline.io.npz_reader import NpzArchive, NpzError
 from pipeline.pstudio.mask_cache import MASKS, unpack_mask
-from pipeline.pstudio.records import Gaussians, Views
+from pipeline.pstudio.records import Gaussians, SequenceMeta, Views
 from pipeline.pstudio.settings import PstudioConfig
 
 # More Gaussians than any Dynamic 3D Gaussians scene holds (a few hundred thousand): a header claiming
@@ -67,8 +67,8 @@ def params_path(input_root: str, sequence: str, config: PstudioConfig) -> str:
     return found[0]
 
 
-def read_views(input_root: str, sequence: str) -> tuple[Views, dict]:
-    """The sequence's cameras from train_meta.json (checked static) and the raw metadata."""
+def read_views(input_root: str, sequence: str) -> SequenceMeta:
+    """The sequence's cameras from train_meta.json (checked static) and its image names."""
     path = FileSystems.join(data_root(input_root), sequence, "train_meta.json")
     try:
         meta = json.loads(read_input(path))
@@ -121,7 +121,8 @@ def read_views(input_root: str, sequence: str) -> tuple[Views, dict]:
     if not focal.all():
         raise InputError(f"{path}: k of camera {camera_ids[0][~focal][0]} has a non-positive focal length")
     intrinsics = np.stack([k[0, :, 0, 0], k[0, :, 1, 1], k[0, :, 0, 2], k[0, :, 1, 2]], axis=1)
-    return Views(camera_ids[0], intrinsics, w2c[0], width, height), meta
+    views = Views(camera_ids[0], intrinsics, w2c[0], width, height)
+    return SequenceMeta(views, tuple(tuple(row) for row in names))
 
 
 def read_gaussians(path: str, frames: int) -> Gaussians:
@@ -187,10 +188,10 @@ class SequenceFiles:
     Each mask file is read once per opened sequence (the units of a group share it), and decoded
     once per process (``pipeline.pstudio.mask_cache``)."""
 
-    def __init__(self, input_root: str, sequence: str, meta: dict, views: Views):
+    def __init__(self, input_root: str, sequence: str, meta: SequenceMeta):
         self.folder = FileSystems.join(data_root(input_root), sequence)
-        self.names = meta["fn"]
-        self.views = views
+        self.names = meta.image_names
+        self.views = meta.views
         self._masks: dict[tuple[int, int], np.ndarray] = {}  # (view, t) -> the cache's packed mask
 
     def image(self, view: int, t: int) -> bytes:

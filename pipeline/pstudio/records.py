@@ -1,5 +1,5 @@
-"""The records a Panoptic Studio unit's annotation reads: the sequence's cameras, its Gaussians, one
-camera's unit input, and what a group of cameras of one sequence shares."""
+"""The records a Panoptic Studio unit's annotation reads: the sequence's cameras and image names, its
+Gaussians, one camera's unit input, and what a group of cameras of one sequence shares."""
 
 from __future__ import annotations
 
@@ -21,6 +21,20 @@ class Views:
 
     def index(self, camera_id: int) -> int:
         return int(np.nonzero(self.camera_ids == camera_id)[0][0])
+
+
+@dataclasses.dataclass(frozen=True)
+class SequenceMeta:
+    """What a sequence's train_meta.json says (T frames, C cameras): its static cameras, and
+    image_names [T][C], each frame's image per camera column as ``fn`` names it (relative to the
+    sequence's ``ims/``; its mask the same name, ``.png``, in ``seg/``)."""
+
+    views: Views
+    image_names: tuple[tuple[str, ...], ...]
+
+    @property
+    def num_frames(self) -> int:
+        return len(self.image_names)
 
 
 @dataclasses.dataclass

@@ -64,7 +64,7 @@ def list_units(
     listed: dict[str, list[int] | None] = {}
     for sequence in list_sequences(input_root):
         try:
-            listed[sequence] = [int(c) for c in read_views(input_root, sequence)[0].camera_ids]
+            listed[sequence] = [int(c) for c in read_views(input_root, sequence).views.camera_ids]
         except InputError:
             listed[sequence] = None
         cameras = settings.cameras or listed[sequence] or [ALL_CAMERAS]

@@ -127,7 +127,7 @@ def keyed_by_group(item, source: sources.Source) -> tuple[str, object]:
 class RegenerateClips(beam.PTransform):
     """The whole run on a pipeline: units in, clips and each unit's record out."""
 
-    def __init__(self, job: unit.UnitJob, units: list, options: PipelineOptions | None = None):
+    def __init__(self, job: unit.UnitJob, units: list[sources.Unit], options: PipelineOptions | None = None):
         super().__init__()
         self.job, self.units, self.options = job, units, options
 

@@ -32,7 +32,7 @@ from pipeline.runner.checkpoint import ClipFile
 from pipeline.runner.ledger import UnitLedger
 from pipeline.runner.resume import run_fingerprint
 from pipeline.runner.verdicts import unmade_reason
-from pipeline.sources import RunChoices, Source, Wanted
+from pipeline.sources import RunChoices, Source, Unit, Wanted
 
 if TYPE_CHECKING:
     from pipeline.settings.run_config import RunConfig
@@ -75,11 +75,19 @@ class Annotated:
 
 
 @dataclasses.dataclass(frozen=True)
+class Kept:
+    """A clip through the filter stage: the clip with the tracks it keeps, and every verdict."""
+
+    clip: ClipRecord
+    outcome: FilterOutcome
+
+
+@dataclasses.dataclass(frozen=True)
 class Filtered:
-    """A unit's clips after the filter stage: per clip, (kept clip, its verdicts) or its Failure."""
+    """A unit's clips after the filter stage: per clip, its ``Kept`` or its Failure."""
 
     name: str
-    items: tuple[tuple[ClipRecord, FilterOutcome] | Failure, ...]
+    items: tuple[Kept | Failure, ...]
     not_made: Mapping[str, str]
     started: float
     notes: tuple[str, ...] = ()
@@ -110,7 +118,7 @@ def finished_earlier(job: UnitJob, name: str) -> UnitOutcome | None:
     return outcome
 
 
-def annotate_group(job: UnitJob, units: list) -> Iterator[UnitClips | Exception]:
+def annotate_group(job: UnitJob, units: list[Unit]) -> Iterator[UnitClips | Exception]:
     """The candidate clips of units annotated together (``Source.annotate_group``), or per unit the
     exception that failed it, handed on unit by unit as the source makes them (so a unit is written
     while its group's next is annotated)."""
@@ -138,9 +146,9 @@ def only_wanted(made: UnitClips, wanted: frozenset[str], reason: Callable[[str],
     )
 
 
-def filter_clip(job: UnitJob, clip: ClipRecord) -> tuple[ClipRecord, FilterOutcome]:
+def filter_clip(job: UnitJob, clip: ClipRecord) -> Kept:
     """The filter stage with this source's thresholds: the kept clip and every verdict."""
-    return apply_filters(clip, job.config, job.source.mask_min_agreement(job.config))
+    return Kept(*apply_filters(clip, job.config, job.source.mask_min_agreement(job.config)))
 
 
 def write_clip(output: str, kept: ClipRecord, outcome: FilterOutcome) -> tuple[ClipReport, ClipFile | None]:
@@ -194,8 +202,8 @@ def checkpoint(job: UnitJob, outcome: UnitOutcome, files: Mapping[str, ClipFile]
 
 
 def filter_unit(job: UnitJob, annotated: Annotated) -> Filtered:
-    """Each clip filtered: (kept clip, outcome), or a Failure when its filter stage fails."""
-    items: list[tuple[ClipRecord, FilterOutcome] | Failure] = []
+    """Each clip filtered: its ``Kept``, or a Failure when its filter stage fails."""
+    items: list[Kept | Failure] = []
     for clip in annotated.made.clips:
         try:
             items.append(filter_clip(job, clip))
@@ -213,7 +221,7 @@ def write_unit(job: UnitJob, filtered: Filtered, on_written=None) -> UnitOutcome
     for item in filtered.items:
         if isinstance(item, Failure):
             continue
-        kept, verdicts = item
+        kept, verdicts = item.clip, item.outcome
         try:
             report, written = write_clip(job.output, kept, verdicts)
         except Exception as error:  # noqa: BLE001
@@ -236,11 +244,11 @@ def write_unit(job: UnitJob, filtered: Filtered, on_written=None) -> UnitOutcome
     return checkpoint(job, outcome, files)
 
 
-def annotate_units(job: UnitJob, units: list) -> Iterator[UnitOutcome | Annotated]:
+def annotate_units(job: UnitJob, units: list[Unit]) -> Iterator[UnitOutcome | Annotated]:
     """The resume check and the annotate stage of units of one group: per unit, its UnitOutcome
     when an earlier run finished it, then, as the others are annotated together, their candidate
     clips (``Annotated``) or, for a unit that failed, its checkpointed UnitOutcome."""
-    todo = []
+    todo: list[Unit] = []
     for item in units:
         name = item.name
         outcome = finished_earlier(job, name)
@@ -261,7 +269,7 @@ def annotate_units(job: UnitJob, units: list) -> Iterator[UnitOutcome | Annotate
         started = time.time()
 
 
-def run_group(job: UnitJob, units: list) -> list[UnitOutcome]:
+def run_group(job: UnitJob, units: list[Unit]) -> list[UnitOutcome]:
     """Every stage of units of one group in this process, as the graph's steps run them."""
     outcomes: dict[str, UnitOutcome] = {}
     for item in annotate_units(job, units):

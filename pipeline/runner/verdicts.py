@@ -14,6 +14,7 @@ from collections import Counter
 from collections.abc import Callable, Iterable, Mapping
 from typing import TYPE_CHECKING
 
+from pipeline.core.errors import InputError
 from pipeline.core.outcomes import FILTER_ORDER, ClipReport, UnitOutcome
 
 if TYPE_CHECKING:
@@ -79,7 +80,11 @@ def unmade_reason(unit: str, given: GivenQueries | None = None) -> Callable[[str
     same words for every source (``--queries-from`` holds none of that name, or the unit made none)."""
 
     def reason(clip: str) -> str:
-        if given is not None and not given.admits(clip):
+        try:
+            held = given is None or given.admits(clip)
+        except (InputError, OSError) as error:  # its file cannot be read: say so, the run goes on
+            return f"--queries-from's clip of this name cannot be read ({error})"
+        if not held:
             return "--queries-from holds no clip of this name"
         return f"unit {unit} made no clip of this name"
 

@@ -256,3 +256,15 @@ def test_a_compare_killed_at_any_write_leaves_one_set_and_the_next_command_compl
         assert compare(str(ref), new).returncode == 0  # the next compare: reclaims, completes
         assert consistent(new) == hashlib.sha256(changed).hexdigest()
         assert leftovers(new) == [], kill_at
+
+
+def test_a_folder_of_clips_without_verdicts_is_only_read(folders, tmp_path):
+    """NEW is a folder of clips, not a release run's: compare writes its report under --out and
+    nothing, not even a lock, into NEW."""
+    ref, new = folders
+    (new / "release_toy.jsonl").unlink()
+    before = sorted(path.relative_to(new) for path in new.rglob("*"))
+    done = call_main(compare_main, [str(ref), str(new), "--out", str(tmp_path / "out" / "report")])
+    assert done.returncode == 0, done.stderr
+    assert sorted(path.relative_to(new) for path in new.rglob("*")) == before
+    assert (tmp_path / "out" / "report.json").exists()

@@ -6,7 +6,7 @@ import pytest
 from pipeline.core.errors import InputError
 from pipeline.drivetrack import annotate as A
 from pipeline.drivetrack.camera_model import frame_poses
-from pipeline.drivetrack.lidar import gather_lidar
+from pipeline.drivetrack.lidar import BodyPoints, gather_lidar
 from pipeline.drivetrack.objects import select_objects
 from pipeline.drivetrack.queries import match_given_queries, point_pool
 from pipeline.drivetrack.sample.waymo_world import SEGMENT
@@ -145,12 +145,12 @@ def test_mask_filter_drops_planted_off_object_tracks(sample_split, world):
     # Plant ground points 2 m beside the car, as a mislabelled box would capture them.
     planted = np.array([[x, 2.9, -0.86] for x in np.linspace(-2.0, 2.0, 12)])
     frame = run.start + 5
-    points = evidence.body_points[run.object_id]
-    points[frame] = np.concatenate([points[frame], planted])
-    normals = evidence.body_normals[run.object_id]
-    normals[frame] = np.concatenate([normals[frame], np.tile([0.0, 0.0, 1.0], (12, 1))])
-    pixels = evidence.body_pixels[run.object_id]
-    pixels[frame] = np.concatenate([pixels[frame], -1 - np.arange(12)])  # names no range-image pixel
+    bodies = evidence.bodies[run.object_id]
+    bodies[frame] = BodyPoints(
+        np.concatenate([bodies[frame].points, planted]),
+        np.concatenate([bodies[frame].normals, np.tile([0.0, 0.0, 1.0], (12, 1))]),
+        np.concatenate([bodies[frame].pixels, -1 - np.arange(12)]),  # names no range-image pixel
+    )
     views = evidence.refined.body_views[run.object_id]  # seen from above, as the lidar sees the ground
     views[frame] = np.concatenate([views[frame], np.tile([0.0, 0.0, 1.0], (12, 1))])
     stored = A.stored_frames(unit, list(range(run.start, run.stop)), A.undistorts(unit, True))

@@ -7,9 +7,11 @@ from __future__ import annotations
 
 import inspect
 
+import numpy as np
 import pytest
 
 from pipeline import sources
+from pipeline.core.errors import InputError
 from pipeline.core.outcomes import UnitClips
 from pipeline.drivetrack.sample.waymo_world import SEGMENT
 from pipeline.drivetrack.units import SegmentCamera
@@ -72,3 +74,17 @@ def test_drivetrack_tracks_only_the_wanted_objects(sample_split):
     unit = SegmentCamera(SEGMENT, 1)
     (nothing,) = sources.get("drivetrack").annotate_group(sample_split[0], [unit], RunConfig(), [frozenset()])
     assert nothing.clips == () and nothing.not_made == {}
+
+
+def test_an_unreadable_queries_from_clip_fails_its_unit_alone(pstudio_sample, tmp_path):
+    """A ``--queries-from`` clip that would need pickle fails the unit whose clip it is; the group's
+    other unit goes on (its clip is not in --queries-from: it makes none)."""
+    root, _ = pstudio_sample
+    given = tmp_path / "given" / "pstudio"
+    given.mkdir(parents=True)
+    np.savez(given / "dome_3.npz", queries_xyt=np.array([object()], dtype=object))  # a pickled member
+    config = RunConfig(queries_from=str(tmp_path / "given"))
+    units = [SequenceCamera(SEQUENCE, 3), SequenceCamera(SEQUENCE, 8)]
+    failed, other = studio.annotate_group(root, units, config, [None, None])
+    assert isinstance(failed, InputError) and "object array" in str(failed)
+    assert other == UnitClips(())
