@@ -176,6 +176,21 @@ def is_abandoned(path: str, modified: float, now: float | None = None, marker: s
     return (time.time() if now is None else now) - modified > REMOTE_GRACE_SECONDS
 
 
+def remove_abandoned(patterns: list[str], include_own: bool = False) -> int:
+    """Delete the hidden temporaries matching ``patterns`` (globs) whose writer is gone
+    (``is_abandoned``); a concurrent writer's live ones stay. ``include_own`` also deletes this
+    process's (it is stopping). Returns how many went."""
+    now = time.time()
+    doomed = [
+        match.path
+        for result in filesystems().match(patterns)
+        for match in result.metadata_list
+        if is_abandoned(match.path, match.last_updated_in_seconds, now)
+        or (include_own and writer_pid(match.path) == os.getpid())
+    ]
+    return remove_quietly(doomed)
+
+
 def writer_host() -> str:
     """This host's name as temporaries carry it ('-' separates the name's fields)."""
     return socket.gethostname().replace("-", "_")

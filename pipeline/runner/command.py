@@ -31,8 +31,9 @@ from pipeline.core.errors import InputError, OutputError, interruption, root_cau
 from pipeline.core.outcomes import FILTER_ORDER
 from pipeline.core.progress import quiet_worker_logs, set_verbose, workers_silenced
 from pipeline.core.sizes import format_bytes
-from pipeline.export.layout import failures_path, provenance_path, release_verdicts_path
+from pipeline.export.layout import failures_path, provenance_path, release_verdicts_path, temporary_patterns
 from pipeline.io.file_set import complete_commits
+from pipeline.io.files import PARTIAL, remove_abandoned
 from pipeline.io.http import shown
 from pipeline.pipes import OUTPUT_CLOSED, READER_GONE, STOPPED, interrupted_status, silence_output
 from pipeline.runner import graph
@@ -41,14 +42,12 @@ from pipeline.runner.monitor import RunMonitor
 from pipeline.runner.prepare import (
     CannotStart,
     PreparedRun,
+    plan_lines,
     plan_units,
     prepare_run,
-    provenance,
     runner_args,
     sample_input,
-    scratch_line,
 )
-from pipeline.runner.resume import remove_partial_files
 from pipeline.runner.stages import UnitJob
 from pipeline.runner.verdicts import summary_line
 from pipeline.settings.fields import SettingsError, add_set_argument
@@ -120,17 +119,123 @@ def configure_logging(verbose: bool) -> None:
     quiet_worker_logs()
 
 
-def beam_counters(result) -> dict[str, int] | None:
-    """The run's Beam counters (``graph.COUNTERS``), or None when the runner reports none."""
+def main(argv: list[str] | None = None, started: float | None = None) -> int:
+    """The command; its exit status (the module's docstring lists them). ``started``: the
+    ``time.monotonic()`` its "finished in" counts from (default: now)."""
+    started = time.monotonic() if started is None else started
     try:
-        found = result.metrics().query(MetricsFilter().with_namespace(graph.METRICS_NAMESPACE))["counters"]
-    except (NotImplementedError, AttributeError, KeyError):
+        args, beam_args = parse_args(sys.argv[1:] if argv is None else argv)
+    except UsageError as problem:
+        print(f"python -m pipeline.run: {problem}", file=sys.stderr)
+        return 2
+    configure_logging(args.verbose)
+    try:
+        prepared = prepare_run(args, beam_args)
+    except (SettingsError, CannotStart, ValueError, InputError, NoSample) as problem:
+        return cannot_start(problem)
+    try:
+        return run(prepared, started)
+    except GaveUp as reason:
+        return stopped(prepared, reason)
+    except KeyboardInterrupt:
+        return stopped(prepared)
+    except BrokenPipeError:
+        READER_GONE.set()
+        return stopped(prepared)
+
+
+def cannot_start(problem: Exception) -> int:
+    """Say why the run cannot start (each problem with the settings on a line of its own); 2."""
+    if isinstance(problem, SettingsError):
+        print(f"cannot start: {len(problem.problems)} problem(s) with the settings:", file=sys.stderr)
+        for line in problem.problems:
+            print(f"  {line}", file=sys.stderr)
+    elif isinstance(problem, NoSample):
+        print(problem, file=sys.stderr)
+    else:
+        print(f"cannot start: {problem}", file=sys.stderr)
+    return 2
+
+
+def run(prepared: PreparedRun, started: float) -> int:
+    """``main`` after the checks, without the stop handling: the plan, the output tidied, the Beam
+    graph over the plan's units, the run's files, the closing lines."""
+    for line in opening_lines(prepared):
+        print(line, flush=True)
+    try:
+        input_root = sample_input(prepared)
+        plan = plan_units(prepared, input_root)
+    except (NoSample, CannotStart) as problem:
+        return cannot_start(problem)
+    for line in plan_lines(prepared, input_root, plan):
+        print(line, flush=True)
+    tidy_output(prepared)
+    job = UnitJob(
+        prepared.source,
+        input_root,
+        prepared.config,
+        prepared.output,
+        resume=not prepared.overwrite,
+        run_id=uuid.uuid4().hex,
+        expected=plan.expected if prepared.restricted_to is not None else None,
+    )
+    finished = run_and_finish(prepared, job, plan)
+    if finished is None:
+        return 2
+    summary, metrics = finished
+    print_summary(summary, metrics, prepared.output, prepared.source.name)
+    print(f"finished in {time.monotonic() - started:.1f} s")
+    if summary.clips_written == 0:
+        print(why_nothing(summary, prepared.config))
+    return exit_status(summary)
+
+
+def opening_lines(prepared: PreparedRun) -> list[str]:
+    """What the run says first: what its rule set decides, and the release's other names for clips."""
+    alias = prepared.release.alias_line() if prepared.release is not None else None
+    return [*prepared.rules.lines(), *([alias] if alias else [])]
+
+
+def partial_files(prepared: PreparedRun) -> list[str]:
+    """Globs of the partial files (``pipeline/io/files.py``'s hidden temporaries) that runs of the
+    source leave in its folders of the output and the shared manifests folder."""
+    return temporary_patterns(prepared.output, prepared.source.name, PARTIAL)
+
+
+def tidy_output(prepared: PreparedRun) -> None:
+    """Before any unit, what killed runs left in the output set right: a finish or compare killed
+    mid-commit gets its new set whole, then the partial files of runs that are gone are removed (and
+    said); a concurrent run's live ones stay."""
+    partial = partial_files(prepared)
+    complete_commits(prepared.output)
+    removed = remove_abandoned(partial)
+    if removed:
+        print(f"removed {removed} partial file(s) an interrupted run left in {prepared.output}")
+
+
+def run_and_finish(
+    prepared: PreparedRun, job: UnitJob, plan: UnitPlan
+) -> tuple[RunSummary, dict[str, int] | None] | None:
+    """The Beam graph run over the plan's units, then the run finished (``finish_run``): its summary
+    and Beam counters; None when its output could not be written (said in one line). GaveUp, and a
+    Ctrl-C or a closed output however Beam wrapped it, go on to ``main``."""
+    quiet = _ReportedByUs()
+    logging.getLogger("apache_beam").addFilter(quiet)
+    logging.getLogger("apache_beam.runners.common").addFilter(quiet)
+    try:
+        metrics = beam_counters(run_pipeline(prepared, job, plan))
+        return finish_run(prepared, job, plan, metrics), metrics
+    except GaveUp:
+        raise
+    except Exception as error:  # noqa: BLE001 - Beam wraps a step's error; say the cause in one line
+        interrupted = interruption(error)
+        if interrupted is not None:
+            raise interrupted from None
+        cause = root_cause(error)
+        if not isinstance(cause, (OSError, OutputError)):
+            raise
+        print(f"cannot finish: {cause}", file=sys.stderr)
         return None
-    totals = {name: 0 for name in graph.COUNTERS}
-    for item in found:
-        value = item.committed if item.committed is not None else item.attempted
-        totals[item.key.metric.name] = totals.get(item.key.metric.name, 0) + int(value or 0)
-    return totals
 
 
 class GaveUp(Exception):
@@ -175,6 +280,27 @@ def _run_graph(prepared: PreparedRun, job: UnitJob, plan: UnitPlan):
     return result
 
 
+def beam_counters(result) -> dict[str, int] | None:
+    """The run's Beam counters (``graph.COUNTERS``), or None when the runner reports none."""
+    try:
+        found = result.metrics().query(MetricsFilter().with_namespace(graph.METRICS_NAMESPACE))["counters"]
+    except (NotImplementedError, AttributeError, KeyError):
+        return None
+    totals = {name: 0 for name in graph.COUNTERS}
+    for item in found:
+        value = item.committed if item.committed is not None else item.attempted
+        totals[item.key.metric.name] = totals.get(item.key.metric.name, 0) + int(value or 0)
+    return totals
+
+
+class _ReportedByUs(logging.Filter):
+    """Drops Beam's traceback of a step stopped by Ctrl-C or an output error: main says it in one line."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        kind = record.exc_info[0] if record.exc_info else None
+        return not (kind and issubclass(kind, (KeyboardInterrupt, OSError, OutputError)))
+
+
 def print_summary(summary: RunSummary, metrics: dict[str, int] | None, output: str, source: str) -> None:
     """The closing lines: what this run did (its Beam counters, when the runner reports them), then
     the totals over every unit (finished-earlier ones included), the manifests, where things are."""
@@ -209,14 +335,6 @@ def manifest_line(counts: Mapping[str, int], source: str) -> str:
     if (counts["minival_all"], counts["full_test_all"]) != (counts["minival"], counts["full_test"]):
         line += f" (every source: minival {counts['minival_all']}, full_test {counts['full_test_all']})"
     return line
-
-
-class _ReportedByUs(logging.Filter):
-    """Drops Beam's traceback of a step stopped by Ctrl-C or an output error: main says it in one line."""
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        kind = record.exc_info[0] if record.exc_info else None
-        return not (kind and issubclass(kind, (KeyboardInterrupt, OSError, OutputError)))
 
 
 def why_nothing(summary: RunSummary, config: RunConfig) -> str:
@@ -258,12 +376,22 @@ def exit_status(summary: RunSummary) -> int:
     return NOTHING_PRODUCED if nothing else 0
 
 
-def stopped(prepared: PreparedRun) -> int:
-    """After a Ctrl-C, a SIGTERM or a closed output: the worker processes ended, this run's partial
-    files and what its workers left in the source's scratch folder removed, one line (when the output
-    is still open); 130 (Ctrl-C), 143 (SIGTERM), or 141 for a closed output."""
-    stop_workers()
-    removed = remove_partial_files(prepared.output, prepared.source.name, include_own=True)
+def stopped(prepared: PreparedRun, gave_up: GaveUp | None = None) -> int:
+    """After the run stopped itself (``gave_up``), a Ctrl-C, a SIGTERM or a closed output: this run's
+    partial files removed; after the last three also the worker processes ended and what they left in
+    the source's scratch folder removed. One line (when the output is still open); 4 (gave up), 130
+    (Ctrl-C), 143 (SIGTERM), or 141 for a closed output."""
+    if gave_up is None:
+        stop_workers()
+    partial = partial_files(prepared)
+    removed = remove_abandoned(partial, include_own=True)
+    if gave_up is not None:
+        print(
+            f"stopped: {gave_up}; finished units are kept: mend the cause and rerun the same command "
+            "to resume",
+            file=sys.stderr,
+        )
+        return STOPPED
     freed = 0
     if prepared.source.reclaim_scratch is not None:
         with contextlib.suppress(OSError):
@@ -279,105 +407,6 @@ def stopped(prepared: PreparedRun) -> int:
         file=sys.stderr,
     )
     return status
-
-
-def main(argv: list[str] | None = None, started: float | None = None) -> int:
-    """The command; its exit status (the module's docstring lists them). ``started``: the
-    ``time.monotonic()`` its "finished in" counts from (default: now)."""
-    started = time.monotonic() if started is None else started
-    try:
-        args, beam_args = parse_args(sys.argv[1:] if argv is None else argv)
-    except UsageError as problem:
-        print(f"python -m pipeline.run: {problem}", file=sys.stderr)
-        return 2
-    configure_logging(args.verbose)
-    try:
-        prepared = prepare_run(args, beam_args)
-    except SettingsError as problem:
-        print(f"cannot start: {len(problem.problems)} problem(s) with the settings:", file=sys.stderr)
-        for line in problem.problems:
-            print(f"  {line}", file=sys.stderr)
-        return 2
-    except (CannotStart, ValueError, InputError) as problem:
-        print(f"cannot start: {problem}", file=sys.stderr)
-        return 2
-    except NoSample as message:
-        print(message, file=sys.stderr)
-        return 2
-    try:
-        return run(prepared, started)
-    except GaveUp as reason:
-        remove_partial_files(prepared.output, prepared.source.name, include_own=True)
-        print(
-            f"stopped: {reason}; finished units are kept: mend the cause and rerun the same command "
-            "to resume",
-            file=sys.stderr,
-        )
-        return STOPPED
-    except KeyboardInterrupt:
-        return stopped(prepared)
-    except BrokenPipeError:
-        READER_GONE.set()
-        return stopped(prepared)
-
-
-def run(prepared: PreparedRun, started: float) -> int:
-    """``main`` after the checks, without the Ctrl-C handling."""
-    source, output = prepared.source, prepared.output
-    for line in prepared.rules.lines():
-        print(line, flush=True)
-    if prepared.release is not None and prepared.release.alias_line():
-        print(prepared.release.alias_line(), flush=True)
-    try:
-        input_root = sample_input(prepared)
-        plan = plan_units(prepared, input_root)
-    except NoSample as message:
-        print(message, file=sys.stderr)
-        return 2
-    except CannotStart as problem:
-        print(f"cannot start: {problem}", file=sys.stderr)
-        return 2
-    print(f"{source.name}: {len(plan.units)} unit(s) to annotate from {input_root}", flush=True)
-    for note in plan.notes:
-        print(note, flush=True)
-    if plan.scratch_per_worker:
-        print(scratch_line(plan.scratch_per_worker, prepared.options), flush=True)
-    complete_commits(output)  # a finish or compare killed mid-commit: its new set, whole
-    removed = remove_partial_files(output, source.name)
-    if removed:
-        print(f"removed {removed} partial file(s) an interrupted run left in {output}")
-    job = UnitJob(
-        source,
-        input_root,
-        prepared.config,
-        output,
-        resume=not prepared.overwrite,
-        run_id=uuid.uuid4().hex,
-        expected=plan.expected if prepared.restricted_to is not None else None,
-    )
-    quiet = _ReportedByUs()
-    logging.getLogger("apache_beam").addFilter(quiet)
-    logging.getLogger("apache_beam.runners.common").addFilter(quiet)
-    try:
-        result = run_pipeline(prepared, job, plan)
-        metrics = beam_counters(result)
-        summary = finish_run(job, plan, provenance(prepared, input_root, plan), prepared.release, metrics)
-    except GaveUp:
-        raise
-    except Exception as error:  # noqa: BLE001 - Beam wraps a step's error; say the cause in one line
-        interrupted = interruption(error)
-        if interrupted is not None:
-            raise interrupted from None
-        cause = root_cause(error)
-        if not isinstance(cause, (OSError, OutputError)):
-            raise
-        print(f"cannot finish: {cause}", file=sys.stderr)
-        return 2
-    print_summary(summary, metrics, output, source.name)
-    print(f"finished in {time.monotonic() - started:.1f} s")
-    if summary.clips_written == 0:
-        print(why_nothing(summary, prepared.config))
-    return exit_status(summary)
 
 
 def stop_workers() -> None:

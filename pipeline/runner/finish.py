@@ -1,6 +1,6 @@
 """Finishing a run, in the main process, once: from the checkpoints its units left
 (``pipeline/runner/ledger.py``), the failures file, the release verdicts, the manifests and the run's
-provenance file.
+provenance file (``pipeline/export/provenance.py``).
 
 Every unit of a run ends with its checkpoint, written or stamped by this run (a resumed unit's is
 stamped with the run's id), on whatever runner and workers did the work; ``finish_run`` reads the
@@ -13,8 +13,7 @@ from __future__ import annotations
 import collections
 import dataclasses
 import json
-from collections.abc import Mapping
-from typing import TYPE_CHECKING
+from collections.abc import Iterable, Mapping
 
 from pipeline import sources
 from pipeline.core.outcomes import FILTER_ORDER, Failure, UnitOutcome, failure_cause
@@ -26,8 +25,10 @@ from pipeline.export.layout import (
     release_verdicts_path,
 )
 from pipeline.export.manifests import split_clips
+from pipeline.export.provenance import Provenance, provenance_file
 from pipeline.io.file_set import output_lock, write_together
 from pipeline.io.files import exists, list_files, read_bytes
+from pipeline.runner.prepare import PreparedRun
 from pipeline.runner.splits import Release
 from pipeline.runner.stages import UnitJob
 from pipeline.runner.verdicts import (
@@ -38,11 +39,8 @@ from pipeline.runner.verdicts import (
     verdict_lines,
     verdicts,
 )
+from pipeline.settings.run_config import RunConfig
 from pipeline.sources import UnitPlan
-
-if TYPE_CHECKING:
-    from pipeline.runner.prepare import Provenance
-    from pipeline.settings.run_config import RunConfig
 
 
 @dataclasses.dataclass(frozen=True)
@@ -82,6 +80,50 @@ class RunSummary:
         return summary
 
 
+def finish_run(
+    prepared: PreparedRun, job: UnitJob, plan: UnitPlan, metrics: dict[str, int] | None
+) -> RunSummary:
+    """Write the failures, the release verdicts (a release run), the manifests and the run's
+    provenance, together (``pipeline.io.file_set``): a run killed meanwhile leaves the earlier set.
+
+    metrics: the run's Beam counters, None when the runner reports none (recorded as saying so).
+    """
+    origin = provenance(prepared, job.input_root, plan)
+    source, output = job.source.name, job.output
+    outcomes, digests = unit_outcomes(job, [unit.name for unit in plan.units])
+    failures = all_failures(outcomes)
+    files = {failures_path(output, source): json_lines(failure.to_json() for failure in failures)}
+    with output_lock(output):
+        counts = None
+        if prepared.restricted_to is not None:
+            path = release_verdicts_path(output, source)
+            files[path], counts = release_verdicts(path, job, plan, prepared.restricted_to, outcomes, digests)
+        entries = manifests(output, job.config, prepared.release)
+        for split, listed in entries.items():
+            files[manifest_path(output, split)] = "".join(entry + "\n" for entry in listed).encode()
+        summary = dataclasses.replace(
+            summarize(outcomes, failures), manifests=manifest_counts(entries, source), release=counts
+        )
+        files[provenance_path(output, source)] = provenance_file(origin, summary.to_json(), metrics)
+        write_together(files, output)
+    return summary
+
+
+def provenance(prepared: PreparedRun, input_root: str, plan: UnitPlan) -> Provenance:
+    """Where the run came from (``pipeline.export.provenance``), stamped now: the run's end."""
+    restricted = prepared.restricted_to
+    return Provenance(
+        source=prepared.source.name,
+        input=input_root,
+        output=prepared.output,
+        config=prepared.config,
+        rules=prepared.rules,
+        release=restricted.path if restricted is not None else None,
+        units=tuple(unit.name for unit in plan.units),
+        beam_options=tuple(prepared.beam_args),
+    )
+
+
 def unit_outcomes(job: UnitJob, names: list[str]) -> tuple[dict[str, UnitOutcome | None], dict[str, str]]:
     """Each planned unit's outcome in this run (from its checkpoint), None when it left none; and the
     SHA-256 of every clip file those checkpoints list (clip -> digest)."""
@@ -107,6 +149,55 @@ def all_failures(outcomes: dict[str, UnitOutcome | None]) -> list[Failure]:
         else:
             found += outcome.failures
     return sorted(found, key=lambda f: (f.unit, f.stage, f.clip, f.error))
+
+
+def json_lines(records: Iterable[dict]) -> bytes:
+    """One JSON object a line, keys sorted."""
+    return "".join(json.dumps(record, sort_keys=True) + "\n" for record in records).encode()
+
+
+def release_verdicts(
+    path: str,
+    job: UnitJob,
+    plan: UnitPlan,
+    release: Release,
+    outcomes: dict[str, UnitOutcome | None],
+    digests: dict[str, str],
+) -> tuple[bytes, dict[str, int]]:
+    """The new bytes of a release run's verdict file ``path`` (each verdict keeping the agreement an
+    ``audit compare`` added while the clip's file is the one it scored), and its counts (``tally``)."""
+    rows = verdicts(
+        release.clips.get(job.source.name, {}),
+        plan.absent,
+        plan.not_made,
+        plan.expected,
+        outcomes,
+        job.config.min_tracks,
+    )
+    earlier = kept_agreements(read_bytes(path, MAX_VERDICT_BYTES), digests) if exists(path) else {}
+    return verdict_lines(rows, earlier), tally(rows)
+
+
+def manifests(output: str, config: RunConfig, release: Release | None) -> dict[str, list[str]]:
+    """split -> the manifest's entries (``<source>/<clip>.npz``), over every source's clips in the
+    output folder."""
+    clips = {
+        name: [p.rsplit("/", 1)[-1] for p in list_files(f"{clip_folder(output, name)}/*.npz")]
+        for name in sources.names()
+    }
+    clips = {name: files for name, files in clips.items() if files}
+    membership = release.clips if release is not None else None
+    only_named = release is not None and release.restricts_run
+    minival, full_test = split_clips(clips, config.minival_per_source, config.seed, membership, only_named)
+    return {"minival": minival, "full_test": full_test}
+
+
+def manifest_counts(entries: Mapping[str, list[str]], source: str) -> dict[str, int]:
+    """Per split: the source's entries, and every source's (``<split>_all``)."""
+    counts = {
+        split: sum(entry.startswith(f"{source}/") for entry in listed) for split, listed in entries.items()
+    }
+    return counts | {f"{split}_all": len(listed) for split, listed in entries.items()}
 
 
 def summarize(outcomes: dict[str, UnitOutcome | None], failures: list[Failure]) -> RunSummary:
@@ -135,75 +226,3 @@ def summarize(outcomes: dict[str, UnitOutcome | None], failures: list[Failure]) 
         common_failures=common[1],
         notes=tuple(dict.fromkeys(text for outcome in done for text in outcome.notes)),
     )
-
-
-def manifests(output: str, config: RunConfig, release: Release | None) -> dict[str, list[str]]:
-    """split -> the manifest's entries (``<source>/<clip>.npz``), over every source's clips in the
-    output folder."""
-    clips = {
-        name: [p.rsplit("/", 1)[-1] for p in list_files(f"{clip_folder(output, name)}/*.npz")]
-        for name in sources.names()
-    }
-    clips = {name: files for name, files in clips.items() if files}
-    membership = release.clips if release is not None else None
-    only_named = release is not None and release.restricts_run
-    minival, full_test = split_clips(clips, config.minival_per_source, config.seed, membership, only_named)
-    return {"minival": minival, "full_test": full_test}
-
-
-def manifest_counts(entries: Mapping[str, list[str]], source: str) -> dict[str, int]:
-    """Per split: the source's entries, and every source's (``<split>_all``)."""
-    counts = {
-        split: sum(entry.startswith(f"{source}/") for entry in listed) for split, listed in entries.items()
-    }
-    return counts | {f"{split}_all": len(listed) for split, listed in entries.items()}
-
-
-def finish_run(
-    job: UnitJob,
-    plan: UnitPlan,
-    provenance: Provenance,
-    release: Release | None,
-    metrics: dict[str, int] | None,
-) -> RunSummary:
-    """Write the failures, the release verdicts (a release run: each keeping the agreement an ``audit
-    compare`` added while the clip's file is the one it scored), the manifests and the run's
-    provenance, together (``pipeline.io.file_set``): a run killed meanwhile leaves the earlier set.
-
-    release: the release the run follows (``--release``, or ``splits_file`` for the manifests alone).
-    metrics: the run's Beam counters, None when the runner reports none (recorded as saying so).
-    """
-    source, output = job.source.name, job.output
-    outcomes, digests = unit_outcomes(job, [unit.name for unit in plan.units])
-    failures = all_failures(outcomes)
-    files = {
-        failures_path(output, source): "".join(
-            json.dumps(f.to_json(), sort_keys=True) + "\n" for f in failures
-        ).encode()
-    }
-    with output_lock(output):
-        counts = None
-        if release is not None and release.restricts_run:
-            rows = verdicts(
-                release.clips.get(source, {}),
-                plan.absent,
-                plan.not_made,
-                plan.expected,
-                outcomes,
-                job.config.min_tracks,
-            )
-            path = release_verdicts_path(output, source)
-            earlier = kept_agreements(read_bytes(path, MAX_VERDICT_BYTES), digests) if exists(path) else {}
-            files[path] = verdict_lines(rows, earlier)
-            counts = tally(rows)
-        entries = manifests(output, job.config, release)
-        for split, listed in entries.items():
-            files[manifest_path(output, split)] = "".join(entry + "\n" for entry in listed).encode()
-        summary = dataclasses.replace(
-            summarize(outcomes, failures), manifests=manifest_counts(entries, source), release=counts
-        )
-        recorded = "not reported by this runner" if metrics is None else metrics
-        written = dict(provenance.to_json(), summary=summary.to_json(), metrics=recorded)
-        files[provenance_path(output, source)] = json.dumps(written, indent=2, sort_keys=True).encode()
-        write_together(files, output)
-    return summary

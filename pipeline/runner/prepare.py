@@ -1,31 +1,26 @@
 """Preparing a run, before any work: every option, setting and path checked (``CannotStart`` says
-what is wrong, in one line), the sample world or the input, the units to annotate, and the run's
-provenance."""
+what is wrong, in one line), the sample world or the input, the units to annotate and what the run
+says of them."""
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
 import os
-import platform
-import time
 from collections.abc import Mapping
 
-import apache_beam as beam
-import numpy as np
 from apache_beam.options.pipeline_options import DirectOptions, PipelineOptions, StandardOptions
 
-import pipeline
 from pipeline import sources
 from pipeline.core.errors import InputError
 from pipeline.core.sizes import format_bytes
 from pipeline.export.layout import sample_folder
 from pipeline.io import storage
 from pipeline.io.files import is_local, remove_quietly, write_atomic
-from pipeline.io.http import is_http, scrub
+from pipeline.io.http import is_http
 from pipeline.runner.splits import Release, read_release
-from pipeline.settings.fields import path_settings, with_overrides, with_rules
-from pipeline.settings.rule_sets import RuleSet, assigned_keys, rule_set
+from pipeline.settings.fields import path_settings
+from pipeline.settings.rule_sets import RuleSet, assigned_keys, configured, rule_set
 from pipeline.settings.run_config import RunConfig
 from pipeline.sources import Source, UnitPlan
 
@@ -72,46 +67,34 @@ def runner_args(beam_args: list[str]) -> list[str]:
     return args
 
 
-def absolute(path: str) -> str:
-    """A local path made absolute (workers may run elsewhere); remote URLs unchanged."""
-    return os.path.abspath(path) if path and is_local(path) else path
+def prepare_run(args: argparse.Namespace, beam_args: list[str]) -> PreparedRun:
+    """Check everything before any work; CannotStart (or SettingsError, InputError) says what is
+    wrong. The rule set's account (``rule_set``) is of the settings before the command's flags,
+    which set none that a rule set governs."""
+    source = sources.get(args.source)
+    options = PipelineOptions(beam_args)
+    storage.use_options(options)
+    output = absolute(args.output)
+    storage.check_scheme(output)
+    config = configured(args.overrides, bool(args.release))
+    rules = rule_set(config, source.name, assigned_keys(args.overrides))
+    config, release = command_settings(config, args)
+    if args.input is None and not source.has_sample:
+        source.sample_input(sample_folder(output, source.name))  # NoSample: how to get the source's data
+    check_writable(output)
+    if args.input is None and not is_local(output):
+        raise CannotStart(
+            f"the embedded sample world is written under a local --output; with {output} pass --input "
+            "(a copy of the sample uploaded there works)"
+        )
+    input_root = args.input if args.input is None or "://" in args.input else os.path.abspath(args.input)
+    return PreparedRun(source, config, rules, input_root, output, release, args.overwrite, beam_args, options)
 
 
-def check_writable(output: str) -> None:
-    """CannotStart unless ``output`` takes a real write of PROBE_BYTES (a full disk fails here, not
-    after hours of work), which is then removed."""
-    if is_local(output) and os.path.isfile(output):
-        raise CannotStart(f"--output {output} is a file, not a folder")
-    probe = f"{output}/.write_probe-{os.getpid()}"
-    try:
-        write_atomic(probe, os.urandom(PROBE_BYTES))
-    except OSError as error:
-        raise CannotStart(f"output folder {output} is not writable ({error.strerror or error})") from None
-    remove_quietly([probe])
-
-
-def check_inputs(input_root: str | None, config: RunConfig, release: str | None = None) -> None:
-    """CannotStart unless every local path the run will read exists: ``--input``, ``--release`` and
-    every setting declared a path (``core.config.path_setting``) that is set, each named as the user
-    gave it (``--set drivetrack.masks_dir=DIR``). ``--queries-from`` may also be an ``http(s)://``
-    base (``pipeline.io.given_queries``)."""
-    paths = {"--input": input_root, "--release": release, **path_settings(config)}
-    for what, path in paths.items():
-        if path and not (what == "--queries-from" and is_http(path)):
-            storage.check_scheme(path, ("http", "https") if what == "--queries-from" else ())
-        if path and is_local(path) and not os.path.exists(path):
-            given = f"{what} {path}" if what.startswith("--") else f"--set {what}={path}"
-            raise CannotStart(f"{given} does not exist")
-
-
-def settings(args: argparse.Namespace) -> tuple[RunConfig, Release | None]:
-    """The run's config (the rule set's defaults, ``--set``, the command's flags) and the release it
-    follows. The rule set is ``--set rules=...``, else ``release`` on a ``--release`` run and
-    ``refined`` on any other; a ``--set`` of one of its settings wins."""
-    explicit = assigned_keys(args.overrides)
-    given = with_overrides(RunConfig(), args.overrides)
-    rules = given.rules if "rules" in explicit else "release" if args.release else "refined"
-    config = with_overrides(with_rules(RunConfig(), rules), args.overrides)
+def command_settings(config: RunConfig, args: argparse.Namespace) -> tuple[RunConfig, Release | None]:
+    """``config`` with the command's own flags (``--export-depth``, ``--queries-from``, ``--release``),
+    every path the run reads checked (``check_inputs``), and the release it follows: ``--release``,
+    else ``splits_file``'s (the manifests' membership alone), else None."""
     given_splits = config.splits_file
     splits = absolute(args.release or "") or absolute(config.splits_file)
     if args.release and config.splits_file and absolute(config.splits_file) != splits:
@@ -129,36 +112,36 @@ def settings(args: argparse.Namespace) -> tuple[RunConfig, Release | None]:
     return config, dataclasses.replace(read_release(splits, label), restricts_run=bool(args.release))
 
 
-def prepare_run(args: argparse.Namespace, beam_args: list[str]) -> PreparedRun:
-    """Check everything before any work; CannotStart (or SettingsError, InputError) says what is
-    wrong."""
-    source = sources.get(args.source)
-    options = PipelineOptions(beam_args)
-    storage.use_options(options)
-    output = absolute(args.output)
-    storage.check_scheme(output)
-    config, release = settings(args)
-    if args.input is None and not source.has_sample:
-        source.sample_input(sample_folder(output, source.name))  # NoSample: how to get the source's data
-    rules = rule_set(config, source.name, assigned_keys(args.overrides))
-    check_writable(output)
-    if args.input is None and not is_local(output):
-        raise CannotStart(
-            f"the embedded sample world is written under a local --output; with {output} pass --input "
-            "(a copy of the sample uploaded there works)"
-        )
-    input_root = args.input if args.input is None or "://" in args.input else os.path.abspath(args.input)
-    return PreparedRun(
-        source,
-        config,
-        rules,
-        input_root,
-        output,
-        release,
-        args.overwrite,
-        beam_args,
-        options,
-    )
+def check_inputs(input_root: str | None, config: RunConfig, release: str | None = None) -> None:
+    """CannotStart unless every local path the run will read exists: ``--input``, ``--release`` and
+    every setting declared a path (``core.config.path_setting``) that is set, each named as the user
+    gave it (``--set drivetrack.masks_dir=DIR``). ``--queries-from`` may also be an ``http(s)://``
+    base (``pipeline.io.given_queries``)."""
+    paths = {"--input": input_root, "--release": release, **path_settings(config)}
+    for what, path in paths.items():
+        if path and not (what == "--queries-from" and is_http(path)):
+            storage.check_scheme(path, ("http", "https") if what == "--queries-from" else ())
+        if path and is_local(path) and not os.path.exists(path):
+            given = f"{what} {path}" if what.startswith("--") else f"--set {what}={path}"
+            raise CannotStart(f"{given} does not exist")
+
+
+def absolute(path: str) -> str:
+    """A local path made absolute (workers may run elsewhere); remote URLs unchanged."""
+    return os.path.abspath(path) if path and is_local(path) else path
+
+
+def check_writable(output: str) -> None:
+    """CannotStart unless ``output`` takes a real write of PROBE_BYTES (a full disk fails here, not
+    after hours of work), which is then removed."""
+    if is_local(output) and os.path.isfile(output):
+        raise CannotStart(f"--output {output} is a file, not a folder")
+    probe = f"{output}/.write_probe-{os.getpid()}"
+    try:
+        write_atomic(probe, os.urandom(PROBE_BYTES))
+    except OSError as error:
+        raise CannotStart(f"output folder {output} is not writable ({error.strerror or error})") from None
+    remove_quietly([probe])
 
 
 def sample_input(prepared: PreparedRun) -> str:
@@ -189,15 +172,13 @@ def plan_units(prepared: PreparedRun, input_root: str) -> UnitPlan:
     return dataclasses.replace(plan, absent=in_sample(plan.absent), not_made=in_sample(plan.not_made))
 
 
-def concurrent_workers(options: PipelineOptions) -> int | None:
-    """How many units run at once on the DirectRunner (its worker count in a multi-process or
-    multi-thread mode, else one); None for other runners (their cluster decides)."""
-    direct = options.view_as(DirectOptions)
-    if options.view_as(StandardOptions).runner not in (None, "DirectRunner"):
-        return None
-    if direct.direct_running_mode in ("multi_processing", "multi_threading"):
-        return direct.direct_num_workers or os.cpu_count() or 1
-    return 1
+def plan_lines(prepared: PreparedRun, input_root: str, plan: UnitPlan) -> list[str]:
+    """What the run says of its plan before any work: how many units, from where, the source's notes,
+    and the most scratch disk the run takes at once (when its units take any)."""
+    lines = [f"{prepared.source.name}: {len(plan.units)} unit(s) to annotate from {input_root}", *plan.notes]
+    if plan.scratch_per_worker:
+        lines.append(scratch_line(plan.scratch_per_worker, prepared.options))
+    return lines
 
 
 def scratch_line(per_worker: int, options: PipelineOptions) -> str:
@@ -209,56 +190,12 @@ def scratch_line(per_worker: int, options: PipelineOptions) -> str:
     return f"peak scratch: {workers} worker(s) x {format_bytes(per_worker)} = {total}"
 
 
-@dataclasses.dataclass(frozen=True)
-class Provenance:
-    """Where a run came from, as its provenance file keeps it: the package and version, the source, input and
-    output, every setting and the rule set's account of them, the release it was restricted to, its
-    units, the Beam options, the libraries' versions and when it started."""
-
-    source: str
-    input: str
-    output: str
-    config: dict
-    rules: dict
-    release: str | None
-    units: tuple[str, ...]
-    beam_options: tuple[str, ...]
-    environment: dict
-    started: str
-    package: str = "tapvid3d-pipeline"
-    version: str = pipeline.__version__
-
-    def to_json(self) -> dict:
-        return {
-            **dataclasses.asdict(self),
-            "units": list(self.units),
-            "beam_options": list(self.beam_options),
-        }
-
-
-def scrubbed(values: dict) -> dict:
-    """Settings as a run's provenance keeps them: every URL without its query string (a token)."""
-    return {
-        key: scrubbed(value) if isinstance(value, dict) else scrub(value) if isinstance(value, str) else value
-        for key, value in values.items()
-    }
-
-
-def provenance(prepared: PreparedRun, input_root: str, plan: UnitPlan) -> Provenance:
-    """The run's provenance's account of where the run came from."""
-    return Provenance(
-        source=prepared.source.name,
-        input=input_root,
-        output=prepared.output,
-        config=scrubbed(prepared.config.to_dict()),
-        rules=prepared.rules.to_json(),
-        release=prepared.restricted_to.path if prepared.restricted_to is not None else None,
-        units=tuple(unit.name for unit in plan.units),
-        beam_options=tuple(prepared.beam_args),
-        environment={
-            "python": platform.python_version(),
-            "numpy": np.__version__,
-            "apache_beam": beam.__version__,
-        },
-        started=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-    )
+def concurrent_workers(options: PipelineOptions) -> int | None:
+    """How many units run at once on the DirectRunner (its worker count in a multi-process or
+    multi-thread mode, else one); None for other runners (their cluster decides)."""
+    direct = options.view_as(DirectOptions)
+    if options.view_as(StandardOptions).runner not in (None, "DirectRunner"):
+        return None
+    if direct.direct_running_mode in ("multi_processing", "multi_threading"):
+        return direct.direct_num_workers or os.cpu_count() or 1
+    return 1

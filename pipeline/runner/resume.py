@@ -23,15 +23,11 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import os
-import time
 from collections.abc import Mapping
 from typing import TYPE_CHECKING
 
 import pipeline
 from pipeline import sources
-from pipeline.export.layout import temporary_patterns
-from pipeline.io.files import PARTIAL, filesystems, is_abandoned, remove_quietly, writer_pid
 from pipeline.io.http import scrub
 from pipeline.settings.fields import settings_items
 
@@ -64,20 +60,3 @@ def run_fingerprint(source: str, config: RunConfig) -> str:
     """Digest of everything that decides a unit's clip bytes (``clip_settings``)."""
     settings = {"version": pipeline.__version__, "source": source, "config": clip_settings(config, source)}
     return hashlib.sha256(json.dumps(settings, sort_keys=True).encode()).hexdigest()
-
-
-def remove_partial_files(output: str, source: str, include_own: bool = False) -> int:
-    """Delete the hidden ``.<name>.partial-*`` temporaries (pipeline/io/files.py) that runs which
-    are gone left in this source's folders and the shared manifests folder; a concurrent run's live
-    temporaries stay. ``include_own`` also deletes this process's (it is stopping). Returns how many
-    went."""
-    patterns = temporary_patterns(output, source, PARTIAL)
-    now = time.time()
-    doomed = [
-        match.path
-        for result in filesystems().match(patterns)
-        for match in result.metadata_list
-        if is_abandoned(match.path, match.last_updated_in_seconds, now)
-        or (include_own and writer_pid(match.path) == os.getpid())
-    ]
-    return remove_quietly(doomed)

@@ -1,6 +1,7 @@
-"""What a rule set decides for one source's run: the settings ``rules=release`` or ``rules=refined``
-sets (the run-wide ones and that source's section), their values under the other rule set, and which
-of them a ``--set`` overrode; the lines a run prints first, and the record its provenance keeps."""
+"""What a rule set decides for one source's run: the run's settings from the rule set and ``--set``;
+the settings ``rules=release`` or ``rules=refined`` sets (the run-wide ones and that source's
+section), their values under the other rule set, and which of them a ``--set`` overrode; the lines a
+run prints first, and the record its provenance keeps."""
 
 from __future__ import annotations
 
@@ -13,8 +14,10 @@ from pipeline.settings.fields import (
     as_set_value,
     flat_settings,
     release_values,
+    with_overrides,
     with_rules,
 )
+from pipeline.settings.run_config import RunConfig
 
 
 @dataclasses.dataclass(frozen=True)
@@ -66,10 +69,19 @@ def assigned_keys(assignments: list[str]) -> frozenset[str]:
     return frozenset(text.partition("=")[0].strip() for text in assignments)
 
 
-def rule_set(config, source: str, explicit: frozenset[str]) -> RuleSet:
-    """What ``config.rules`` decides for a run of ``source`` (``config`` a ``RunConfig``), the
-    ``explicit`` keys (``--set``) aside: every setting with a release mark but those of other
-    sources' sections."""
+def configured(assignments: list[str], release_run: bool) -> RunConfig:
+    """The run's settings: the rule set's defaults, then ``assignments`` (``--set``). The rule set is
+    ``--set rules=...``, else ``release`` on a ``--release`` run and ``refined`` on any other; a
+    ``--set`` of one of its settings wins. SettingsError says what is wrong."""
+    explicit = assigned_keys(assignments)
+    given = with_overrides(RunConfig(), assignments)
+    rules = given.rules if "rules" in explicit else "release" if release_run else "refined"
+    return with_overrides(with_rules(RunConfig(), rules), assignments)
+
+
+def rule_set(config: RunConfig, source: str, explicit: frozenset[str]) -> RuleSet:
+    """What ``config.rules`` decides for a run of ``source``, the ``explicit`` keys (``--set``)
+    aside: every setting with a release mark but those of other sources' sections."""
     others = set(registry.names()) - {source}
     known = {
         key: value
