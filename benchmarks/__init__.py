@@ -11,7 +11,8 @@ The framework, one file per job:
   entry.py       finding a source's entry, the interface it defines, the UnitSetup it returns
   audit_page.py  the audit page's size and load time in headless Chromium
   hostile_files.py  every hostile file and fault case run as a user would: exit, peak RSS, files
-                 touched outside --output (``python -m benchmarks.hostile_files [FOLDER]``)
+                 touched outside --output, on one source's sample
+                 (``python -m benchmarks.hostile_files [FOLDER] [--source NAME]``)
 
 One entry per source, in the source's own folder (``pipeline/<source>/bench.py``), found through
 the registry (``sources.get(name).bench_module``, which ``Source.bench`` names); the bench runs the
