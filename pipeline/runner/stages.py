@@ -55,8 +55,10 @@ class UnitJob:
     @functools.cached_property
     def ledger(self) -> UnitLedger:
         """The checkpoints of this run's units."""
-        fingerprint = run_fingerprint(self.source.name, self.config)
-        return UnitLedger(self.output, self.source.name, fingerprint, self.run_id, self.config.export_depth)
+        config, fingerprint = self.config, run_fingerprint(self.source.name, self.config)
+        return UnitLedger(
+            self.output, self.source.name, fingerprint, self.run_id, config.export_depth, config.resume_decode
+        )
 
     def wanted(self, name: str) -> Wanted:
         """The clips unit ``name`` is to make on a release run; None: every clip it can make."""

@@ -87,6 +87,9 @@ class RunConfig:
     queries_from: a folder of existing clips whose queries are re-annotated instead of sampling
       new ones; only clips found there are made. Set it with ``--queries-from DIR``.
     export_depth: also write the depth each visibility test read (``--export-depth``).
+    resume_decode: a unit an earlier run finished is resumed when its clip files have the size and
+      SHA-256 its checkpoint recorded (and their audit tables are there); with this on, each of its
+      clips is also decoded and checked again, as ``pipeline.validate`` does (slower).
     minival_per_source: without a splits file, minival is a seeded draw of this many clips per
       source; full_test holds every other clip.
     min_tracks: a clip is written only when at least this many tracks pass the filters.
@@ -104,6 +107,7 @@ class RunConfig:
     splits_file: str = path_setting("", "splits_file", clip_bytes=False)
     queries_from: str = path_setting("", "--queries-from")
     export_depth: bool = not_in_clips(False)
+    resume_decode: bool = not_in_clips(False)
     minival_per_source: int = not_in_clips(50, "[0, 1000000]")
     min_tracks: int = ranged(1, "[1, 100000]", release=NOT_KNOWN)
     max_failures_in_a_row: int = not_in_clips(MAX_FAILURES_IN_A_ROW, "[0, 1000000]")

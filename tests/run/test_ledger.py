@@ -17,6 +17,7 @@ from pipeline.export.layout import audit_path, checkpoint_path, clip_path
 from pipeline.io import clip_reader
 from pipeline.runner.checkpoint import UnitCheckpoint
 from pipeline.runner.stages import UnitJob, run_group
+from pipeline.settings.fields import with_overrides
 from pipeline.settings.run_config import RunConfig
 from tests.support.toy.source import TOY, SpecFile, write_sample
 
@@ -99,8 +100,9 @@ def test_the_deep_check_decodes_every_clip(finished, monkeypatch):
         return ["a violation, for the test"], {}
 
     monkeypatch.setattr(invariants, "inspect_clip_bytes", spy)
-    deep = dataclasses.replace(finished.ledger, deep=True)
-    assert deep.resume(UNIT, None) is None
+    asked = dataclasses.replace(finished, config=with_overrides(RunConfig(), ["resume_decode=true"]))
+    deep = asked.ledger  # the run-wide setting asks for it
+    assert deep.deep and deep.resume(UNIT, None) is None
     assert checked == [record(finished)["sizes"][CLIP]]
     assert finished.ledger.resume(UNIT, None) is not None  # not asked: not decoded
     assert len(checked) == 1
