@@ -1,10 +1,13 @@
-"""A run's clips in a researcher's hands: ``open`` reads one clip file as a typed, frozen ``Clip``, and
-``split`` yields the clips of a run's split (``minival``, ``full_test``) in its manifest's order::
+"""A run's clips in a researcher's hands: ``open`` reads one clip file as a typed, frozen ``Clip``,
+``split`` yields the clips of a run's split (``minival``, ``full_test``) in its manifest's order, and
+``shards`` those of a training run's Parquet shards::
 
     import pipeline.clips
 
     for clip in pipeline.clips.split("out/demo", "minival"):
         print(clip.source, clip.name, clip.tracks.shape)
+    for clip in pipeline.clips.shards("out/train/pstudio"):
+        print(clip.scene, clip.name, clip.quality.mean())
 
 Every file is read through the bounded reader (``pipeline/io/clip_reader.py``: nothing is unpickled,
 sizes are capped from the headers) and checked to be a clip (keys, dtypes, shapes) before it is
@@ -16,15 +19,21 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Iterator, Mapping
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
 from pipeline import sources
+from pipeline.core.images import jpeg_size
 from pipeline.export import invariants
 from pipeline.export.layout import clip_path, manifest_path
+from pipeline.export.shard_set import shard_files
 from pipeline.io.clip_reader import DEFAULT_LIMITS, FRAMES, ReadLimits, read_clip_file
-from pipeline.io.files import read_bytes
+from pipeline.io.files import open_binary, read_bytes
+
+if TYPE_CHECKING:
+    from pipeline.export.shard_rows import ShardRow
 
 # The splits a run's manifests hold; ``full_eval`` (the release's name) reads ``full_test``.
 SPLITS = ("minival", "full_test")
@@ -50,6 +59,10 @@ class Clip:
       Studio, the release's ADT files) or they were not read.
     frame_size: (height, width) of the frames, from the first one's JPEG header; None where the file
       holds no frames.
+    scene, unit: the scene and the unit a clip of a Parquet shard (``shards``) comes from; None for a
+      clip file.
+    quality: [N] float32, a shard's per-track quality figure (the fraction of frames each track is
+      visible in); None for a clip file.
     """
 
     name: str
@@ -61,6 +74,9 @@ class Clip:
     intrinsics: np.ndarray | None
     extrinsics: np.ndarray | None
     frame_size: tuple[int, int] | None
+    scene: str | None = None
+    unit: str | None = None
+    quality: np.ndarray | None = None
 
     @property
     def num_frames(self) -> int:
@@ -115,6 +131,61 @@ def open(path: str, limits: ReadLimits = DEFAULT_LIMITS) -> Clip:
     if problems:
         raise ValueError(f"{path}: not a TAPVid-3D clip: {problems[0]}")
     return from_members(path, members, invariants.frame_size(members))
+
+
+def shards(path: str, limits: ReadLimits = DEFAULT_LIMITS) -> Iterator[Clip]:
+    """The clips of a folder of Parquet shards (``pipeline/export/shards.py``: a training run's
+    ``<out>/train/<source>/``) or of one shard, on any Beam filesystem, one at a time: each file's row
+    groups are read one by one, in the files' name order. ValueError naming the file when it is not a
+    shard (a column missing or of another type), a row does not fit its T and N or exceeds
+    ``limits``, or when a folder holds no shards or a set cut short."""
+    # pyarrow is imported here, not with the module: what reads clip files only does not pay for it.
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from pipeline.export.shard_rows import ShardRow, shard_problems
+
+    for file in shard_files(path):
+        with open_binary(file) as handle:
+            try:
+                parquet = pq.ParquetFile(handle)
+            except (pa.ArrowException, OSError) as error:
+                raise ValueError(f"{file}: not a Parquet file ({error})") from error
+            problems = shard_problems(parquet.schema_arrow)
+            if problems:
+                raise ValueError(f"{file}: not a shard of clips: {problems[0]}")
+            for group in range(parquet.num_row_groups):
+                declared = parquet.metadata.row_group(group).total_byte_size
+                if declared > limits.max_clip_bytes * max(1, parquet.metadata.row_group(group).num_rows):
+                    raise ValueError(f"{file}: row group {group} holds {declared} bytes, more than allowed")
+                table = parquet.read_row_group(group)
+                for row in range(table.num_rows):
+                    yield _shard_clip(ShardRow.of(table, row, file), file, limits)
+
+
+def _shard_clip(row: ShardRow, file: str, limits: ReadLimits) -> Clip:
+    """A shard's row as a Clip; ValueError naming the file beyond ``limits`` or without a readable
+    first frame."""
+    num_frames, num_tracks = row.visibility.shape
+    if num_frames > limits.max_frames or num_tracks > limits.max_tracks:
+        raise ValueError(f"{file}: {row.name}: T = {num_frames}, N = {num_tracks}, beyond the limits")
+    frame_size = jpeg_size(row.frames[0])
+    if frame_size is None:
+        raise ValueError(f"{file}: {row.name}: frame 0 is not a JPEG")
+    return Clip(
+        name=row.name,
+        source=row.source,
+        frames=row.frames,
+        queries=row.queries,
+        tracks=row.tracks,
+        visibility=row.visibility,
+        intrinsics=row.intrinsics,
+        extrinsics=row.extrinsics,
+        frame_size=frame_size,
+        scene=row.scene,
+        unit=row.unit,
+        quality=row.quality,
+    )
 
 
 def split_paths(output: str, split: str) -> list[str]:

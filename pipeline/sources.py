@@ -104,6 +104,15 @@ class RunChoices:
 
 
 @dataclasses.dataclass(frozen=True)
+class Licence:
+    """The terms a source's data is used under, as a training run's dataset card names them: the
+    terms in words, and the pages that state them."""
+
+    terms: str
+    links: tuple[str, ...]
+
+
+@dataclasses.dataclass(frozen=True)
 class Source(Generic[U]):
     """One dataset, as the pipeline sees it, its units of type U.
 
@@ -132,6 +141,12 @@ class Source(Generic[U]):
     settings: the dataclass of the source's settings section (``--set <name>.<field>``), or None.
     bench: the module of the source's benchmark entry (``python -m benchmarks <name>``, see
       ``benchmarks/__init__.py``): a built-in source's ``pipeline/<name>/bench.py``.
+    scene_of: unit -> its scene, what a benchmark clip of the same place and time shares with it
+      (DriveTrack: the Waymo segment; ADT: the sequence's v1 name; Panoptic Studio: the sequence).
+    clip_scene: a benchmark clip name (without ``.npz``) -> its scene, None when the name is not one
+      of the source's. A training run (``--training``) drops every unit whose scene a clip of the
+      benchmark's splits file comes from; a source without these two cannot make a training run.
+    licence: the terms its data is used under, for a training run's dataset card; None: not stated.
     """
 
     name: str
@@ -146,6 +161,9 @@ class Source(Generic[U]):
     has_sample: bool = True
     reclaim_scratch: Callable[[RunConfig], int] | None = None
     demo_args: Callable[[], list[str]] | None = None
+    scene_of: Callable[[U], str] | None = None
+    clip_scene: Callable[[str], str | None] | None = None
+    licence: Licence | None = None
 
     @property
     def bench_module(self) -> str:

@@ -10,8 +10,8 @@ from pipeline.adt.annotate import annotate_group
 from pipeline.adt.download import reclaim_scratch
 from pipeline.adt.sample.excerpt import demo_args, no_sample_message
 from pipeline.adt.settings import AdtConfig
-from pipeline.adt.units import SequenceChunk, list_units, scratch_folder
-from pipeline.sources import NoSample, Source
+from pipeline.adt.units import SequenceChunk, clip_scene, list_units, scene_of, scratch_folder
+from pipeline.sources import Licence, NoSample, Source
 
 
 def sample_input(folder: str) -> str:
@@ -32,4 +32,10 @@ SOURCE: Source[SequenceChunk] = Source(
     reclaim_scratch=lambda config: reclaim_scratch(scratch_folder(config.section(AdtConfig))),
     settings=AdtConfig,
     group_of=operator.attrgetter("group"),
+    scene_of=scene_of,
+    clip_scene=clip_scene,
+    licence=Licence(
+        "Aria Digital Twin dataset licence (Project Aria's terms, accepted when downloading)",
+        ("https://www.projectaria.com/datasets/adt/license/",),
+    ),
 )

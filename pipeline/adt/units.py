@@ -35,6 +35,9 @@ ALL_CHUNKS = -1
 CHUNKS_PER_GROUP = 3
 # The device-serial suffix ADT v2 adds to a v1 sequence name (``_M1292``, ``_61283``, ...).
 SERIAL_SUFFIX = re.compile(r"_[0-9A-Za-z]{4,}")
+# A v1 sequence name ends in ``seq<number>``; a name that goes on after it with a serial suffix is
+# a v2 name of that v1 sequence.
+V2_NAME = re.compile(r"(.+_seq\d+)" + SERIAL_SUFFIX.pattern)
 
 
 def is_fetched(sequence: str) -> bool:
@@ -90,6 +93,22 @@ def _chunk_of(name: str) -> tuple[str, int] | None:
     """(v1 sequence name, chunk index) of an ADT clip name, or None when it is not one."""
     sequence, sep, chunk = name.rpartition("_")
     return (sequence, int(chunk)) if sep and sequence and chunk.isdigit() else None
+
+
+def clip_scene(name: str) -> str | None:
+    """The scene of an ADT clip name ``<v1 sequence>_<chunk>``: its v1 sequence; None for another
+    name."""
+    parsed = _chunk_of(name)
+    return parsed[0] if parsed else None
+
+
+def scene_of(unit: SequenceChunk) -> str:
+    """A unit's scene: its sequence's v1 name (every chunk of a sequence is one scene). A local
+    folder's is read as ``v1_name`` reads it; a fetched sequence's, and a folder whose serial is not
+    recorded, lose a serial suffix after their ``seq<number>`` (``V2_NAME``)."""
+    name = sequence_name(unit.sequence) if is_fetched(unit.sequence) else v1_name(unit.sequence)
+    v2 = V2_NAME.fullmatch(name)
+    return v2[1] if v2 else name
 
 
 def release_chunks(release: frozenset[str]) -> dict[str, set[int]]:

@@ -1,4 +1,5 @@
-"""The errors a unit raises when its input cannot make a clip, or its output cannot be written."""
+"""The errors a unit raises when its input cannot make a clip, or its output cannot be written, and
+the one a command raises when it cannot start."""
 
 
 class InputError(Exception):
@@ -7,6 +8,11 @@ class InputError(Exception):
 
 class OutputError(Exception):
     """A file of one clip or unit cannot be written; the message names the path and the cause."""
+
+
+class CannotStart(Exception):
+    """A run cannot start (a bad option or setting, a missing input, an unwritable output); the
+    message is one line, printed as ``cannot start: <message>`` with exit status 2."""
 
 
 def root_cause(error: BaseException) -> BaseException:

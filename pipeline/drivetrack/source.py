@@ -7,8 +7,8 @@ import operator
 
 from pipeline.drivetrack.annotate import annotate_group
 from pipeline.drivetrack.settings import DriveTrackConfig
-from pipeline.drivetrack.units import SegmentCamera, list_units
-from pipeline.sources import Source
+from pipeline.drivetrack.units import SegmentCamera, clip_scene, list_units, scene_of
+from pipeline.sources import Licence, Source
 
 
 def sample_input(folder: str) -> str:
@@ -28,4 +28,10 @@ SOURCE: Source[SegmentCamera] = Source(
     sweepable=("drivetrack.mask_min_agreement",),
     settings=DriveTrackConfig,
     group_of=operator.attrgetter("group"),
+    scene_of=scene_of,
+    clip_scene=clip_scene,
+    licence=Licence(
+        "Waymo Open Dataset License Agreement for Non-Commercial Use: non-commercial use only",
+        ("https://waymo.com/open/terms/",),
+    ),
 )

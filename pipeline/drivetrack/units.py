@@ -25,6 +25,18 @@ def clip_name(segment: str, camera: int, object_id: str) -> str:
     return f"tapvid3d_{segment}_{camera}_{object_id}"
 
 
+def clip_scene(name: str) -> str | None:
+    """The scene of a DriveTrack clip name: its Waymo segment; None for a name not shaped as
+    ``RELEASE_NAME``."""
+    parsed = RELEASE_NAME.fullmatch(name)
+    return parsed[1] if parsed else None
+
+
+def scene_of(unit: SegmentCamera) -> str:
+    """A unit's scene: its Waymo segment (every camera of a segment is one scene)."""
+    return unit.segment
+
+
 @dataclasses.dataclass(frozen=True, order=True)
 class SegmentCamera:
     """A DriveTrack unit: the clips of one camera of one segment. The cameras of a segment share its

@@ -9,6 +9,9 @@
 <out>/release_<source>.jsonl          a release run's verdict on every release clip of the source
 <out>/sweep_<source>/                 ``pipeline.audit sweep``'s report
 <out>/sample_input/<source>/          the embedded sample world, when a run has no --input
+<out>/train/<source>/*.parquet        a training run's clips as Parquet shards (--training)
+<out>/train/exclusions_<source>.jsonl the units a training run dropped: their scene is the benchmark's
+<out>/train/DATASET_CARD.{md,json}    the training data's card, one section per source
 """
 
 from __future__ import annotations
@@ -93,13 +96,32 @@ def sample_folder(output: str, source: str) -> str:
     return f"{output}/sample_input/{source}"
 
 
+def train_folder(output: str) -> str:
+    return f"{output}/train"
+
+
+def shard_folder(output: str, source: str) -> str:
+    return f"{train_folder(output)}/{source}"
+
+
+def exclusions_path(output: str, source: str) -> str:
+    return f"{train_folder(output)}/exclusions_{source}.jsonl"
+
+
+def card_path(output: str, suffix: str) -> str:
+    """The dataset card's file: ``suffix`` ``md`` (to read) or ``json`` (its record)."""
+    return f"{train_folder(output)}/DATASET_CARD.{suffix}"
+
+
 def temporary_patterns(output: str, source: str, partial: str) -> list[str]:
     """Globs of the hidden temporaries (``.<name><partial>*``) a run of ``source`` may leave."""
     folders = [
         clip_folder(output, source),
         *(f"{output}/{kind}/{source}" for kind in ("audit", "depth", "units")),
     ]
-    patterns = [f"{folder}/.*{partial}*" for folder in [*folders, f"{output}/manifests"]]
+    patterns = [
+        f"{folder}/.*{partial}*" for folder in [*folders, f"{output}/manifests", train_folder(output)]
+    ]
     for path in (
         provenance_path(output, source),
         failures_path(output, source),

@@ -8,8 +8,8 @@ import operator
 
 from pipeline.pstudio.annotate import annotate_group
 from pipeline.pstudio.settings import PstudioConfig
-from pipeline.pstudio.units import SequenceCamera, list_units
-from pipeline.sources import Source
+from pipeline.pstudio.units import SequenceCamera, clip_scene, list_units, scene_of
+from pipeline.sources import Licence, Source
 
 
 def sample_input(folder: str) -> str:
@@ -29,4 +29,11 @@ SOURCE: Source[SequenceCamera] = Source(
     sweepable=("pstudio.mask_min_agreement",),
     settings=PstudioConfig,
     group_of=operator.attrgetter("group"),
+    scene_of=scene_of,
+    clip_scene=clip_scene,
+    licence=Licence(
+        "CMU Panoptic Studio: non-commercial research use; the trained scenes also under Dynamic 3D "
+        "Gaussians' own licence",
+        ("http://domedb.perception.cs.cmu.edu/", "https://github.com/JonathonLuiten/Dynamic3DGaussians"),
+    ),
 )

@@ -80,6 +80,18 @@ def _pair(name: str) -> tuple[str, int] | None:
     return (sequence, int(camera)) if sep and sequence and camera.isdigit() else None
 
 
+def clip_scene(name: str) -> str | None:
+    """The scene of a Panoptic Studio clip name ``<sequence>_<camera>``: its sequence; None for
+    another name."""
+    pair = _pair(name)
+    return pair[0] if pair else None
+
+
+def scene_of(unit: SequenceCamera) -> str:
+    """A unit's scene: its sequence (every camera of a sequence films one scene)."""
+    return unit.sequence
+
+
 def release_plan(
     units: list[SequenceCamera],
     listed: dict[str, list[int] | None],

@@ -4,13 +4,16 @@ Regenerates TAPVid-3D clips from a source dataset. Any option not listed here is
 Beam (``--runner``, ``--direct_num_workers``, ``--direct_running_mode``, Dataflow/Flink/Spark
 options, ...) and checked against the options Beam and the runner define. Without ``--input`` it
 runs on the embedded sample world. With ``--release`` it regenerates the release's own clips and
-writes a verdict for each (``<out>/release_<source>.jsonl``).
+writes a verdict for each (``<out>/release_<source>.jsonl``). With ``--training`` it leaves out
+every scene the benchmark evaluates on and writes its clips as Parquet shards too
+(``<out>/train/<source>/``, docs/training.md).
 
 Exit status: 0 done (clips written, or every unit finished by an earlier run); 1 some unit failed;
 2 the run could not start (a bad option or setting, a missing input, an output that cannot be
-written) or finish; 3 nothing was produced and nothing resumed (the last line says why); 4 the
-run stopped itself: ``max_failures_in_a_row`` units in a row failed alike (the last line says
-why); 130 interrupted by Ctrl-C; 141 the output was closed (``| head``): the run stopped.
+written) or finish; 3 nothing was produced and nothing resumed (the last line says why: a training
+run whose every unit is of a benchmark scene is one); 4 the run stopped itself:
+``max_failures_in_a_row`` units in a row failed alike (the last line says why); 130 interrupted by
+Ctrl-C; 141 the output was closed (``| head``): the run stopped.
 """
 
 from __future__ import annotations
@@ -27,20 +30,20 @@ from apache_beam.metrics.metric import MetricsFilter
 
 from pipeline import sources
 from pipeline.commandline import StrictParser, UsageError, check_beam_args
-from pipeline.core.errors import InputError, OutputError, interruption, root_cause
+from pipeline.core.errors import CannotStart, InputError, OutputError, interruption, root_cause
 from pipeline.core.outcomes import FILTER_ORDER
 from pipeline.core.progress import quiet_worker_logs, set_verbose, workers_silenced
 from pipeline.core.sizes import format_bytes
 from pipeline.export.layout import failures_path, provenance_path, release_verdicts_path, temporary_patterns
+from pipeline.io.beam_pipeline import pipeline_for, run_to_end
 from pipeline.io.file_set import complete_commits
 from pipeline.io.files import PARTIAL, remove_abandoned
-from pipeline.io.http import shown
+from pipeline.io.http import one_line, shown
 from pipeline.pipes import OUTPUT_CLOSED, READER_GONE, STOPPED, interrupted_status, silence_output
 from pipeline.runner import graph
 from pipeline.runner.finish import RunSummary, finish_run
 from pipeline.runner.monitor import RunMonitor
 from pipeline.runner.prepare import (
-    CannotStart,
     PreparedRun,
     plan_lines,
     plan_units,
@@ -49,6 +52,8 @@ from pipeline.runner.prepare import (
     sample_input,
 )
 from pipeline.runner.stages import UnitJob
+from pipeline.runner.training import Exclusion, all_left_out, exclusion_line, leave_out_benchmark
+from pipeline.runner.training_output import finish_training, withdraw_training_output
 from pipeline.runner.verdicts import summary_line
 from pipeline.settings.fields import SettingsError, add_set_argument
 from pipeline.settings.run_config import RunConfig
@@ -72,6 +77,13 @@ def command_parser() -> StrictParser:
         help="the release's splits JSON: annotate only the units its clips need, write only its clips "
         "(under their release names), manifests exactly its splits, and a verdict for every clip it "
         "names in <out>/release_<source>.jsonl",
+    )
+    parser.add_argument(
+        "--training",
+        action="store_true",
+        help="make training data: leave out every unit of a scene the benchmark evaluates on (training."
+        "splits_file), list them in <out>/train/exclusions_<source>.jsonl, write the clips as Parquet "
+        "shards in <out>/train/<source>/ and the dataset card <out>/train/DATASET_CARD.md",
     )
     parser.add_argument(
         "--queries-from",
@@ -108,6 +120,8 @@ def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
     check_beam_args(beam_args, parser.option_names())
     if args.source is None:
         parser.error("the following arguments are required: --source")
+    if args.training and args.release:
+        parser.error("--training leaves out the benchmark's scenes, --release makes its clips: give one")
     return args, beam_args
 
 
@@ -167,6 +181,9 @@ def run(prepared: PreparedRun, started: float) -> int:
         plan = plan_units(prepared, input_root)
     except (NoSample, CannotStart) as problem:
         return cannot_start(problem)
+    plan, dropped = leave_out_benchmark_scenes(prepared, plan)
+    if dropped and not plan.units:
+        return only_benchmark_scenes(prepared, dropped)
     for line in plan_lines(prepared, input_root, plan):
         print(line, flush=True)
     tidy_output(prepared)
@@ -184,6 +201,8 @@ def run(prepared: PreparedRun, started: float) -> int:
         return 2
     summary, metrics = finished
     print_summary(summary, metrics, prepared.output, prepared.source.name)
+    if not training_output(prepared, job, plan, summary, dropped):
+        return 2
     print(f"finished in {time.monotonic() - started:.1f} s")
     if summary.clips_written == 0:
         print(why_nothing(summary, prepared.config))
@@ -191,9 +210,56 @@ def run(prepared: PreparedRun, started: float) -> int:
 
 
 def opening_lines(prepared: PreparedRun) -> list[str]:
-    """What the run says first: what its rule set decides, and the release's other names for clips."""
+    """What the run says first: what its rule set decides, the release's other names for clips, what
+    a training run leaves out and its tracks per clip."""
     alias = prepared.release.alias_line() if prepared.release is not None else None
-    return [*prepared.rules.lines(), *([alias] if alias else [])]
+    training = prepared.training.lines if prepared.training is not None else ()
+    return [*prepared.rules.lines(), *([alias] if alias else []), *training]
+
+
+def leave_out_benchmark_scenes(prepared: PreparedRun, plan: UnitPlan) -> tuple[UnitPlan, list[Exclusion]]:
+    """On a training run, ``plan`` without the units of the benchmark's scenes, and those units
+    (listed in ``<out>/train/exclusions_<source>.jsonl``, and said); on any other, ``plan``."""
+    if prepared.training is None:
+        return plan, []
+    kept, dropped = leave_out_benchmark(prepared.source, plan, prepared.training, prepared.output)
+    print(exclusion_line(prepared.source.name, kept, dropped, prepared.output), flush=True)
+    return kept, dropped
+
+
+def only_benchmark_scenes(prepared: PreparedRun, dropped: list[Exclusion]) -> int:
+    """A training run whose every unit is of a benchmark scene: its source's earlier shards removed,
+    the last line saying why nothing is written; NOTHING_PRODUCED."""
+    for line in withdraw_training_output(prepared):
+        print(line)
+    print(all_left_out(prepared.source.name, dropped, prepared.output))
+    return NOTHING_PRODUCED
+
+
+def training_output(
+    prepared: PreparedRun, job: UnitJob, plan: UnitPlan, summary: RunSummary, dropped: list[Exclusion]
+) -> bool:
+    """A training run's shards and dataset card written, and said (a run that wrote no clip: its
+    source's earlier ones removed); False when they could not be (said in one line). Nothing on any
+    other run."""
+    if prepared.training is None:
+        return True
+    try:
+        if summary.clips_written:
+            lines = finish_training(prepared, job, plan, summary, dropped)
+        else:
+            lines = withdraw_training_output(prepared)
+    except Exception as error:  # noqa: BLE001 - Beam wraps a step's error; say the cause in one line
+        interrupted = interruption(error)
+        if interrupted is not None:
+            raise interrupted from None
+        print(
+            f"cannot finish: the shards or the dataset card: {one_line(root_cause(error))}", file=sys.stderr
+        )
+        return False
+    for line in lines:
+        print(line)
+    return True
 
 
 def partial_files(prepared: PreparedRun) -> list[str]:
@@ -265,19 +331,9 @@ def run_pipeline(prepared: PreparedRun, job: UnitJob, plan: UnitPlan):
 
 def _run_graph(prepared: PreparedRun, job: UnitJob, plan: UnitPlan):
     """The Beam pipeline over the plan's units, run to its end; its result."""
-    p = graph.pipeline_for(prepared.options)
+    p = pipeline_for(prepared.options)
     _ = p | "RegenerateClips" >> graph.RegenerateClips(job, plan.units, prepared.options)
-    result = p.run()
-    try:
-        result.wait_until_finish()
-    finally:
-        # Beam's Dask runner opens a distributed.Client for the run and never closes it: a caller
-        # that goes on (a notebook, the tests) would keep a client that tries to reconnect once the
-        # cluster is gone.
-        client = getattr(result, "client", None)
-        if client is not None:
-            client.close()
-    return result
+    return run_to_end(p)
 
 
 def beam_counters(result) -> dict[str, int] | None:

@@ -24,7 +24,7 @@ import typing
 
 import apache_beam as beam
 from apache_beam.metrics import Metrics
-from apache_beam.options.pipeline_options import PipelineOptions, StandardOptions
+from apache_beam.options.pipeline_options import PipelineOptions
 
 from pipeline import sources
 from pipeline.core.outcomes import FILTER_ORDER, UnitOutcome
@@ -42,22 +42,6 @@ COUNTERS = (
     "tracks_written",
     *(f"tracks_dropped_{name}" for name in FILTER_ORDER),
 )
-
-
-def pipeline_for(options: PipelineOptions) -> beam.Pipeline:
-    """A pipeline under ``options``. On the DirectRunner it runs on Beam's FnApiRunner, built as the
-    DirectRunner builds it for a batch pipeline: the DirectRunner would first try its Prism runner,
-    which it downloads from the internet at run time (offline, it falls back after a delay)."""
-    if options.view_as(StandardOptions).runner not in (None, "DirectRunner"):
-        return beam.Pipeline(options=options)
-    from apache_beam.portability.api import beam_provision_api_pb2
-    from apache_beam.runners.portability.fn_api_runner import fn_runner
-    from apache_beam.runners.portability.portable_runner import JobServiceHandle
-
-    encoded = JobServiceHandle.encode_pipeline_options(options.get_all_options())
-    provision = beam_provision_api_pb2.ProvisionInfo(pipeline_options=encoded)
-    runner = fn_runner.FnApiRunner(provision_info=fn_runner.ExtendedProvisionInfo(provision))
-    return beam.Pipeline(runner=runner, options=options)
 
 
 def counter(name: str):

@@ -12,13 +12,14 @@ from collections.abc import Mapping
 from apache_beam.options.pipeline_options import DirectOptions, PipelineOptions, StandardOptions
 
 from pipeline import sources
-from pipeline.core.errors import InputError
+from pipeline.core.errors import CannotStart, InputError
 from pipeline.core.sizes import format_bytes
 from pipeline.export.layout import sample_folder
 from pipeline.io import storage
 from pipeline.io.files import is_local, remove_quietly, write_atomic
 from pipeline.io.http import is_http
 from pipeline.runner.splits import Release, read_release
+from pipeline.runner.training import Training, prepare_training
 from pipeline.settings.fields import path_settings
 from pipeline.settings.rule_sets import RuleSet, assigned_keys, configured, rule_set
 from pipeline.settings.run_config import RunConfig
@@ -27,11 +28,6 @@ from pipeline.sources import Source, UnitPlan
 DASK_RUNNER = "apache_beam.runners.dask.dask_runner.DaskRunner"
 SAMPLE_WORLD = "the sample world"
 PROBE_BYTES = 4 << 20
-
-
-class CannotStart(Exception):
-    """The run cannot start (a bad option or setting, a missing input, an unwritable output); the
-    message is one line, printed as ``cannot start: <message>`` with exit status 2."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -47,6 +43,7 @@ class PreparedRun:
     overwrite: bool
     beam_args: list[str]
     options: PipelineOptions
+    training: Training | None = None
 
     @property
     def restricted_to(self) -> Release | None:
@@ -70,7 +67,8 @@ def runner_args(beam_args: list[str]) -> list[str]:
 def prepare_run(args: argparse.Namespace, beam_args: list[str]) -> PreparedRun:
     """Check everything before any work; CannotStart (or SettingsError, InputError) says what is
     wrong. The rule set's account (``rule_set``) is of the settings before the command's flags,
-    which set none that a rule set governs."""
+    which set none that a rule set governs; a training run's (``--training``: ``runner/training.py``)
+    are checked and set here too."""
     source = sources.get(args.source)
     options = PipelineOptions(beam_args)
     storage.use_options(options)
@@ -79,6 +77,9 @@ def prepare_run(args: argparse.Namespace, beam_args: list[str]) -> PreparedRun:
     config = configured(args.overrides, bool(args.release))
     rules = rule_set(config, source.name, assigned_keys(args.overrides))
     config, release = command_settings(config, args)
+    training = None
+    if args.training:
+        config, training = prepare_training(config, source, args, beam_args)
     if args.input is None and not source.has_sample:
         source.sample_input(sample_folder(output, source.name))  # NoSample: how to get the source's data
     check_writable(output)
@@ -88,7 +89,9 @@ def prepare_run(args: argparse.Namespace, beam_args: list[str]) -> PreparedRun:
             "(a copy of the sample uploaded there works)"
         )
     input_root = args.input if args.input is None or "://" in args.input else os.path.abspath(args.input)
-    return PreparedRun(source, config, rules, input_root, output, release, args.overwrite, beam_args, options)
+    return PreparedRun(
+        source, config, rules, input_root, output, release, args.overwrite, beam_args, options, training
+    )
 
 
 def command_settings(config: RunConfig, args: argparse.Namespace) -> tuple[RunConfig, Release | None]:

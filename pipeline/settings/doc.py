@@ -155,6 +155,7 @@ def markdown() -> str:
         "": "Run-wide",
         "flicker": "`flicker`: the flicker filter",
         "http": "`http`: every HTTP transfer (the release's files, ADT's downloads)",
+        "training": "`training`: a training run (`--training`, [training.md](training.md))",
     }
     titles |= {name: f"`{name}`: {registry.title_of(name)}" for name in sections}
     parts = [HEADER]

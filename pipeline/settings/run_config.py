@@ -1,5 +1,6 @@
 """The run's settings: the run-wide fields, the run-wide sections (``FlickerConfig``, the flicker
-filter's threshold; ``HttpConfig``, every HTTP transfer's policy) and one section per source, named
+filter's threshold; ``HttpConfig``, every HTTP transfer's policy; ``TrainingConfig``, what a training
+run makes) and one section per source, named
 after it, that each source declares (``Source.settings``: ``pipeline/<source>/settings.py``) and the
 registry (``sections.py``) hands over: this module imports no room above ``settings/``.
 
@@ -68,6 +69,25 @@ class HttpConfig:
         return 0.0 if retry <= 1 else self.backoff_s * 2 ** (retry - 1)
 
 
+@dataclasses.dataclass(frozen=True)
+class TrainingConfig:
+    """What a training run (``--training``) makes: clips of the scenes the benchmark does not
+    evaluate on, written as Parquet shards (docs/training.md).
+
+    splits_file: the benchmark's splits JSON whose scenes a training run leaves out (every unit of a
+      scene one of its clips comes from is dropped before any work); empty: the official splits file
+      beside the repository (``../shared/data/tapvid3d_official_splits.json``, or the file
+      ``$TAPVID3D_OFFICIAL_SPLITS`` names).
+    tracks_per_clip: tracks written per clip on a training run: each source's own
+      ``<source>.tracks_per_clip`` takes this value there, unless a ``--set`` gives it.
+    shard_mb: the bounded size of each Parquet shard of ``<out>/train/<source>/`` (MiB).
+    """
+
+    splits_file: str = path_setting("", clip_bytes=False)
+    tracks_per_clip: int = not_in_clips(1024, "[1, 100000]")
+    shard_mb: int = not_in_clips(256, "[1, 65536]")
+
+
 def default_sections() -> dict[str, Any]:
     """Each registered source's section at its defaults, by source name."""
     return {name: kind() for name in registry.names() if (kind := registry.settings_of(name)) is not None}
@@ -99,6 +119,7 @@ class RunConfig:
       never. Finished units are kept; a rerun resumes.
     flicker: the flicker filter's threshold.
     http: how every HTTP transfer behaves (the release's files, ADT's downloads).
+    training: what a training run (``--training``) makes.
     source_sections: each source's section, by name (``section`` reads one by its class).
     """
 
@@ -113,6 +134,9 @@ class RunConfig:
     max_failures_in_a_row: int = not_in_clips(MAX_FAILURES_IN_A_ROW, "[0, 1000000]")
     flicker: FlickerConfig = dataclasses.field(default_factory=FlickerConfig)
     http: HttpConfig = dataclasses.field(default_factory=HttpConfig, metadata={"clip_bytes": False})
+    training: TrainingConfig = dataclasses.field(
+        default_factory=TrainingConfig, metadata={"clip_bytes": False}
+    )
     source_sections: Mapping[str, Any] = sections(default_sections)
 
     def section(self, kind: type[S]) -> S:

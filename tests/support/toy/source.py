@@ -8,7 +8,8 @@ clip of): ``{"frames": T, "points": [[x, y, z], ...],
 "velocity": [vx, vy, vz]}``: points moving at constant velocity (metres per frame, times
 ``toy.speed_scale``) in front of a static 64x48 pinhole camera. Each unit makes one clip
 ``toy_<name>`` of every point, visible while it projects into the frame; with ``--queries-from``,
-only the clips found there, with their queries.
+only the clips found there, with their queries. A unit is a scene of its own (its name), the scene
+of clip ``toy_<name>``.
 
 Registered by the tests (``sources.register(TOY)``), or for every process of a run by naming this
 module in ``TAPVID3D_SOURCES`` (it defines ``SOURCE``).
@@ -137,5 +138,7 @@ TOY: Source[SpecFile] = Source(
     mask_min_agreement=lambda config: MASK_THRESHOLD,
     settings=ToyConfig,
     bench="tests.support.toy.bench",
+    scene_of=lambda unit: unit.name,
+    clip_scene=lambda name: name.removeprefix("toy_") if name.startswith("toy_") else None,
 )
 SOURCE = TOY
