@@ -44,6 +44,7 @@ ROW = (
     "speedup_cpu",
     "full_units",
     "cpu_hours",
+    "clips_per_cpu_hour",
     "floor_s",
     "floor_cpu_s",
     "floor_ratio",
@@ -98,6 +99,9 @@ def figures(setup: UnitSetup, runs: Runs) -> dict:
         **_scaling(runs),
         "full_units": setup.full_units,
         "cpu_hours": unit["unit_cpu_s"] * setup.full_units / 3600,
+        "clips_per_cpu_hour": setup.full_clips * 3600 / (unit["unit_cpu_s"] * setup.full_units)
+        if setup.full_clips
+        else None,
         "notes": list(setup.notes),
     }
 
@@ -218,6 +222,8 @@ def print_figures(setup: UnitSetup, runs: Runs, f: dict) -> None:
         f"CPU-hours, full benchmark: {setup.full_units} units x {f['unit_cpu_s']:.1f} s CPU = "
         f"{f['cpu_hours']:.2f} CPU-hours ({setup.full_units_note})"
     )
+    if f["clips_per_cpu_hour"] is not None:
+        print(f"clips per CPU-hour: {f['clips_per_cpu_hour']:.0f} ({setup.full_clips} clips in those units)")
     for note in setup.notes:
         print(f"  note: {note}")
 

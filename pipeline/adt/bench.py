@@ -81,6 +81,7 @@ def prepare(workdir: str, size: str) -> UnitSetup | None:
             "per-frame cost; the scaling set repeats the unit (same input, separate outputs)",
         ],
         full_units=RELEASE_UNITS,
+        full_clips=RELEASE_UNITS,
         full_units_note=(
             f"1956 clips = 1956 (sequence, {CHUNK_FRAMES}-frame chunk) units; per-unit CPU extrapolated"
         ),

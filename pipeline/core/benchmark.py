@@ -21,6 +21,8 @@ class UnitSetup:
       cost x frames (ADT: its excerpt holds 2 frames; DriveTrack and Panoptic Studio at the
       default size: shorter inputs than the release's).
     full_units: units of the whole benchmark for the CPU-hours line, with ``full_units_note``.
+    full_clips: the clips those units make (the release's), for the clips-per-CPU-hour line (what
+      a training run of this source costs a clip); 0: not printed.
     size: "quick", "default" or "full" (ADT: its excerpt whatever the size).
     variants: name -> settings added to ``overrides``: each unit of the 1-worker runs is run once
       more with each, one process right after its floor's, and their time printed beside the
@@ -35,6 +37,7 @@ class UnitSetup:
     description: list[str]
     full_units: int
     full_units_note: str
+    full_clips: int = 0
     extrapolate_frames: int | None = None
     size: str = "excerpt"
     notes: list[str] = dataclasses.field(default_factory=list)

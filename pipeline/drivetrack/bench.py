@@ -82,6 +82,7 @@ VERSION = "3"  # 2: the sample writer's lens distortion and rolling shutter; 3: 
 # TAPVid-3D's 2457 DriveTrack clips come from 250 Waymo segments (542 of their 750
 # (segment, camera) pairs hold a released clip); the pipeline runs every (segment, camera) pair.
 SEGMENTS = 250
+RELEASE_CLIPS = 2457  # the release's DriveTrack clips, from those segments
 CAMERAS = 3
 WIDTH, HEIGHT, FOCAL = 1920, 1280, 2055.0  # the micro-benchmark's frame
 
@@ -148,6 +149,7 @@ def prepare(workdir: str, size: str) -> UnitSetup:
         frames=CAMERAS * sizes["frames"],
         description=_description(folder, sizes, written),
         full_units=SEGMENTS,
+        full_clips=RELEASE_CLIPS,
         full_units_note=(
             f"{SEGMENTS} segments of {CAMERAS} cameras: the release's 2457 clips come from 250 segments "
             "(3.3 clips per camera); each priced like this one"

@@ -88,6 +88,7 @@ def prepare(workdir: str, size: str) -> UnitSetup:
         frames=GROUP * sizes["frames"],
         description=_description(folder, sizes, cameras, written),
         full_units=RELEASE_UNITS // GROUP,
+        full_clips=RELEASE_UNITS,
         full_units_note=(
             f"156 clips = 156 (sequence, camera) units of {FULL['frames']} frames, in groups of "
             f"{GROUP} as the graph groups them (each group reads params.npz and decodes the masks; a "

@@ -98,6 +98,8 @@ def test_quick_run_prints_the_table_and_writes_it_as_json(tmp_path, capsys):
     assert pstudio["tracks_written"] > 0
     assert every["cpu_hours"] == pytest.approx(pstudio["cpu_hours"])
     assert every["cpu_hours_pass"] is None  # one source of three
+    assert pstudio["clips_per_cpu_hour"] == pytest.approx(156 / pstudio["cpu_hours"])  # the release's clips
+    assert f"clips per CPU-hour: {pstudio['clips_per_cpu_hour']:.0f} (156 clips in those units)" in out
     summary = out[out.index("=== summary") :].splitlines()
     assert summary[1].split()[:2] == ["source", "ms/frame"]
     assert summary[2].startswith("pstudio") and summary[3].startswith("all")
