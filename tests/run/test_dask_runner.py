@@ -58,3 +58,25 @@ def test_dask_runner_writes_the_direct_runners_bytes(source, cluster, reference_
     assert clip_bytes(out, source) == expected
     summary = json.load(open(os.path.join(out, f"run_{source}.json")))["summary"]
     assert summary == json.load(open(os.path.join(reference, f"run_{source}.json")))["summary"]
+
+
+def test_a_training_run_on_dask_writes_the_direct_runners_shards(cluster, pstudio_sample, tmp_path):
+    """The shards of a training run are the same files whichever runner made them (rows in the
+    same order, the same shards)."""
+    local, _ = cluster
+    splits = tmp_path / "splits.json"
+    splits.write_text(json.dumps({"minival": {}, "full_eval": {"pstudio": ["tennis_3.npz"]}}))
+    runners = {
+        "direct": [],
+        "dask": ["--runner", "DaskRunner", f"--dask_client_address={local.scheduler_address}"],
+    }
+    shards = {}
+    for name, extra in runners.items():
+        out = tmp_path / name
+        arguments = ["--input", pstudio_sample[0], "--output", str(out), "--training"]
+        result = run_in_process("pstudio", *arguments, "--set", f"training.splits_file={splits}", *extra)
+        assert result.returncode == 0, result.stderr[-3000:]
+        shards[name] = {
+            path.name: path.read_bytes() for path in (out / "train" / "pstudio").glob("*.parquet")
+        }
+    assert shards["direct"] and shards["dask"] == shards["direct"]
