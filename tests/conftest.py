@@ -60,6 +60,8 @@ LONG_FILES_FIRST = (
     "tests/run/test_closed_output.py",
     "tests/bench/test_toy_bench.py",
     "tests/run/test_dask_runner.py",
+    "tests/export/test_shards.py",
+    "tests/docs/test_adding_a_source.py",
     "tests/run/test_release.py",
     "tests/io/test_remote_storage.py",
     "tests/adt/test_download_faults.py",
