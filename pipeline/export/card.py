@@ -94,7 +94,7 @@ def section_lines(section: Mapping) -> list[str]:
         f"- **Left out**: {left_out.get('units', 0):,} unit(s) of {left_out.get('scenes', 0):,} benchmark "
         f"scene(s) (`{left_out.get('file', '')}`), from `{left_out.get('splits_file', '')}`",
         f"- **Shards**: {shards.get('files', 0):,} file(s) in `{shards.get('folder', '')}`, "
-        f"at most {shards.get('shard_mb', 0):,} MiB each",
+        f"about {shards.get('shard_mb', 0):,} MiB each",
         f"- **Made by**: `{section.get('command', '')}` (rules={section.get('rules', '')}), "
         f"finished {section.get('finished', '')}; every setting in `{section.get('provenance', '')}` "
         "and this card's JSON",

@@ -46,7 +46,7 @@ def finish_training(
         write_together(card_files(prepared.output, prepared.source.name, section), prepared.output)
     folder = shard_folder(prepared.output, prepared.source.name)
     return [
-        f"shards: {len(clips)} clip(s) in {len(shards)} Parquet file(s) in {folder}/ (at most "
+        f"shards: {len(clips)} clip(s) in {len(shards)} Parquet file(s) in {folder}/ (about "
         f"{prepared.config.training.shard_mb} MiB each)",
         f"dataset card: {card_path(prepared.output, 'md')} ({prepared.source.name}'s section)",
     ]
@@ -87,7 +87,7 @@ def written_clips(job: UnitJob, plan: UnitPlan) -> dict[str, TrainingClip]:
 
 
 def write_shard_files(prepared: PreparedRun, clips: dict[str, TrainingClip]) -> list[str]:
-    """The clips written as Parquet shards of at most ``training.shard_mb`` MiB, on the run's own
+    """The clips written as Parquet shards of about ``training.shard_mb`` MiB, on the run's own
     runner; the shards' paths. Imported here: only a training run needs Parquet's writer."""
     from pipeline.export.shards import write_shards
 
