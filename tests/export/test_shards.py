@@ -29,6 +29,7 @@ from pipeline.export.npz_writer import encode_npz
 from pipeline.export.shard_rows import SCHEMA, shard_problems
 from pipeline.export.shards import write_shards
 from tests.support.cli import REPO
+from tests.support.s3 import explicit_options_only
 
 ARRAYS = ("queries", "tracks", "visibility", "intrinsics")
 
@@ -345,12 +346,7 @@ def s3(monkeypatch):
     import boto3
     from moto.server import ThreadedMotoServer
 
-    for name in ("AWS_PROFILE", "AWS_ENDPOINT_URL", "AWS_ENDPOINT_URL_S3"):
-        monkeypatch.delenv(name, raising=False)
-    monkeypatch.setenv("AWS_EC2_METADATA_DISABLED", "true")
-    monkeypatch.setenv("AWS_CONFIG_FILE", os.devnull)
-    monkeypatch.setenv("AWS_SHARED_CREDENTIALS_FILE", os.devnull)
-    monkeypatch.setenv("NO_PROXY", ",".join(filter(None, [os.environ.get("NO_PROXY"), "127.0.0.1"])))
+    explicit_options_only(monkeypatch)
     server = ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
     server.start()
     try:

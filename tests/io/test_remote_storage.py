@@ -13,6 +13,7 @@ from moto.server import ThreadedMotoServer
 
 from pipeline.io import storage
 from tests.support.cli import clip_bytes, run_in_process, run_pipeline
+from tests.support.s3 import explicit_options_only
 
 BUCKET = "tapvid3d"
 CREDENTIALS = {"aws_access_key_id": "testing", "aws_secret_access_key": "testing", "region_name": "us-east-1"}
@@ -25,12 +26,7 @@ def s3(sample_split):
     the runs: no profile, endpoint, proxy or instance metadata from the environment."""
     server = ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
     with pytest.MonkeyPatch.context() as env:
-        for name in ("AWS_PROFILE", "AWS_ENDPOINT_URL", "AWS_ENDPOINT_URL_S3"):
-            env.delenv(name, raising=False)
-        env.setenv("AWS_EC2_METADATA_DISABLED", "true")
-        env.setenv("AWS_CONFIG_FILE", os.devnull)
-        env.setenv("AWS_SHARED_CREDENTIALS_FILE", os.devnull)
-        env.setenv("NO_PROXY", ",".join(filter(None, [os.environ.get("NO_PROXY"), "127.0.0.1"])))
+        explicit_options_only(env)
         server.start()
         try:
             host, port = server.get_host_and_port()
