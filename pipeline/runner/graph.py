@@ -27,6 +27,7 @@ from apache_beam.metrics import Metrics
 from apache_beam.options.pipeline_options import PipelineOptions
 
 from pipeline import sources
+from pipeline.core.memory import release_freed_memory
 from pipeline.core.outcomes import FILTER_ORDER, UnitOutcome
 from pipeline.core.progress import quiet_worker_logs
 from pipeline.io import storage
@@ -73,7 +74,8 @@ class Annotate(_JobStep):
                 counter("clips_annotated").inc(len(item.made.clips))
             else:
                 counter("units_resumed" if item.resumed else "units_failed").inc()
-            yield item
+            yield item  # a fused Filter and Write run on it before the next is made
+        release_freed_memory()  # the group's arrays are gone: the worker gives their heap back
 
 
 class Filter(_JobStep):

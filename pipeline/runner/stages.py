@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING
 
 from pipeline.core.clip import ClipRecord
 from pipeline.core.errors import InputError, OutputError, interruption
+from pipeline.core.memory import release_freed_memory
 from pipeline.core.outcomes import ClipReport, Failure, UnitClips, UnitOutcome
 from pipeline.core.progress import progress, take_notes
 from pipeline.export.audit_table import encode_parquet, outcome_table
@@ -272,11 +273,13 @@ def annotate_units(job: UnitJob, units: list[Unit]) -> Iterator[UnitOutcome | An
 
 
 def run_group(job: UnitJob, units: list[Unit]) -> list[UnitOutcome]:
-    """Every stage of units of one group in this process, as the graph's steps run them."""
+    """Every stage of units of one group in this process, as the graph's steps run them (the heap
+    their arrays were freed from given back at the end, as a worker does)."""
     outcomes: dict[str, UnitOutcome] = {}
     for item in annotate_units(job, units):
         if isinstance(item, Annotated):
             outcomes[item.name] = write_unit(job, filter_unit(job, item))
         else:
             outcomes[item.name] = item
+    release_freed_memory()
     return [outcomes[unit.name] for unit in units]
