@@ -88,8 +88,13 @@ def world_clips(
 @pytest.fixture(scope="module")
 def worlds(sample_split, stress_split, family_split, world) -> dict[str, list[Scored]]:
     """World name -> its refined clips with their truth: each world's segment annotated once."""
-    names = ["sample", *stress_worlds.WORLDS, "family"]
-    return {name: world_clips(name, sample_split, stress_split, family_split, world) for name in names}
+    made = {
+        name: world_clips(name, sample_split, stress_split, family_split, world)
+        for name in ["sample", *stress_worlds.WORLDS]
+    }
+    # The family's world: its FRONT camera's clips (its tall truck's among them) are enough here.
+    made["family"] = world_clips("family", sample_split, stress_split, family_split, world, (1,))
+    return made
 
 
 @pytest.mark.parametrize("name", ["sample", *stress_worlds.WORLDS])

@@ -73,7 +73,15 @@ def test_a_training_run_on_dask_writes_the_direct_runners_shards(cluster, pstudi
     shards = {}
     for name, extra in runners.items():
         out = tmp_path / name
-        arguments = ["--input", pstudio_sample[0], "--output", str(out), "--training"]
+        arguments = [
+            "--input",
+            pstudio_sample[0],
+            "--output",
+            str(out),
+            "--training",
+            "--set",
+            "pstudio.cameras=3",
+        ]
         result = run_in_process("pstudio", *arguments, "--set", f"training.splits_file={splits}", *extra)
         assert result.returncode == 0, result.stderr[-3000:]
         shards[name] = {
