@@ -20,7 +20,6 @@ INTERFACE = (
     "beam_run_args",
     "RELEASE_SHAPE",
 )
-SIZES = ("quick", "default", "full")
 
 
 def entry_name(source: str) -> str:

@@ -21,6 +21,7 @@ from pipeline.io.files import (
     is_abandoned,
     is_local,
     list_files,
+    move_file,
     remove_quietly,
     writer_host,
 )
@@ -138,14 +139,5 @@ def publish(staged: list[str], folder: str, prefix: str) -> list[str]:
     published = []
     for path in sorted(staged, key=_sort_key):
         published.append(f"{folder}/{path.rpartition('/')[2]}")
-        move(path, published[-1])
+        move_file(path, published[-1])
     return published
-
-
-def move(path: str, target: str) -> None:
-    """Rename the file ``path`` to ``target``, replacing any file there: in one step on a local disk,
-    by the filesystem's rename elsewhere (an object store's target appears whole)."""
-    if is_local(target):
-        os.replace(path, target)
-    else:
-        filesystems().rename([path], [target])

@@ -40,7 +40,7 @@ from pipeline.io import storage
 from pipeline.io.beam_pipeline import pipeline_for, run_to_end
 from pipeline.io.clip_reader import read_clip_file
 from pipeline.io.file_set import output_lock
-from pipeline.io.files import filesystems, is_local, list_files
+from pipeline.io.files import filesystems, is_local, list_files, move_file
 
 SHARD_PREFIX = "train"  # Hugging Face's name for the files of a dataset's train split
 CODEC = "zstd"
@@ -218,5 +218,5 @@ class WriteShard(beam.DoFn):
                 writer.close()
             raise
         committed = committed_path(self.temporary_folder, index, self.prefix)
-        shard_set.move(writer.close(), committed)
+        move_file(writer.close(), committed)
         yield committed

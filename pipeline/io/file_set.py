@@ -31,6 +31,7 @@ from pipeline.io.files import (
     is_abandoned,
     is_local,
     list_files,
+    move_file,
     read_bytes,
     remove_quietly,
     temporary_path,
@@ -151,10 +152,7 @@ def _write_plain(path: str, data: bytes) -> None:
 
 def _move_into_place(pairs: list[tuple[str, str]]) -> None:
     for temporary, path in pairs:
-        if is_local(path):
-            os.replace(temporary, path)
-        else:
-            filesystems().rename([temporary], [path])
+        move_file(temporary, path)
 
 
 def _journals(folder: str) -> list[str]:

@@ -139,6 +139,15 @@ def list_files(pattern: str) -> list[str]:
     return sorted(m.path for m in result.metadata_list)
 
 
+def move_file(path: str, target: str) -> None:
+    """Rename the file ``path`` to ``target``, replacing any file there: in one step on a local disk,
+    by the filesystem's rename elsewhere (an object store's target appears whole)."""
+    if is_local(target):
+        os.replace(path, target)
+    else:
+        filesystems().rename([path], [target])
+
+
 def remove_quietly(paths: list[str]) -> int:
     """Delete each path that exists; one already gone (another process's clean-up) is no error.
     Returns how many were deleted here."""
