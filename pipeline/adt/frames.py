@@ -38,6 +38,10 @@ class SequenceFrames:
     def __init__(self, reader: SequenceReader, settings: AdtConfig):
         self.reader = reader
         self.rectifier = Rectifier(reader.calibration, settings.image_size, settings.focal)
+        # The ids looked up so far (``reader.instance``), and those of them human / dynamic.
+        self._known: set[int] = set()
+        self._human: set[int] = set()
+        self._dynamic: set[int] = set()
 
     def frame(self, timestamp: int) -> Frame[np.ndarray]:
         return Frame(
@@ -52,16 +56,18 @@ class SequenceFrames:
         return encode_jpeg(self.rectifier.rgb(self.reader.rgb(timestamp)))
 
     def instances(self, ids: np.ndarray) -> Instances:
-        human, dynamic = set(), set()
-        for instance_id in ids.tolist():
-            if not instance_id:
-                continue
+        """Which of the distinct ids [K] (0 = none) are human / dynamic: set intersections with the
+        sequence's ids classified so far, each new id looked up once (in ascending order)."""
+        present = set(ids.tolist())
+        present.discard(0)
+        for instance_id in sorted(present - self._known):
             kind, motion = self.reader.instance(instance_id)
             if kind == "human":
-                human.add(instance_id)
+                self._human.add(instance_id)
             elif motion == "dynamic":
-                dynamic.add(instance_id)
-        return Instances(frozenset(human), frozenset(dynamic))
+                self._dynamic.add(instance_id)
+            self._known.add(instance_id)
+        return Instances(frozenset(present & self._human), frozenset(present & self._dynamic))
 
 
 @dataclasses.dataclass(frozen=True)

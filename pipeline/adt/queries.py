@@ -10,6 +10,9 @@ from pipeline.adt.records import Chunk, Frame, IdRuns, Instances
 from pipeline.adt.visibility import interior
 from pipeline.core.errors import InputError
 
+# A pixel's kind in ``query_pixel_pools``: no query (no id, or the human's), static, dynamic object.
+NONE, STATIC, DYNAMIC = 0, 1, 2
+
 
 def query_pixel_pools(
     frame: Frame[np.ndarray], runs: IdRuns, instances: Instances
@@ -17,14 +20,16 @@ def query_pixel_pools(
     """Flat pixel indices that may hold a query: (on dynamic objects, on static objects).
 
     A query pixel has a surface (depth > 0), an object id (not 0, not the human) and lies
-    inside its object's region (``interior``). ``runs``: the frame's ids as ``IdRuns``.
+    inside its object's region (``interior``). ``runs``: the frame's ids as ``IdRuns``, expanded
+    to two small images: each pixel's index among the frame's K distinct ids (``interior`` compares
+    those, not the uint64 ids) and its kind (none, static, dynamic).
     """
-    ids = frame.ids
-    ok = (frame.depth_mm > 0) & (ids != 0) & interior(ids)
-    if instances.human:
-        ok &= ~runs.isin(instances.human)
-    dynamic = ok & runs.isin(instances.dynamic) if instances.dynamic else np.zeros_like(ok)
-    return np.flatnonzero(dynamic), np.flatnonzero(ok & ~dynamic)
+    present, label = np.unique(runs.values, return_inverse=True)
+    kind = np.where(np.isin(present, list(instances.dynamic)), DYNAMIC, STATIC).astype(np.uint8)
+    kind[(present == 0) | np.isin(present, list(instances.human))] = NONE
+    labels = runs.expand(label.astype(np.min_scalar_type(len(present) - 1)))
+    pixel_kind = runs.expand(kind[label]) * ((frame.depth_mm > 0) & interior(labels))
+    return np.flatnonzero(pixel_kind == DYNAMIC), np.flatnonzero(pixel_kind == STATIC)
 
 
 def draw_query_pixels(

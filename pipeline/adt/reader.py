@@ -21,6 +21,7 @@ import json
 import os
 import re
 import struct
+from collections.abc import Iterator, Mapping
 
 import numpy as np
 
@@ -249,6 +250,31 @@ def _se3(transform) -> np.ndarray:
     return np.asarray(transform.to_matrix(), dtype=np.float64)
 
 
+class ObjectPoses(Mapping[int, np.ndarray]):
+    """Object id -> ``transform_scene_object`` [4, 4] of every object with a pose at a frame, each
+    pose converted from projectaria-tools' box when first read (a frame poses every object of the
+    scene, a few hundred; the annotation reads those its tracks are on)."""
+
+    def __init__(self, boxes: dict):
+        self._boxes = boxes
+        self._poses: dict[int, np.ndarray] = {}
+
+    def __getitem__(self, object_id: int) -> np.ndarray:
+        pose = self._poses.get(object_id)
+        if pose is None:
+            pose = self._poses[object_id] = _se3(self._boxes[object_id].transform_scene_object)
+        return pose
+
+    def __contains__(self, object_id: object) -> bool:
+        return object_id in self._boxes
+
+    def __iter__(self) -> Iterator[int]:
+        return iter(self._boxes)
+
+    def __len__(self) -> int:
+        return len(self._boxes)
+
+
 class SequenceReader:
     """One ADT sequence through ``AriaDigitalTwinDataProvider``.
 
@@ -376,11 +402,11 @@ class SequenceReader:
         """The RGB camera's pose at the frame: ``transform_scene_device`` x device-from-camera [4, 4]."""
         return self.world_from_device(timestamp) @ self.device_from_camera
 
-    def object_poses(self, timestamp: int) -> dict[int, np.ndarray]:
+    def object_poses(self, timestamp: int) -> ObjectPoses:
         """``transform_scene_object`` [4, 4] of every object with a pose at the frame."""
         result = self.provider.get_object_3d_boundingboxes_by_timestamp_ns(int(timestamp))
         self._check_offset("object poses", timestamp, result)
-        return {int(key): _se3(box.transform_scene_object) for key, box in result.data().items()}
+        return ObjectPoses(result.data())
 
     # ----------------------------------------------------------------- instances
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from typing import Generic, TypeVar
 
 import numpy as np
@@ -25,7 +26,7 @@ class Frame(Generic[Ids]):
     depth_mm: np.ndarray
     ids: Ids
     cam_from_world: np.ndarray
-    world_from_object: dict[int, np.ndarray]
+    world_from_object: Mapping[int, np.ndarray]
     timestamp: int
 
     def with_runs(self, runs: IdRuns) -> Frame[IdRuns]:
@@ -35,6 +36,24 @@ class Frame(Generic[Ids]):
     def depth_m(self) -> np.ndarray:
         """[S, S] float64 z-depth in metres (0 = no surface)."""
         return self.depth_mm.astype(np.float64) / 1000.0
+
+
+@dataclasses.dataclass(frozen=True)
+class DepthMetres:
+    """A depth image in millimetres [S, S] read in metres at given pixels: ``depth[rows, cols]``
+    gives float64 [N], the values of ``Frame.depth_m()`` there, converting only those pixels.
+
+    depth_mm: [S, S] float32 millimetres (0 = no surface).
+    """
+
+    depth_mm: np.ndarray
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        return self.depth_mm.shape
+
+    def __getitem__(self, index: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        return self.depth_mm[index].astype(np.float64) / 1000.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,10 +79,10 @@ class IdRuns:
         """The sorted distinct ids [K] (``np.unique`` of the image)."""
         return np.unique(self.values)
 
-    def isin(self, chosen) -> np.ndarray:
-        """[S, S] bool: pixels whose id is one of ``chosen`` (``np.isin`` of the image)."""
+    def expand(self, per_run: np.ndarray) -> np.ndarray:
+        """[S, S] image of one value per run ``per_run`` [R] (``expand(values)`` is the id image)."""
         lengths = np.diff(np.append(self.starts, self.shape[0] * self.shape[1]))
-        return np.repeat(np.isin(self.values, list(chosen)), lengths).reshape(self.shape)
+        return np.repeat(per_run, lengths).reshape(self.shape)
 
     def __getitem__(self, index: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
         rows, cols = index

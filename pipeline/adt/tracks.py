@@ -25,7 +25,7 @@ from collections.abc import Callable
 import numpy as np
 
 from pipeline.adt.queries import check_given_queries, draw_query_pixels, query_pixel_pools
-from pipeline.adt.records import Chunk, Frame, IdRuns, Instances
+from pipeline.adt.records import Chunk, DepthMetres, Frame, IdRuns, Instances
 from pipeline.adt.rectify import stored_intrinsics
 from pipeline.adt.settings import AdtConfig
 from pipeline.adt.visibility import frame_visibility, pixel_at, pixel_centres, sample_depth
@@ -59,10 +59,13 @@ def attach(
     return np.einsum("nij,nj->ni", object_from_cam[:, :3, :3], points_cam) + object_from_cam[:, :3, 3]
 
 
-def carry(points_object: np.ndarray, cam_from_world: np.ndarray, world_from_object: np.ndarray) -> np.ndarray:
-    """Paper eq. 3 at one frame: object points [N, 3] with their objects' poses [N, 4, 4] and the
-    camera [4, 4] -> camera points [N, 3]."""
-    cam_from_object = cam_from_world[None] @ world_from_object
+def carry(
+    points_object: np.ndarray, cam_from_world: np.ndarray, world_from_object: np.ndarray, which: np.ndarray
+) -> np.ndarray:
+    """Paper eq. 3 at one frame: object points [N, 3], each of object ``which`` [N] among the
+    objects' poses [K, 4, 4], and the camera [4, 4] -> camera points [N, 3] (one camera-from-object
+    matrix per object, each track's product with it as when each track had its own)."""
+    cam_from_object = (cam_from_world[None] @ world_from_object)[which]
     return np.einsum("nij,nj->ni", cam_from_object[:, :3, :3], points_object) + cam_from_object[:, :3, 3]
 
 
@@ -131,7 +134,7 @@ def frame_queries(
         index = np.nonzero(plan.query_frames == t)[0]
         xy = plan.given[index, :2]
         rows, cols = pixel_at(xy, settings.image_size)
-        depth = sample_depth(frame.depth_m(), xy, max_spread=settings.depth_delta_m)
+        depth = sample_depth(DepthMetres(frame.depth_mm), xy, max_spread=settings.depth_delta_m)
         check_given_queries(chunk, index, xy, depth, frame.ids[rows, cols], instances, frame)
     else:
         dynamic_pool, static_pool = query_pixel_pools(frame, runs, instances)
@@ -209,16 +212,18 @@ def carry_tracks(
     tracks = np.zeros((len(kept), count, 3))
     visibility = np.zeros((len(kept), count), bool)
     on_own_object = np.zeros((len(kept), count), bool)
-    unique_ids, candidate_clip = np.unique(queries.object_ids, return_inverse=True)
+    unique_ids, which = np.unique(queries.object_ids, return_inverse=True)
+    objects = unique_ids.tolist()
     for t, (frame, human) in enumerate(kept):
-        missing = [i for i in unique_ids.tolist() if i not in frame.world_from_object]
+        missing = [i for i in objects if i not in frame.world_from_object]
         if missing:
             raise InputError(f"{chunk.unit}: object {missing[0]} has no pose at t={frame.timestamp} ns")
-        poses = np.stack([frame.world_from_object[i] for i in unique_ids.tolist()])[candidate_clip]
-        points = carry(queries.points_object, frame.cam_from_world, poses)
+        poses = np.stack([frame.world_from_object[i] for i in objects])
+        points = carry(queries.points_object, frame.cam_from_world, poses, which)
         tracks[t] = points
+        depth = DepthMetres(frame.depth_mm)
         visibility[t], on_own_object[t] = frame_visibility(
-            points, queries.object_ids, frame.depth_m(), frame.ids, human, intrinsics, settings.depth_delta_m
+            points, queries.object_ids, depth, frame.ids, human, intrinsics, settings.depth_delta_m
         )
     return tracks, visibility, on_own_object
 

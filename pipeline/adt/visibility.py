@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.adt.records import IdRuns
+from pipeline.adt.records import DepthMetres, IdRuns
 from pipeline.core.geometry import in_image, project
 from pipeline.core.visibility import passes_dense_depth_test
 
@@ -23,8 +23,9 @@ def pixel_at(xy: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
     return rows, cols
 
 
-def sample_depth(depth: np.ndarray, xy: np.ndarray, max_spread: float = np.inf) -> np.ndarray:
-    """Depth [N] at continuous points [N, 2]: bilinear between the four nearest pixel centres
+def sample_depth(depth: np.ndarray | DepthMetres, xy: np.ndarray, max_spread: float = np.inf) -> np.ndarray:
+    """Depth [N] at continuous points [N, 2] of a depth image [H, W] (an array, or ``DepthMetres``
+    converting only the pixels read): bilinear between the four nearest pixel centres
     when all four hold a surface and differ by at most ``max_spread`` (one surface, not an
     edge between two), else the containing pixel's value; NaN where there is none.
 
@@ -67,7 +68,7 @@ def interior(ids: np.ndarray) -> np.ndarray:
 def frame_visibility(
     points_cam: np.ndarray,
     object_ids: np.ndarray,
-    depth: np.ndarray,
+    depth: np.ndarray | DepthMetres,
     ids: np.ndarray | IdRuns,
     human_ids: frozenset[int],
     fx_fy_cx_cy: np.ndarray,
@@ -77,8 +78,8 @@ def frame_visibility(
 
     Args:
       points_cam: [N, 3] stored-camera points; object_ids: [N] each point's object.
-      depth: [S, S] metres; ids: [S, S] instance ids (an array or ``IdRuns``); human_ids: the
-        wearer's ids (the hand term).
+      depth: [S, S] metres (an array or ``DepthMetres``); ids: [S, S] instance ids (an array or
+        ``IdRuns``); human_ids: the wearer's ids (the hand term).
     Returns:
       visible: [N] bool, in front, inside the image, |z - D(u, v)| < delta, not on a human pixel.
         D is bilinear where the four pixels around (u, v) agree within delta, else the

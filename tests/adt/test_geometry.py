@@ -4,8 +4,8 @@ depth-test visibility with the hand term, and a whole chunk through ``candidate_
 import numpy as np
 import pytest
 
-from pipeline.adt.queries import draw_query_pixels
-from pipeline.adt.records import Chunk, Frame, IdRuns, Instances
+from pipeline.adt.queries import draw_query_pixels, query_pixel_pools
+from pipeline.adt.records import Chunk, DepthMetres, Frame, IdRuns, Instances
 from pipeline.adt.rectify import (
     CAM_ROT_FROM_CAM,
     rotate_cw,
@@ -105,8 +105,33 @@ def test_attach_then_carry_follows_the_object_pose():
     poses_q = np.repeat(obj_q[None], 50, axis=0)
     recovered = attach(xy, depth, K, cam_q, poses_q)
     np.testing.assert_allclose(recovered, points_object, atol=1e-9)
-    moved = carry(recovered, cam_t, np.repeat(obj_t[None], 50, axis=0))
+    moved = carry(recovered, cam_t, obj_t[None], np.zeros(50, np.int64))
     np.testing.assert_allclose(moved, truth_t, atol=1e-9)
+
+
+def test_carry_by_object_is_each_tracks_own_product_bit_for_bit():
+    rng = np.random.default_rng(5)
+    cam = np.linalg.inv(pose(rot_z(0.3), [0.2, -0.1, 0.4]))
+    for count in (1, 7):
+        poses = np.stack([pose(rot_z(a), rng.uniform(-2, 2, 3)) for a in rng.uniform(0, 6, count)])
+        which = rng.integers(0, count, 300)
+        points = rng.uniform(-0.5, 0.5, (300, 3))
+        own = cam[None] @ poses[which]  # one product per track
+        expected = np.einsum("nij,nj->ni", own[:, :3, :3], points) + own[:, :3, 3]
+        np.testing.assert_array_equal(carry(points, cam, poses, which), expected)
+
+
+def test_depth_read_at_pixels_is_the_metre_image_there():
+    rng = np.random.default_rng(6)
+    depth_mm = rng.uniform(0, 5000, (S, S)).astype(np.float32)
+    depth_mm[rng.random((S, S)) < 0.1] = 0.0
+    frame = Frame(depth_mm, np.zeros((S, S), np.uint64), np.eye(4), {}, 0)
+    rows, cols = rng.integers(0, S, 1000), rng.integers(0, S, 1000)
+    np.testing.assert_array_equal(DepthMetres(depth_mm)[rows, cols], frame.depth_m()[rows, cols])
+    xy = rng.uniform(0, S, (1000, 2))
+    np.testing.assert_array_equal(
+        sample_depth(DepthMetres(depth_mm), xy, 0.05), sample_depth(frame.depth_m(), xy, 0.05)
+    )
 
 
 def test_sample_depth_is_exact_at_centres_and_bilinear_between():
@@ -187,8 +212,26 @@ def test_id_runs_read_like_the_image():
     np.testing.assert_array_equal(runs.unique(), np.unique(ids))
     rows, cols = np.mgrid[0 : ids.shape[0], 0 : ids.shape[1]]
     np.testing.assert_array_equal(runs[rows.ravel(), cols.ravel()], ids.ravel())
+    np.testing.assert_array_equal(runs.expand(runs.values), ids)
     for chosen in ({1}, {0, 3, 4}, {7}):
-        np.testing.assert_array_equal(runs.isin(chosen), np.isin(ids, list(chosen)))
+        chosen_runs = np.isin(runs.values, list(chosen))
+        np.testing.assert_array_equal(runs.expand(chosen_runs), np.isin(ids, list(chosen)))
+
+
+def test_query_pixel_pools_are_the_image_rule():
+    rng = np.random.default_rng(7)
+    cases = ((frozenset({4}), frozenset({2, 3})), (frozenset(), frozenset({1})), (frozenset(), frozenset()))
+    for human, dynamic in cases:
+        ids = blocky_ids(rng)
+        depth_mm = np.where(rng.random(ids.shape) < 0.1, 0.0, 1500.0).astype(np.float32)
+        frame = Frame(depth_mm, ids, np.eye(4), {}, 0)
+        # The rule on the id image: a surface, an id (not 0, not the human), the id's interior.
+        ok = (depth_mm > 0) & (ids != 0) & interior(ids) & ~np.isin(ids, list(human))
+        on_dynamic = ok & np.isin(ids, list(dynamic))
+        dynamic_pool, static_pool = query_pixel_pools(frame, IdRuns.of(ids), Instances(human, dynamic))
+        np.testing.assert_array_equal(dynamic_pool, np.flatnonzero(on_dynamic))
+        np.testing.assert_array_equal(static_pool, np.flatnonzero(ok & ~on_dynamic))
+        assert len(static_pool)
 
 
 def test_query_draw_honours_the_dynamic_share():
