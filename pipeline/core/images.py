@@ -71,6 +71,17 @@ def check_jpeg(
     return decode_image(data, width, height, what, noun="JPEG", flags=flags)
 
 
+def check_jpeg_decodes(data: bytes, width: int, height: int, what: str) -> None:
+    """InputError unless ``data`` is a complete JPEG of ``width`` x ``height`` pixels that decodes,
+    as ``check_jpeg`` refuses it, for a JPEG passed on undecoded: decoded grey at an eighth of its
+    size (``-(-height // 8)`` x ``-(-width // 8)``), where libjpeg still reads every marker, table
+    and the whole entropy-coded scan, but spares most of the inverse DCT and the pixels."""
+    check_jpeg_header(data, width, height, what)
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_REDUCED_GRAYSCALE_8)
+    if image is None or image.shape != (-(-height // 8), -(-width // 8)):
+        raise InputError(f"{what}: corrupt JPEG (cannot be decoded)")
+
+
 def check_jpeg_header(data: bytes, width: int, height: int, what: str) -> None:
     """InputError unless ``data`` starts and ends as a JPEG and its frame header says ``width`` x
     ``height`` pixels."""

@@ -55,8 +55,8 @@ def camera_input(opened: LoadedSequence, camera: int) -> UnitInput:
         )
     view = views.index(camera)
     frames = [opened.files.image(view, t) for t in range(opened.frames)]
-    mask = opened.files.mask
-    return UnitInput(opened.name, camera, views, opened.gaussians, opened.constants, frames, mask)
+    masks = opened.files.packed_mask
+    return UnitInput(opened.name, camera, views, opened.gaussians, opened.constants, frames, masks)
 
 
 def annotate_group(

@@ -213,7 +213,7 @@ def _warm_numba() -> None:
 
     gaussians, views = synthetic_scene(0, 2, 50, 50, 50, 1)
     constants = gaussian_constants(gaussians.scales, gaussians.opacities)
-    unit = UnitInput("warm", 0, views, gaussians, constants, [], lambda view, t: np.ones((1, 1), bool))
+    unit = UnitInput("warm", 0, views, gaussians, constants, [], lambda view, t: np.ones(1, np.uint8))
     points = np.array([[320.0, 180.0]])
     render_depth_at(splats_in_view(unit, 0, 0, points), points, np.array([10.0]))
     nearest_centres(gaussians.means[0], np.arange(3), np.zeros((1, 3)))
@@ -258,17 +258,17 @@ def floor(spec: dict) -> dict:
 
 def _drawn_masks(gaussians: Gaussians, views: Views):
     """``_mask_function``'s masks for every (view, t), drawn now and kept bit-packed; returns a
-    ``UnitInput.mask`` that reads them."""
+    ``UnitInput.packed_mask`` that reads them."""
     draw = _mask_function(gaussians, views)
     packed = [
         [np.packbits(draw(view, t)) for t in range(gaussians.num_frames)]
         for view in range(len(views.camera_ids))
     ]
 
-    def mask(view: int, t: int) -> np.ndarray:
-        return np.unpackbits(packed[view][t], count=WIDTH * HEIGHT).view(np.bool_).reshape(HEIGHT, WIDTH)
+    def packed_mask(view: int, t: int) -> np.ndarray:
+        return packed[view][t]
 
-    return mask
+    return packed_mask
 
 
 def _best(function, *args):

@@ -26,20 +26,23 @@ def camera_pixel(x, y, z, w2c, fx_fy_cx_cy):
 
 
 @numba.njit(cache=True, nogil=True)
-def _add_view(centres, w2c, fx_fy_cx_cy, width, height, mask, on_mask, seen_count):
+def _add_view(centres, w2c, fx_fy_cx_cy, width, height, packed, on_mask, seen_count):
     """One camera's share of ``multiview_mask_fraction`` at one frame: for each centre [K, 3] in
-    front of it and inside its image [H, W] (``camera_pixel``), seen_count += 1 and on_mask +=
-    the mask at pixel (floor(u), floor(v))."""
+    front of it and inside its image of width x height pixels (``camera_pixel``), seen_count += 1
+    and on_mask += the mask's bit at pixel (floor(u), floor(v)) (``packed``: [ceil(H W / 8)] uint8,
+    ``np.packbits`` of the [H, W] mask, first pixel in the high bit)."""
     for k in range(centres.shape[0]):
         u, v, depth = camera_pixel(centres[k, 0], centres[k, 1], centres[k, 2], w2c, fx_fy_cx_cy)
         if depth > 0 and u >= 0 and u < width and v >= 0 and v < height:
             seen_count[k] += 1
-            on_mask[k] += mask[int(np.floor(v)), int(np.floor(u))]
+            pixel = int(np.floor(v)) * width + int(np.floor(u))
+            on_mask[k] += (packed[pixel >> 3] >> (7 - (pixel & 7))) & 1
 
 
 def multiview_mask_fraction(unit: UnitInput, gaussians: np.ndarray) -> np.ndarray:
     """[K] fraction of (frame, camera) pairs with the centre in the image whose pixel
-    (floor(u), floor(v)) is on that camera's foreground mask (NaN when never in any image)."""
+    (floor(u), floor(v)) is on that camera's foreground mask (NaN when never in any image). The
+    masks are read packed (``read_masks`` checked their length), never unpacked."""
     views = unit.views
     w2c = np.ascontiguousarray(views.w2c, dtype=np.float64)
     intrinsics = np.ascontiguousarray(views.fx_fy_cx_cy, dtype=np.float64)
@@ -48,9 +51,9 @@ def multiview_mask_fraction(unit: UnitInput, gaussians: np.ndarray) -> np.ndarra
     for t in range(unit.gaussians.num_frames):
         centres = unit.gaussians.means[t, gaussians].astype(np.float64)
         for view in range(len(views.camera_ids)):
-            mask = unit.mask(view, t)
+            packed = unit.packed_mask(view, t)
             _add_view(
-                centres, w2c[view], intrinsics[view], views.width, views.height, mask, on_mask, seen_count
+                centres, w2c[view], intrinsics[view], views.width, views.height, packed, on_mask, seen_count
             )
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(seen_count > 0, on_mask / seen_count, np.nan)

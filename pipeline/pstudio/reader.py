@@ -12,10 +12,10 @@ import numpy as np
 from apache_beam.io.filesystems import FileSystems
 
 from pipeline.core.errors import InputError
-from pipeline.core.images import check_jpeg
+from pipeline.core.images import check_jpeg_decodes
 from pipeline.io.files import open_binary, read_input
 from pipeline.io.npz_reader import NpzArchive, NpzError
-from pipeline.pstudio.mask_cache import MASKS, unpack_mask
+from pipeline.pstudio.mask_cache import MASKS
 from pipeline.pstudio.records import Gaussians, SequenceMeta, Views
 from pipeline.pstudio.settings import PstudioConfig
 
@@ -37,6 +37,16 @@ def data_root(input_root: str) -> str:
     candidate = FileSystems.join(input_root, "data")
     pattern = FileSystems.join(candidate, "*", "train_meta.json")
     return candidate if FileSystems.match([pattern], [1])[0].metadata_list else input_root
+
+
+def sequence_folder(input_root: str, sequence: str) -> str:
+    """``<data root>/<sequence>`` (``data_root``): ``<input>/data/<sequence>`` when it holds a
+    train_meta.json (the data root is then ``<input>/data``), found without listing anything;
+    else through ``data_root``'s listing."""
+    candidate = FileSystems.join(input_root, "data", sequence)
+    if FileSystems.exists(FileSystems.join(candidate, "train_meta.json")):
+        return candidate
+    return FileSystems.join(data_root(input_root), sequence)
 
 
 def list_sequences(input_root: str) -> list[str]:
@@ -69,7 +79,7 @@ def params_path(input_root: str, sequence: str, config: PstudioConfig) -> str:
 
 def read_views(input_root: str, sequence: str) -> SequenceMeta:
     """The sequence's cameras from train_meta.json (checked static) and its image names."""
-    path = FileSystems.join(data_root(input_root), sequence, "train_meta.json")
+    path = FileSystems.join(sequence_folder(input_root, sequence), "train_meta.json")
     try:
         meta = json.loads(read_input(path))
         width, height = int(meta["w"]), int(meta["h"])
@@ -156,8 +166,7 @@ def read_gaussians(path: str, frames: int) -> Gaussians:
                     raise InputError(
                         f"{path}: {name} has dtype {archive.header(name).dtype}, expected floats"
                     )
-            # Read-only views of the bytes read: the Gaussians are never written to (saves a copy
-            # of the whole file, about a tenth of a unit).
+            # Read-only: the Gaussians are never written to.
             arrays = {
                 name: archive.read(name, archive.header(name).nbytes, writable=False)
                 for name in PARAMS_SHAPES
@@ -167,7 +176,7 @@ def read_gaussians(path: str, frames: int) -> Gaussians:
     except OSError as error:
         raise InputError(f"{path}: unreadable ({error})") from error
     for name in PARAMS_SHAPES:
-        bad = np.count_nonzero(~np.isfinite(arrays[name]))
+        bad = non_finite_count(arrays[name])
         if bad:
             raise InputError(f"{path}: {name} holds {bad} non-finite value(s) (NaN or inf)")
     if not (arrays["seg_colors"][:, 0] > 0.5).any():
@@ -183,28 +192,39 @@ def read_gaussians(path: str, frames: int) -> Gaussians:
     )
 
 
+def non_finite_count(values: np.ndarray) -> int:
+    """How many of the floats ``values`` [...] are NaN or infinite. One pass and no temporary array
+    when there are none: a NaN or an infinity makes the sum non-finite, so a finite sum proves
+    every value finite (a sum that overflows is counted exactly, as one that does not prove it)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        if np.isfinite(np.add.reduce(values, axis=None)):
+            return 0
+    return int(np.count_nonzero(~np.isfinite(values)))
+
+
 class SequenceFiles:
     """Images and masks of one sequence, by (camera column, frame) as train_meta's ``fn`` names them.
     Each mask file is read once per opened sequence (the units of a group share it), and decoded
-    once per process (``pipeline.pstudio.mask_cache``)."""
+    once per process (``pipeline.pstudio.mask_cache``); masks are handed on bit-packed."""
 
     def __init__(self, input_root: str, sequence: str, meta: SequenceMeta):
-        self.folder = FileSystems.join(data_root(input_root), sequence)
+        self.folder = sequence_folder(input_root, sequence)
         self.names = meta.image_names
         self.views = meta.views
         self._masks: dict[tuple[int, int], np.ndarray] = {}  # (view, t) -> the cache's packed mask
 
     def image(self, view: int, t: int) -> bytes:
+        """The frame's JPEG as it is (the clip passes it through), checked complete and decodable."""
         path = FileSystems.join(self.folder, "ims", self.names[t][view])
         data = read_input(path)
-        check_jpeg(data, self.views.width, self.views.height, path)
+        check_jpeg_decodes(data, self.views.width, self.views.height, path)
         return data
 
-    def mask(self, view: int, t: int) -> np.ndarray:
-        """Foreground mask [H, W] bool (seg PNG, non-zero = foreground)."""
-        width, height = self.views.width, self.views.height
+    def packed_mask(self, view: int, t: int) -> np.ndarray:
+        """Foreground mask (seg PNG, non-zero = foreground), bit-packed (``MaskCache.packed``)."""
         packed = self._masks.get((view, t))
         if packed is None:
             path = FileSystems.join(self.folder, "seg", self.names[t][view].rsplit(".", 1)[0] + ".png")
-            packed = self._masks[view, t] = MASKS.packed(read_input(path), width, height, path)
-        return unpack_mask(packed, width, height)
+            data = read_input(path)
+            packed = self._masks[view, t] = MASKS.packed(data, self.views.width, self.views.height, path)
+        return packed

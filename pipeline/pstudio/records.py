@@ -8,6 +8,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from pipeline.pstudio.mask_cache import unpack_mask
+
 
 @dataclasses.dataclass
 class Views:
@@ -71,8 +73,9 @@ class GaussianConstants:
 @dataclasses.dataclass
 class UnitInput:
     """Everything one unit reads. ``constants``: the Gaussians' (``splats.gaussian_constants``, once
-    per sequence); ``mask(view, t)`` returns camera ``view``'s foreground mask [H, W] bool at frame
-    t; ``frames_jpeg`` are the unit camera's T frames."""
+    per sequence); ``packed_mask(view, t)`` returns camera ``view``'s foreground mask at frame t
+    bit-packed, ``np.packbits`` of the [H, W] bools row-major ([ceil(H W / 8)] uint8; ``mask``
+    unpacks it); ``frames_jpeg`` are the unit camera's T frames."""
 
     sequence: str
     camera_id: int
@@ -80,4 +83,8 @@ class UnitInput:
     gaussians: Gaussians
     constants: GaussianConstants
     frames_jpeg: list[bytes]
-    mask: Callable[[int, int], np.ndarray]
+    packed_mask: Callable[[int, int], np.ndarray]
+
+    def mask(self, view: int, t: int) -> np.ndarray:
+        """Camera ``view``'s foreground mask [H, W] bool at frame t."""
+        return unpack_mask(self.packed_mask(view, t), self.views.width, self.views.height)

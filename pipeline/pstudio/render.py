@@ -163,7 +163,7 @@ def render_depth_at(
         limit[point_tile] = np.inf
     else:
         np.maximum.at(limit, point_tile, np.asarray(limits, dtype=np.float64).reshape(-1)[inside])
-    # Contiguous copies (``project_splats``' fields are column slices): one compiled type of the kernel.
+    # Contiguous fields (``project_splats``' are; others are copied): one compiled type of the kernel.
     columns = (splats.xy, splats.extent, splats.conic, splats.opacity, splats.cutoff, splats.depth)
     contiguous = [np.ascontiguousarray(column) for column in columns]
     starts, packed = _tile_lists(*contiguous, tiles_x, tiles_y, limit)

@@ -205,10 +205,20 @@ def track_first_visible(
 
 def read_masks(unit: UnitInput) -> None:
     """Read every camera's mask at every frame, as the multi-view mask statistic will: a missing or
-    bad mask fails the unit before any Gaussian is projected (each is decoded once, then cached)."""
+    bad mask fails the unit before any Gaussian is projected (each is decoded once, then cached).
+    A mask is checked by its packed length, without unpacking it: the statistic's kernel reads
+    its bits by pixel index."""
+    views = unit.views
+    size = -(-views.width * views.height // 8)
     for t in range(unit.gaussians.num_frames):
-        for view in range(len(unit.views.camera_ids)):
-            unit.mask(view, t)
+        for view in range(len(views.camera_ids)):
+            packed = unit.packed_mask(view, t)
+            if packed.dtype != np.uint8 or packed.shape != (size,):
+                raise InputError(
+                    f"{clip_name(unit.sequence, unit.camera_id)}: the mask of camera "
+                    f"{views.camera_ids[view]} at frame {t} is {packed.dtype} {packed.shape}, not "
+                    f"{views.width}x{views.height} pixels bit-packed (uint8 ({size},))"
+                )
 
 
 def candidate_clip(unit: UnitInput, settings: PstudioConfig, choices: RunChoices) -> ClipRecord:

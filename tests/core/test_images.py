@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from pipeline.core.errors import InputError
-from pipeline.core.images import check_jpeg, decode_jpeg_bgrx
+from pipeline.core.images import check_jpeg, check_jpeg_decodes, decode_jpeg_bgrx
 
 HEIGHT, WIDTH = 48, 80
 
@@ -61,6 +61,18 @@ def test_a_broken_jpeg_is_refused_as_the_checked_decode_refuses_it(jpeg, case, c
         check_jpeg(data, WIDTH, HEIGHT, "frame 7", cv2.IMREAD_COLOR)
     with pytest.raises(InputError, match=f"^frame 7: .*{cause}"):
         decode_jpeg_bgrx(data, np.zeros((HEIGHT, WIDTH, 4), np.uint8), "frame 7")
+    with pytest.raises(InputError, match=f"^frame 7: .*{cause}"):
+        check_jpeg_decodes(data, WIDTH, HEIGHT, "frame 7")
+
+
+@pytest.mark.parametrize("width, height", [(WIDTH, HEIGHT), (81, 47), (7, 9), (640, 360)])
+def test_the_reduced_decode_passes_a_whole_jpeg_of_any_size(width, height):
+    """``check_jpeg_decodes`` decodes at an eighth of the size, rounded up as libjpeg rounds it."""
+    rng = np.random.default_rng(5)
+    data = cv2.imencode(".jpg", rng.integers(0, 256, (height, width, 3), np.uint8))[1].tobytes()
+    check_jpeg_decodes(data, width, height, "frame 7")
+    with pytest.raises(InputError, match=f"frame 7: JPEG is {width}x{height}, calibration says"):
+        check_jpeg_decodes(data, width + 1, height, "frame 7")
 
 
 def test_a_jpeg_of_another_size_is_refused_before_decoding(jpeg):

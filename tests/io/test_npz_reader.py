@@ -1,11 +1,12 @@
-"""``NpzArchive.read``: the member's values in either memory order, as a private writable copy by
-default or as a read-only view of the bytes read (``writable=False``)."""
+"""``NpzArchive.read``: the member's values in either memory order, as an array of its own, writable
+by default or read-only (``writable=False``), also when the member spans many read chunks."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from pipeline.io import npz_reader
 from pipeline.io.npz_reader import NpzArchive
 
 
@@ -29,3 +30,13 @@ def test_read_returns_the_values_writable_or_read_only(tmp_path, order):
         view[0, 0, 0] = 1.0
     copy[0, 0, 0] = 99.0  # the copy is the caller's own
     np.testing.assert_array_equal(view, values)
+
+
+def test_a_member_of_many_chunks_is_read_whole(tmp_path, monkeypatch):
+    monkeypatch.setattr(npz_reader, "READ_CHUNK_BYTES", 1000)  # 24,000 bytes: 24 pieces
+    values = np.random.default_rng(0).normal(size=(3, 1000, 2)).astype(np.float32)
+    path = tmp_path / "params.npz"
+    np.savez(path, means3D=values)
+    with open(path, "rb") as handle:
+        archive = NpzArchive(handle, str(path))
+        np.testing.assert_array_equal(archive.read("means3D", values.nbytes), values)

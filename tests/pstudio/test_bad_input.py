@@ -18,6 +18,7 @@ copy of it per case; unit ``<case>/camera_3`` must fail alone with its clear Inp
 | zero_focal | camera 8's fx = 0 | k of camera 8 has a non-positive focal length |
 | escaping_fn | fn[0][0] = "../../dome/ims/3/000000.jpg" | fn entry '../../dome/ims/3/000000.jpg' is not .. |
 | corrupt_jpeg | ims/3/000007.jpg cut to half | corrupt JPEG |
+| undecodable_jpeg | ims/3/000004.jpg's Huffman table zeroed | corrupt JPEG (cannot be decoded) |
 | missing_mask | seg/3/000005.png deleted | missing file <seq>/seg/3/000005.png |
 | wrong_mask_size | seg/3/000002.png at 320x180 | mask is 320x180, expected 640x360 |
 """
@@ -111,6 +112,15 @@ def npy_bytes(array: np.ndarray) -> bytes:
     return buffer.getvalue()
 
 
+def zero_huffman_tables(sequence: Sequence, path: str) -> None:
+    """The JPEG at ``path`` with its first Huffman table zeroed: its start, end and frame header
+    stay whole, so only decoding it refuses it."""
+    with open(path, "rb") as handle:
+        data = handle.read()
+    at = data.index(b"\xff\xc4") + 4
+    sequence.replace(path, data[:at] + bytes(20) + data[at + 20 :])
+
+
 def small_mask(sequence: Sequence, path: str) -> None:
     sequence.replace(path, cv2.imencode(".png", np.full((180, 320), 255, np.uint8))[1].tobytes())
 
@@ -178,6 +188,10 @@ def make_cases(root: str, count: int) -> dict[str, list[str]]:
             lambda s: s.cut(os.path.join(s.data, "ims", "3", "000007.jpg")),
             ["corrupt_jpeg/ims/3/000007.jpg: corrupt JPEG"],
         ),
+        "undecodable_jpeg": (
+            lambda s: zero_huffman_tables(s, os.path.join(s.data, "ims", "3", "000004.jpg")),
+            ["undecodable_jpeg/ims/3/000004.jpg: corrupt JPEG (cannot be decoded)"],
+        ),
         "missing_mask": (
             lambda s: os.remove(os.path.join(s.data, "seg", "3", "000005.png")),
             ["missing file", "missing_mask/seg/3/000005.png"],
@@ -208,6 +222,7 @@ CASE_NAMES = (
     "zero_focal",
     "escaping_fn",
     "corrupt_jpeg",
+    "undecodable_jpeg",
     "missing_mask",
     "wrong_mask_size",
 )

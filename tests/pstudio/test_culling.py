@@ -12,8 +12,11 @@ from scipy.spatial.transform import Rotation
 from pipeline.pstudio.render import render_depth_at, render_depth_image
 from pipeline.pstudio.splats import (
     BLOCK,
+    FEW_BLOCKS,
     LIMIT_BOX_BLOCKS,
+    _boxes_meet_blocks,
     _boxes_reach,
+    few_blocks,
     gaussian_constants,
     inside_image,
     project_splats,
@@ -214,3 +217,32 @@ def test_the_culls_branchless_box_test_is_the_box_test():
         expected = [box_meets_a_block(*box, blocks) for box in zip(u, v, ext[0], ext[1], strict=True)]
         np.testing.assert_array_equal(flags, expected)
         assert 0.01 < flags.mean() < 0.99
+        if points is not None:  # few blocks: also against their list, as the cull tests them
+            listed = few_blocks(wanted)
+            rows, columns = np.nonzero(blocks)
+            np.testing.assert_array_equal(listed, np.stack([columns, rows]))
+            by_list = np.empty(count, bool)
+            last_x, last_y = wanted.shape[1] - 2, wanted.shape[0] - 2
+            corners = np.empty((5, count), np.int16)
+            _boxes_meet_blocks(u, v, ext[0], ext[1], WIDTH, HEIGHT, last_x, last_y, listed, corners, by_list)
+            np.testing.assert_array_equal(by_list, expected)
+
+
+def test_only_a_few_blocks_are_listed():
+    """The cull tests boxes against the wanted blocks' list up to FEW_BLOCKS of them, against the
+    table beyond (and with none)."""
+    rows, columns = np.divmod(np.arange(FEW_BLOCKS + 1), WIDTH // BLOCK)
+    points = np.stack([columns * BLOCK + 1.5, rows * BLOCK + 0.5], axis=1)  # one in each block
+    assert few_blocks(wanted_blocks(points[:FEW_BLOCKS], WIDTH, HEIGHT)).shape == (2, FEW_BLOCKS)
+    assert few_blocks(wanted_blocks(points, WIDTH, HEIGHT)).shape == (2, 0)
+    assert few_blocks(wanted_blocks(np.array([[-5.0, 3.0]]), WIDTH, HEIGHT)).shape == (2, 0)
+    assert few_blocks(wanted_blocks(None, WIDTH, HEIGHT)).shape == (2, 0)
+
+
+def test_projected_splats_are_contiguous_arrays_of_their_own():
+    """The render kernels read each field contiguous: project_splats hands them so (no copy there)."""
+    means, quaternions, constants, w2c = crowded_scene(2_000)
+    splats = project_splats(means, quaternions, constants, w2c, INTRINSICS, WIDTH, HEIGHT)
+    assert len(splats) > 100
+    for field in (splats.xy, splats.conic, splats.opacity, splats.cutoff, splats.depth, splats.extent):
+        assert field.flags.c_contiguous and field.flags.owndata

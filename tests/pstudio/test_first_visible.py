@@ -35,7 +35,7 @@ def unit() -> UnitInput:
         ),
         constants=constants,
         frames_jpeg=[],
-        mask=lambda view, t: np.zeros((HEIGHT, WIDTH), bool),
+        packed_mask=lambda view, t: np.packbits(np.zeros((HEIGHT, WIDTH), bool)),
     )
 
 

@@ -1,19 +1,21 @@
 """Masks decoded once per process (pipeline/pstudio/mask_cache.py): within a unit each (camera, frame)
 mask is decoded at most once, the next unit of the sequence decodes none, and the cache returns
-exactly what decoding returns, within its memory bound."""
+exactly what decoding returns, within its memory bound. A unit reads them bit-packed: it checks
+each by its packed length and unpacks only its own camera's, at its query frames."""
 
 from __future__ import annotations
 
 import collections
+import dataclasses
 
 import cv2
 import numpy as np
 import pytest
 
 from pipeline.core.errors import InputError
-from pipeline.pstudio import mask_cache, reader
+from pipeline.pstudio import mask_cache, reader, records
 from pipeline.pstudio.settings import PstudioConfig
-from pipeline.pstudio.tracks import candidate_clip
+from pipeline.pstudio.tracks import candidate_clip, read_masks
 from pipeline.pstudio.units import list_units
 from pipeline.settings.run_config import RunConfig
 from pipeline.sources import RunChoices
@@ -88,3 +90,38 @@ def test_bad_files_are_refused_every_time(decoded):
             cache.packed(good[:60], 30, 20, "bad.png")
         with pytest.raises(InputError, match="small.png: mask is 30x20, expected 60x40"):
             cache.packed(good, 60, 40, "small.png")
+
+
+def test_a_unit_unpacks_only_its_cameras_masks_at_its_query_frames(pstudio_sample, monkeypatch):
+    """Checked by their packed length and read packed by the mask statistic: the unit unpacks a
+    mask only to draw its queries on it, once per query frame."""
+    root, _ = pstudio_sample
+    config = RunConfig()
+    unit = pstudio_input(root, *dataclasses.astuple(list_units(root, config).units[0]), config)
+    unpacked = []
+    unpack = records.unpack_mask
+
+    def counting(packed, width, height):
+        unpacked.append(packed.ctypes.data)
+        return unpack(packed, width, height)
+
+    monkeypatch.setattr(records, "unpack_mask", counting)
+    clip = candidate_clip(unit, config.section(PstudioConfig), RunChoices.of(config, "pstudio"))
+    own = unit.views.index(unit.camera_id)
+    assert clip.num_tracks > 0
+    assert 0 < len(unpacked) == len(set(unpacked)) <= unit.gaussians.num_frames
+    assert set(unpacked) <= {unit.packed_mask(own, t).ctypes.data for t in range(unit.gaussians.num_frames)}
+
+
+@pytest.mark.parametrize("bad", [np.zeros(5, np.uint8), np.zeros(20 * 30, np.uint8), np.zeros(75, bool)])
+def test_a_mask_of_another_packed_size_fails_the_unit_naming_it(pstudio_sample, bad):
+    """The statistic's kernel reads a mask's bits by pixel index: a packed mask of another length or
+    type is refused before any is read, with the unit, camera and frame named."""
+    root, _ = pstudio_sample
+    config = RunConfig()
+    unit = pstudio_input(root, *dataclasses.astuple(list_units(root, config).units[0]), config)
+    good = unit.packed_mask
+    unit.packed_mask = lambda view, t: bad if (view, t) == (1, 6) else good(view, t)
+    where = f"^dome_{unit.camera_id}: the mask of camera {unit.views.camera_ids[1]} at frame 6 is "
+    with pytest.raises(InputError, match=where):
+        read_masks(unit)

@@ -49,7 +49,7 @@ def unit_with(pixels, depths, opacities, mask: np.ndarray | None = None, scale: 
         ),
         constants=gaussian_constants(scales, opacities),
         frames_jpeg=[],
-        mask=lambda view, t: mask,
+        packed_mask=lambda view, t: np.packbits(mask),
     )
 
 
@@ -158,7 +158,7 @@ def test_the_mask_statistic_matches_its_definition_camera_by_camera():
             ),
             constants=gaussian_constants(np.ones((count, 3)), np.ones(count)),
             frames_jpeg=[],
-            mask=lambda view, t, masks=masks: masks[t, view],
+            packed_mask=lambda view, t, masks=masks: np.packbits(masks[t, view]),
         )
         gaussians = rng.permutation(count)[: max(1, count // 2)]
         fractions = multiview_mask_fraction(unit, gaussians)
