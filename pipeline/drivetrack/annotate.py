@@ -8,13 +8,20 @@ object's points and normals), ``tracks.py`` (one object's candidate clip: ``quer
 points and their queries, ``visibility.py`` in view, facing, not occluded, or with
 ``drivetrack.refined_visibility`` ``refined_visibility.py`` with ``footprints.py``,
 ``object_surface.py`` and ``surface_normals.py``, ``masks.py`` object masks); this module reads a
-segment's units, selects their objects, gathers the lidar once and runs ``tracks.py`` per object.
+segment's units, selects their objects, gathers the lidar once and runs ``tracks.py`` per object:
+each clip prepared (its points chosen and seen), then with the refined visibility the sweeps kept
+are placed again and each frame's footprints streamed to the clips, then each clip finished.
+
+What scales with the frames is let go of once used: the JPEGs read once the frames stored are
+made, each frame's footprints once the clips have read them, a camera's evidence once its clips
+are made (tests/drivetrack/test_unit_memory.py).
 """
 
 from __future__ import annotations
 
+import functools
 import logging
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -27,12 +34,13 @@ from pipeline.drivetrack.camera_model import (
     camera_from_world,
     frame_poses,
 )
-from pipeline.drivetrack.lidar import CameraPass, LidarEvidence, gather_lidar_cameras
+from pipeline.drivetrack.footprints import FrameOccluders
+from pipeline.drivetrack.lidar import CameraPass, LidarEvidence, gather_lidar_cameras, stream_occluders
 from pipeline.drivetrack.objects import select_objects
 from pipeline.drivetrack.reader import SegmentReader
 from pipeline.drivetrack.records import CameraFrames, UnitInput
 from pipeline.drivetrack.settings import DriveTrackConfig
-from pipeline.drivetrack.tracks import candidate_clip
+from pipeline.drivetrack.tracks import PreparedClip, finish_clip, prepare_clip
 from pipeline.drivetrack.units import SegmentCamera, clip_name
 from pipeline.sources import RunChoices, Wanted
 
@@ -78,7 +86,8 @@ def annotate_cameras(
     """The candidate clips of cameras of one segment (in object-id order), or per camera the
     exception that failed it. The TOP lidar is decoded and placed in the world once for all the
     cameras with clips (``gather_lidar_cameras``): a bad lidar frame fails each of them; any other
-    bad input only its own camera.
+    bad input only its own camera. The units' JPEGs are taken over: once a camera's stored frames
+    are made (``stored_frames``), its unit holds none (``CameraFrames.release_jpegs``).
 
     wanted: per camera, the clip names to make (a release run's; the others' objects are not
       tracked, and each wanted name not made says why), or None for every vehicle.
@@ -100,6 +109,8 @@ def annotate_cameras(
         except Exception as error:  # noqa: BLE001 - the camera's failure, the others go on
             results[i] = error
             continue
+        finally:
+            unit.frames.release_jpegs()  # the stored frames are the unit's JPEGs from here on
         passes.append(item)
         index.append(i)
         skipped.append(why)
@@ -118,37 +129,89 @@ def annotate_cameras(
         )
     except Exception as error:  # noqa: BLE001 - the lidar is shared: every camera reading it fails
         evidence = [error for _ in passes]
-    for i, item, frames, found, why in zip(index, passes, stored, evidence, skipped, strict=True):
-        if isinstance(found, Exception):
-            results[i] = found
+    prepared = [_prepared(item, found, rules, choices) for item, found in zip(passes, evidence, strict=True)]
+    if rules.refined_visibility:
+        _see_occluders(evidence, prepared)
+    pending = list(zip(index, passes, stored, evidence, prepared, skipped, strict=True))
+    del passes, stored, evidence, prepared
+    while pending:  # each camera's evidence and frames let go of once its clips are made
+        i, item, frames, found, clips, why = pending.pop(0)
+        if isinstance(found, Exception) or isinstance(clips, Exception):
+            results[i] = found if isinstance(found, Exception) else clips
             continue
         try:
-            results[i] = camera_clips(item, found, frames, rules, choices, why)
+            results[i] = camera_clips(item, found, clips, frames, rules, choices, why)
         except Exception as error:  # noqa: BLE001
             results[i] = error
     return [results[i] for i in range(len(units))]
 
 
+def _prepared(
+    item: CameraPass, evidence: LidarEvidence | Exception, rules: DriveTrackConfig, choices: RunChoices
+) -> dict[str, PreparedClip | NotMade] | Exception:
+    """A camera's clips up to their visibility (``prepare_clip``), by name: those of its object runs
+    that the run wants; or the exception that failed the camera."""
+    if isinstance(evidence, Exception):
+        return evidence
+    try:
+        clips: dict[str, PreparedClip | NotMade] = {}
+        for run in item.runs:
+            name = clip_name(item.unit.segment, item.unit.camera, run.object_id)
+            if choices.wants(name, None):  # the wanted objects alone were selected
+                clips[name] = prepare_clip(item.unit, run, evidence, item.camera, rules, choices)
+        return clips
+    except Exception as error:  # noqa: BLE001 - the camera's failure, the others go on
+        return error
+
+
+def _see_occluders(
+    evidence: list[LidarEvidence | Exception], prepared: list[dict[str, PreparedClip | NotMade] | Exception]
+) -> None:
+    """The refined visibility's second pass over the lidar (``stream_occluders``) for the cameras
+    whose clips are prepared: each frame's occluders to the camera's clips; a failure fails them
+    all (in ``prepared``)."""
+    ready: list[int] = []
+    found: list[LidarEvidence] = []
+    consumers: list[Callable[[int, FrameOccluders], None]] = []
+    for k, (camera_evidence, clips) in enumerate(zip(evidence, prepared, strict=True)):
+        if isinstance(camera_evidence, Exception) or isinstance(clips, Exception):
+            continue
+        ready.append(k)
+        found.append(camera_evidence)
+        consumers.append(
+            functools.partial(_see_all, [c for c in clips.values() if isinstance(c, PreparedClip)])
+        )
+    try:
+        stream_occluders(found, consumers)
+    except Exception as error:  # noqa: BLE001 - the lidar is shared: every camera reading it fails
+        for k in ready:
+            prepared[k] = error
+
+
+def _see_all(clips: list[PreparedClip], t: int, occluders: FrameOccluders) -> None:
+    """Camera frame t's occluders to each clip (``PreparedClip.see``)."""
+    for clip in clips:
+        clip.see(t, occluders)
+
+
 def camera_clips(
     item: CameraPass,
     evidence: LidarEvidence,
+    prepared: dict[str, PreparedClip | NotMade],
     frames: dict[int, bytes],
     rules: DriveTrackConfig,
     choices: RunChoices,
     why: dict[str, str],
 ) -> UnitClips:
-    """One camera's clips, one per object run (but those ``--queries-from`` holds no clip of: the
-    run says why); ``why`` (clip name -> reason) gains the objects that made none."""
+    """One camera's clips, one per prepared clip (``finish_clip``); ``why`` (clip name -> reason)
+    gains the objects that made none (the run's objects ``--queries-from`` holds no clip of are
+    not prepared: the run says why)."""
     clips, not_made = [], dict(why)
-    for run in item.runs:
-        name = clip_name(item.unit.segment, item.unit.camera, run.object_id)
-        if not choices.wants(name, None):  # the wanted objects alone were selected
-            continue
-        made = candidate_clip(item.unit, run, evidence, item.camera, frames, rules, choices)
-        if isinstance(made, NotMade):
-            not_made[name] = made.reason
+    for name, clip in prepared.items():
+        if isinstance(clip, NotMade):
+            not_made[name] = clip.reason
         else:
-            clips.append(made)
+            clips.append(finish_clip(item.unit, clip, evidence, item.camera, frames, rules, choices))
     return UnitClips(tuple(clips), not_made)
 
 

@@ -467,12 +467,12 @@ def frame_footprints(
         (pixels, local, half, chosen),
     )
     chosen = chosen[:count]
-    return FrameFootprints(
-        pixels[:count],
-        local[:count],
+    return FrameFootprints(  # copies of the kept rows: a view would keep the K-row buffers alive
+        pixels[:count].copy(),
+        local[:count].copy(),
         normals[chosen] @ rotation.T,
-        half[0, :count],
-        half[1, :count],
+        half[0, :count].copy(),
+        half[1, :count].copy(),
         limits[chosen],
         labels[chosen],
         np.full(count, source, np.int8),

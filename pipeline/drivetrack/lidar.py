@@ -13,6 +13,7 @@ points); the clip later carries it to each frame with the camera-synced box."""
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 
 import numba
 import numpy as np
@@ -38,7 +39,7 @@ from pipeline.drivetrack.footprints import (
 from pipeline.drivetrack.object_surface import consistent_triangles, surface_triangles
 from pipeline.drivetrack.objects import ObjectRun, box_poses, inside_box
 from pipeline.drivetrack.parallax import camera_occluded_lidar
-from pipeline.drivetrack.records import LidarCalibration, UnitInput
+from pipeline.drivetrack.records import LidarCalibration, LidarFrame, UnitInput
 from pipeline.drivetrack.visibility import depth_grid
 
 
@@ -298,41 +299,82 @@ class LidarEvidence:
         return self.depth_grids[t]
 
 
+@dataclasses.dataclass(frozen=True)
+class KeptSweep:
+    """A TOP sweep as read, kept between the refined visibility's two passes over the lidar (the
+    second places it in the world again, ``placed``): its range image [H, W] and pixel poses
+    [H, W, 6] (where every row holds the same poses, one row broadcast: H times smaller), and per
+    camera name the returns the lidar projects into it (bit-packed over the kept pixels [M])."""
+
+    timestamp: int
+    range_image: np.ndarray
+    pixel_pose: np.ndarray
+    in_camera: dict[int, np.ndarray]
+    kept_count: int
+
+    @staticmethod
+    def of(lidar: LidarFrame, sweep: TopSweep, cameras: set[int]) -> KeptSweep:
+        """The sweep of ``lidar`` (placed as ``sweep``) as the cameras ``cameras`` need it again."""
+        pose = lidar.pixel_pose
+        if np.all(pose == pose[:1]):  # the TOP lidar fires a column at once
+            pose = np.broadcast_to(pose[:1].copy(), pose.shape)
+        else:
+            pose = pose.copy()
+        projection = lidar.camera_projection
+        in_camera = {
+            camera: np.packbits(((projection[..., 0] == camera) | (projection[..., 3] == camera))[sweep.kept])
+            for camera in cameras
+        }
+        return KeptSweep(lidar.timestamp, lidar.range_image.copy(), pose, in_camera, len(sweep.points))
+
+    def placed(self, calibration: LidarCalibration, what: str) -> TopSweep:
+        """The sweep in the world, as the first pass placed it (``top_lidar_world_points``)."""
+        return top_lidar_world_points(self.range_image, self.pixel_pose, calibration, what)
+
+    def seen_by(self, camera: int) -> np.ndarray:
+        """[K] the kept-point indices of the returns the lidar projects into ``camera``."""
+        return np.flatnonzero(np.unpackbits(self.in_camera[camera], count=self.kept_count))
+
+
 @dataclasses.dataclass
 class RefinedEvidence:
-    """What the refined visibility reads of a camera's sweeps (``refined_visibility``).
+    """What the refined visibility reads of a camera's sweeps (``refined_visibility``), gathered by
+    the first pass over the lidar: body_views[object][t]: [K, 3] unit directions (box frame) from
+    each body point to the lidar of its sweep (the side of the surface the sweep saw);
+    surfaces[object][t]: the object's surface in that sweep, (points [K, 3] box frame, triangles
+    [M, 3]) (``object_surface``); labels: object id -> its footprints' label; the camera's pass and
+    its objects' motions; sweeps: lidar timestamp -> ``KeptSweep`` (shared by the cameras of a pass).
 
-    body_views[object][t]: [K, 3] unit directions (box frame) from each body point to the lidar of
-    its sweep (the side of the surface the sweep saw); surfaces[object][t]: the object's surface in
-    that sweep, (points [K, 3] box frame, triangles [M, 3]) (``object_surface``); footprints[t]:
-    source (-1, 0, 1) -> the footprints of the sweep of frame t + source seen in camera frame t
-    (``footprints.frame_footprints``); labels: object id -> its footprints' label."""
+    The second pass (``stream_occluders``) fills footprints[t]: source (-1, 0, 1) -> the footprints
+    of the sweep of frame t + source seen in camera frame t (``footprints.frame_footprints``), and
+    hands each frame's, once its sweeps are all in, joined (``FrameOccluders``) to the clips."""
 
     body_views: dict[str, dict[int, np.ndarray]]
     surfaces: dict[str, dict[int, tuple[np.ndarray, np.ndarray]]]
-    footprints: dict[int, dict[int, FrameFootprints]]
     labels: dict[str, int]
-    occluders: dict[int, FrameOccluders] = dataclasses.field(default_factory=dict)
+    item: CameraPass
+    motions: BoxMotions
+    sweeps: dict[int, KeptSweep]
+    footprints: dict[int, dict[int, FrameFootprints]] = dataclasses.field(default_factory=dict)
     regions: dict[int, tuple[np.ndarray, np.ndarray]] = dataclasses.field(default_factory=dict)
 
-    def frame_regions(self, item: CameraPass, t: int) -> tuple[np.ndarray, np.ndarray]:
-        """The image regions of the objects ``item`` tracks at camera frame t
+    def frame_regions(self, t: int) -> tuple[np.ndarray, np.ndarray]:
+        """The image regions of the objects the camera tracks at camera frame t
         (``footprints.object_regions``), found at the first sweep that serves the frame."""
         if t not in self.regions:
             boxes = [
                 (run.world_from_box[t - run.start], run.lidar_boxes[t - run.start])
-                for run in item.runs
+                for run in self.item.runs
                 if run.start <= t < run.stop
             ]
-            self.regions[t] = object_regions(item.camera, t, boxes)
+            self.regions[t] = object_regions(self.item.camera, t, boxes)
         return self.regions[t]
 
-    def frame_occluders(self, t: int) -> FrameOccluders:
-        """Frame t's footprints joined and binned (``footprints.FrameOccluders``), built at the first
-        clip that reads them."""
-        if t not in self.occluders:
-            self.occluders[t] = FrameOccluders(self.footprints[t])
-        return self.occluders[t]
+    def settled(self, t: int) -> FrameOccluders:
+        """Frame t's footprints, its sweeps all in, joined and binned; the parts and the frame's
+        regions let go of."""
+        self.regions.pop(t, None)
+        return FrameOccluders(self.footprints.pop(t))
 
 
 def depth_samples(
@@ -393,46 +435,105 @@ def gather_lidar_cameras(
     """One pass over the TOP lidar frames any of one segment's cameras needs, each frame decoded and
     placed in the world once for all of them: each camera's in-box points, its depth samples
     (``depth_samples``) unless ``depth`` is false (the refined visibility reads none), and with
-    ``refined`` what the refined visibility reads (``RefinedEvidence``)."""
-    users: dict[int, list[tuple[int, int]]] = {}  # lidar timestamp -> [(pass index, camera frame)]
-    for i, item in enumerate(passes):
-        for t in item.needed:
-            users.setdefault(int(item.unit.frames.timestamps[t]), []).append((i, t))
+    ``refined`` what the refined visibility reads of its own objects (``RefinedEvidence``; the
+    footprints of the others come in a second pass over the sweeps kept, ``stream_occluders``)."""
+    users = _users(passes)
     evidence = [LidarEvidence({}, {}, {run.object_id: {} for run in item.runs}) for item in passes]
     if not passes:
         return evidence
-    refined_parts: list[tuple[RefinedEvidence, BoxMotions]] = []  # per pass, with ``refined``
+    kept: dict[int, KeptSweep] = {}  # shared by the cameras' refined evidence
+    cameras = {item.unit.camera for item in passes}
     for item, found in zip(passes, evidence, strict=True):
         if refined:
             moving = BoxMotions(item.unit, item.world_from_frame)
             labels = {run.object_id: moving.label(run.object_id) for run in item.runs}
             surfaces: dict[str, dict[int, tuple[np.ndarray, np.ndarray]]]
             surfaces = {run.object_id: {} for run in item.runs}
-            found.refined = RefinedEvidence(_per_object(item), surfaces, {}, labels)
-            refined_parts.append((found.refined, moving))
+            found.refined = RefinedEvidence(_per_object(item), surfaces, labels, item, moving, kept)
     first = passes[0].unit
     stamps = sorted(users)
     for stamp, lidar in zip(stamps, first.lidar_frames(stamps), strict=True):
         what = f"lidar/{first.segment} TOP frame {lidar.timestamp}"
         sweep = top_lidar_world_points(lidar.range_image, lidar.pixel_pose, first.lidar_calibration, what)
-        in_vehicle: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}  # the cameras' poses agree
         if refined:
-            inclinations = beam_inclinations(first.lidar_calibration, lidar.range_image.shape[0], what)
-            spacing = row_spacings(inclinations)
+            kept[stamp] = KeptSweep.of(lidar, sweep, cameras)
+            spacing = row_spacings(
+                beam_inclinations(first.lidar_calibration, lidar.range_image.shape[0], what)
+            )
+        in_vehicle = _in_vehicle(sweep)
         for i, t in users[stamp]:
-            pose = passes[i].world_from_frame[t]
-            key = pose.tobytes()
-            if key not in in_vehicle:
-                vehicle_from_world = invert_se3(pose)
-                in_vehicle[key] = vehicle_from_world, transform_points(vehicle_from_world, sweep.points)
-            frame = (t, lidar.camera_projection, sweep, in_vehicle[key])
+            frame = (t, lidar.camera_projection, sweep, in_vehicle(passes[i].world_from_frame[t]))
             depth_rule = (occlusion_margin, parallax_cleanup, depth)
             in_camera, bodies = _camera_frame(passes[i], evidence[i], *frame, shrink, *depth_rule)
-            if refined:
-                found_refined, moving = refined_parts[i]
-                seen = (in_camera, bodies, in_vehicle[key])
-                _refined_frame(passes[i], found_refined, moving, t, sweep, spacing, *seen)
+            found_refined = evidence[i].refined
+            if found_refined is not None:
+                seen = (in_camera, bodies, in_vehicle(passes[i].world_from_frame[t]))
+                _refined_bodies(found_refined, t, sweep, spacing, *seen)
     return evidence
+
+
+def stream_occluders(
+    evidence: list[LidarEvidence], consumers: list[Callable[[int, FrameOccluders], None]]
+) -> None:
+    """The refined visibility's second pass, over the sweeps its first kept (``gather_lidar_cameras``
+    with ``refined``), each placed in the world again once for all the cameras: per camera, the
+    footprints of each sweep in the frames it serves; each camera frame's, once the sweeps of the
+    frame and of its neighbours are in, go to its camera's consumer (``consumers[i](t, occluders)``)
+    and are let go of. Only a few frames' footprints are ever held."""
+    refined = [found.refined for found in evidence]
+    assert all(r is not None for r in refined), "gather_lidar_cameras(refined=True) keeps the sweeps"
+    if not refined:
+        return
+    passes = [r.item for r in refined if r is not None]
+    first = passes[0].unit
+    users = _users(passes)
+    sweeps = refined[0].sweeps if refined[0] is not None else {}
+    for stamp in sorted(users):
+        kept = sweeps.pop(stamp)
+        what = f"lidar/{first.segment} TOP frame {kept.timestamp}"
+        sweep = kept.placed(first.lidar_calibration, what)
+        spacing = _spacing(first.lidar_calibration, kept.range_image.shape[0], what)
+        in_vehicle = _in_vehicle(sweep)
+        for i, t in users[stamp]:
+            found = refined[i]
+            assert found is not None
+            in_camera = kept.seen_by(found.item.unit.camera)
+            _sweep_footprints(found, t, sweep, spacing, in_camera, in_vehicle(found.item.world_from_frame[t]))
+            if t - 1 in found.footprints:  # its sweeps t - 2, t - 1 and t are all in
+                consumers[i](t - 1, found.settled(t - 1))
+    for found, consume in zip(refined, consumers, strict=True):
+        assert found is not None
+        for t in sorted(found.footprints):
+            consume(t, found.settled(t))
+
+
+def _spacing(calibration: LidarCalibration, height: int, what: str) -> np.ndarray:
+    """[H] the angular spacing of a range image's rows (``footprints.row_spacings``)."""
+    return row_spacings(beam_inclinations(calibration, height, what))
+
+
+def _users(passes: list[CameraPass]) -> dict[int, list[tuple[int, int]]]:
+    """Lidar timestamp -> the (pass index, camera frame) pairs that read its sweep."""
+    users: dict[int, list[tuple[int, int]]] = {}
+    for i, item in enumerate(passes):
+        for t in item.needed:
+            users.setdefault(int(item.unit.frames.timestamps[t]), []).append((i, t))
+    return users
+
+
+def _in_vehicle(sweep: TopSweep) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """world_from_vehicle [4, 4] -> (vehicle_from_world [4, 4], the sweep's points [M, 3] in that
+    vehicle frame), each pose's computed once (the cameras of a frame share the vehicle's pose)."""
+    placed: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
+
+    def at(pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        key = pose.tobytes()
+        if key not in placed:
+            vehicle_from_world = invert_se3(pose)
+            placed[key] = vehicle_from_world, transform_points(vehicle_from_world, sweep.points)
+        return placed[key]
+
+    return at
 
 
 def _per_object(item: CameraPass) -> dict[str, dict[int, np.ndarray]]:
@@ -477,10 +578,8 @@ def _camera_frame(
     return np.flatnonzero(in_camera), bodies
 
 
-def _refined_frame(
-    item: CameraPass,
+def _refined_bodies(
     refined: RefinedEvidence,
-    motions: BoxMotions,
     t: int,
     sweep: TopSweep,
     spacing: np.ndarray,
@@ -488,18 +587,42 @@ def _refined_frame(
     bodies: dict[str, tuple[np.ndarray, np.ndarray]],
     in_vehicle: tuple[np.ndarray, np.ndarray],
 ) -> None:
-    """What the refined visibility reads of camera frame t's sweep, into ``refined``: its objects'
-    body views and surfaces, and its footprints in the camera frames t - 1, t and t + 1 it serves.
+    """What the refined visibility reads of its own objects in camera frame t's sweep, into
+    ``refined``: their body views and surfaces.
 
     spacing: [H] the rows' angular spacing; in_camera: [K] the kept points the lidar projects into
     this camera; bodies: object -> its body points (kept-point indices) and box_from_vehicle [4, 4];
-    in_vehicle: as ``_camera_frame``'s."""
+    in_vehicle: vehicle_from_world [4, 4] at the frame and the sweep's points [M, 3] in that frame."""
+    vehicle_from_world, vehicle = in_vehicle
+    labels = refined.motions.labels_at(t, vehicle[in_camera])
+    active = [run for run in refined.item.runs if run.start <= t < run.stop]
+    on_tracked = np.flatnonzero(np.isin(labels, [refined.labels[run.object_id] for run in active]))
+    footprints = sweep_footprints(sweep, in_camera[on_tracked], spacing)
+    for run in active:
+        body, box_from_vehicle = bodies[run.object_id]
+        box_from_world = box_from_vehicle @ vehicle_from_world
+        refined.body_views[run.object_id][t] = -sweep.beams(body) @ box_from_world[:3, :3].T
+        on_object = np.flatnonzero(labels[on_tracked] == refined.labels[run.object_id])
+        refined.surfaces[run.object_id][t] = _surface(sweep, footprints, on_object, box_from_world, spacing)
+
+
+def _sweep_footprints(
+    refined: RefinedEvidence,
+    t: int,
+    sweep: TopSweep,
+    spacing: np.ndarray,
+    in_camera: np.ndarray,
+    in_vehicle: tuple[np.ndarray, np.ndarray],
+) -> None:
+    """The footprints of camera frame t's sweep in the camera frames t - 1, t and t + 1 it serves,
+    into ``refined.footprints``: of the returns on the objects tracked at t or near an object region
+    of a frame served. Arguments as ``_refined_bodies``'s."""
+    item, motions = refined.item, refined.motions
     vehicle_from_world, vehicle = in_vehicle
     labels = motions.labels_at(t, vehicle[in_camera])
-    active = [run for run in item.runs if run.start <= t < run.stop]
     needed = set(item.needed)
     targets = [  # (frame, its moves, its regions)
-        (target, motions.moves(t, target), refined.frame_regions(item, target))
+        (target, motions.moves(t, target), refined.frame_regions(target))
         for target in (t - 1, t, t + 1)
         if target in needed
     ]
@@ -507,22 +630,15 @@ def _refined_frame(
     reach = likely_reach(sweep, in_camera, spacing)
     reach[(edge_rows != 0) & (labels >= 0)] = np.inf  # up to its box (``BoxMotions.box_limits``)
     serving = serving_returns(item.camera, sweep.points[in_camera], labels, reach, targets)
-    tracked = [refined.labels[run.object_id] for run in active]
-    # Footprints for the returns on the objects tracked now (their surfaces) or serving some frame.
+    tracked = [refined.labels[run.object_id] for run in item.runs if run.start <= t < run.stop]
+    # Footprints for the returns on the objects tracked now or serving some frame.
     wanted = np.flatnonzero(np.isin(labels, tracked) | serving.any(axis=0))
     footprints = sweep_footprints(sweep, in_camera[wanted], spacing)
     wanted_labels = labels[wanted]
     limits, along_inclination = motions.box_limits(
         t, footprints, wanted_labels, vehicle_from_world, edge_rows[wanted]
     )
-    footprints = dataclasses.replace(footprints, along_inclination=along_inclination)
-    for run in active:
-        body, box_from_vehicle = bodies[run.object_id]
-        box_from_world = box_from_vehicle @ vehicle_from_world
-        refined.body_views[run.object_id][t] = -sweep.beams(body) @ box_from_world[:3, :3].T
-        on_object = np.flatnonzero(wanted_labels == refined.labels[run.object_id])
-        refined.surfaces[run.object_id][t] = _surface(sweep, footprints, on_object, box_from_world, spacing)
-    vectors = (footprints.normals, footprints.along_azimuth, footprints.along_inclination)
+    vectors = (footprints.normals, footprints.along_azimuth, along_inclination)
     for (target, moves, regions), serves in zip(targets, serving, strict=True):
         at = np.flatnonzero(serves[wanted])  # the target's returns among those with footprints
         world = moved(at, wanted_labels, moves, footprints.points, *vectors)

@@ -96,28 +96,45 @@ def _bit_type(kind: pa.DataType) -> pa.DataType:
 
 def _unique_rows(table: pa.Table, keys: tuple[str, ...], label: str) -> pa.Table:
     """``table`` less the rows that repeat an earlier row's key and equal it bit for bit in every
-    column; InputError naming the key where a repeat differs. Keys are compared with NumPy; the
-    other columns only on the rows whose key repeats."""
+    column; InputError naming the key where a repeat differs (``_first_rows``)."""
+    first = _first_rows(table, keys, label)
+    return table if first.all() else table.filter(pa.array(first))
+
+
+def _key_codes(table: pa.Table, keys: tuple[str, ...], label: str) -> list[np.ndarray]:
+    """Each key column [R] as int64 codes (string keys by dictionary index); InputError for nulls."""
+    codes = []
     for name in keys:
         if table.column(name).null_count:
             raise InputError(f"{label}: column {name} has {table.column(name).null_count} null value(s)")
-    if table.num_rows < 2:
-        return table
-    codes = []
-    for name in keys:
         column = table.column(name).combine_chunks()
         column = pc.dictionary_encode(column).indices if name in C.STRING_KEYS else column
         codes.append(column.to_numpy().astype(np.int64, copy=False))
+    return codes
+
+
+def _first_of_key(table: pa.Table, keys: tuple[str, ...], label: str) -> np.ndarray:
+    """[R] int64: per row, the first row holding its key."""
+    count = table.num_rows
+    codes = _key_codes(table, keys, label) if count else []
+    if count < 2:
+        return np.arange(count)
     order = np.lexsort(codes[::-1])  # stable: each run of equal keys starts with its first row
     ordered = np.stack(codes, 1)[order]
-    repeat = np.zeros(len(order), bool)
+    repeat = np.zeros(count, bool)
     repeat[1:] = (ordered[1:] == ordered[:-1]).all(1)
-    if not repeat.any():
-        return table
-    first = np.empty_like(order)  # first[i]: the first row holding row i's key
-    first[order] = order[np.maximum.accumulate(np.where(repeat, 0, np.arange(len(order))))]
-    rows = np.nonzero(first != np.arange(len(first)))[0]
-    for name in table.column_names:
+    first = np.empty_like(order)
+    first[order] = order[np.maximum.accumulate(np.where(repeat, 0, np.arange(count)))]
+    return first
+
+
+def _first_rows(table: pa.Table, keys: tuple[str, ...], label: str) -> np.ndarray:
+    """[R] bool, True on the first row of each key; InputError naming the key where a later row
+    differs from its first in any column. Keys are compared with NumPy; the other columns only on
+    the rows whose key repeats."""
+    first = _first_of_key(table, keys, label)
+    rows = np.flatnonzero(first != np.arange(len(first)))
+    for name in table.column_names if len(rows) else ():
         column = table.column(name).combine_chunks()
         column = column.view(_bit_type(column.type))
         ours, theirs = column.take(rows), column.take(first[rows])
@@ -126,7 +143,7 @@ def _unique_rows(table: pa.Table, keys: tuple[str, ...], label: str) -> pa.Table
             key = " at ".join(f"{C.KEY_WORDS[k]} {table.column(k)[int(bad)].as_py()!r}" for k in keys)
             count = int((first == first[bad]).sum())
             raise InputError(f"{label}: {key} appears in {count} rows with different values ({name} differs)")
-    return table.filter(pa.array(first == np.arange(len(first))))  # exact copies: keep the first
+    return first == np.arange(len(first))  # exact copies: keep the first
 
 
 def _digest(cell: pa.Scalar) -> bytes | None:
@@ -142,6 +159,29 @@ def _top_rows(batch: pa.RecordBatch, timestamps: pa.Array) -> pa.Array:
         pc.equal(batch.column(C.LASER_NAME), C.TOP_LASER),
         pc.is_in(batch.column(C.TIMESTAMP), value_set=timestamps),
     )
+
+
+def _camera_rows(
+    table: pa.Table | None, jpegs: list[bytes], camera: int, label: str
+) -> tuple[pa.Table, list[bytes]]:
+    """One camera's rows of ``camera_image`` (``table`` without its JPEG column, ``jpegs`` its
+    JPEGs [R]), one per key: rows equal bit for bit, JPEG included, are copies (the first kept);
+    InputError where a key's rows differ. The JPEGs are compared by digest, and only on the rows
+    whose key repeats."""
+    if table is None:
+        return pa.table({C.TIMESTAMP: pa.array([], pa.int64())}), []
+    rows = np.flatnonzero(table.column(C.CAMERA_NAME).to_numpy() == camera)
+    mine = table.take(rows)
+    first = _first_of_key(mine, C.KEYS[C.CAMERA_IMAGE], label)
+    repeats = np.isin(first, first[first != np.arange(len(first))])
+    digests = [
+        hashlib.blake2b(jpegs[r] or b"").digest() if repeat else b""
+        for r, repeat in zip(rows, repeats, strict=True)
+    ]
+    nulls = [jpegs[r] is None for r in rows]
+    checked = mine.append_column(C.IMAGE_JPEG, pa.array(digests, pa.binary(), mask=np.array(nulls, bool)))
+    kept = _first_rows(checked, C.KEYS[C.CAMERA_IMAGE], label)
+    return mine.filter(pa.array(kept)), [jpegs[r] for r in rows[kept]]
 
 
 def _optional_numbers(table: pa.Table, name: str, what: str) -> np.ndarray:
@@ -291,28 +331,37 @@ class SegmentReader:
 
     def cameras_frames(self, cameras: list[int]) -> list[CameraFrames | InputError]:
         """Each camera's frames, the ``camera_image`` file read once for all of them; per camera
-        the InputError of its own bad rows (a bad file fails them all: raised)."""
+        the InputError of its own bad rows (a bad file fails them all: raised).
+
+        The file is streamed ``BATCH_ROWS`` rows at a time: of each batch, the wanted cameras'
+        JPEGs become Python bytes at once and their other columns (a few numbers a row) are kept,
+        so beside the unit's JPEGs only the row group pyarrow decodes is ever held."""
         names = [C.TIMESTAMP, C.CAMERA_NAME, C.IMAGE_JPEG, C.IMAGE_POSE]
-        filters = pc.field(C.CAMERA_NAME).isin(cameras)
-        table = self._rows(C.CAMERA_IMAGE, names, filters, optional=C.ROLLING_SHUTTER)
         label = f"{C.CAMERA_IMAGE}/{self.segment}.parquet"
+        parts: list[pa.RecordBatch] = []
+        jpegs: list[bytes] = []  # of the rows of ``parts``, in order
+        for batch in self.batches(C.CAMERA_IMAGE, names, optional=C.ROLLING_SHUTTER):
+            column = batch.column(C.CAMERA_NAME)
+            kept = batch.filter(pc.is_in(column, value_set=pa.array(cameras, column.type)))
+            jpegs.extend(kept.column(C.IMAGE_JPEG).to_pylist())
+            parts.append(kept.drop_columns([C.IMAGE_JPEG]))
+        table = pa.Table.from_batches(parts) if parts else None
         found: list[CameraFrames | InputError] = []
         for camera in cameras:
             try:
-                mine = table.filter(pc.field(C.CAMERA_NAME) == camera)
-                found.append(self._camera_frames(_unique_rows(mine, C.KEYS[C.CAMERA_IMAGE], label), camera))
+                found.append(self._camera_frames(_camera_rows(table, jpegs, camera, label), camera))
             except InputError as error:
                 found.append(error)
         return found
 
-    def _camera_frames(self, table: pa.Table, camera: int) -> CameraFrames:
-        """One camera's ``camera_image`` rows (keys unique) as its frames, in time order."""
+    def _camera_frames(self, rows: tuple[pa.Table, list[bytes]], camera: int) -> CameraFrames:
+        """One camera's ``camera_image`` rows (keys unique; JPEGs apart) as its frames, in time order."""
+        table, jpegs = rows
         what = f"camera_image/{self.segment} camera {camera}"
         if table.num_rows == 0:
             raise InputError(f"{what}: no frames")
         stamps = _numbers(table, C.TIMESTAMP, what, np.int64)
         order = np.argsort(stamps, kind="stable")
-        jpegs = table.column(C.IMAGE_JPEG).to_pylist()
         poses = transforms_from_column(table.column(C.IMAGE_POSE), what)
         motion = None
         if set(C.ROLLING_SHUTTER) <= set(table.column_names):

@@ -57,6 +57,11 @@ class CameraFrames:
     world_from_vehicle_at_exposure: np.ndarray
     motion: CameraMotion | None = None
 
+    def release_jpegs(self) -> None:
+        """Let go of the JPEGs (the frames a unit stores are taken first: ``annotate.stored_frames``),
+        so that the frames no clip stores, and the originals of undistorted ones, are freed."""
+        self.jpegs.clear()
+
 
 @dataclasses.dataclass(frozen=True)
 class BoxLabels:

@@ -16,6 +16,9 @@ Nearer than the point means, for other surfaces, by the occlusion margin (a shar
 its own object by OWN_CLEARANCE_M; and always by SURFACE_TOLERANCE_M measured across the point's own
 surface, which along a ray grazing that surface is far more: a surface seen edge-on is not hidden by
 its own neighbourhood.
+
+A clip's tracks read the other surfaces a frame at a time, as the lidar's second pass brings each
+frame's footprints (``lidar.stream_occluders``): a unit holds a few frames' footprints, not all.
 """
 
 from __future__ import annotations
@@ -32,48 +35,63 @@ SURFACE_TOLERANCE_M = 0.03
 MIN_RAY_COSINE = 0.05
 
 
-def refined_visibility(
-    tracks: np.ndarray,
-    pixels: np.ndarray,
-    in_view: np.ndarray,
-    box_points: np.ndarray,
-    box_normals: np.ndarray,
-    cam_from_box: np.ndarray,
-    surface: OwnSurface,
-    occluders: list[FrameOccluders],
-    own_label: int,
-    occlusion_margin: float,
-) -> np.ndarray:
-    """Visibility [T, N] bool of track points seen at tracks [T, N, 3] (camera frame, as seen) and
-    pixels [T, N, 2], in view where ``in_view`` [T, N] (``camera_model.Projection``).
+class RefinedTracks:
+    """The refined visibility of a clip's track points, its frames' occluders read one frame at a
+    time as they come (``see``, in any order), its own object's surface at the end (``visibility``).
 
-    box_points, box_normals: [N, 3] each, the points and their fitted normals in the box frame;
-    cam_from_box: [T, 4, 4]; surface: the object's own surface; occluders: per frame, the
-    footprints of the sweeps around it (``footprints.FrameOccluders``); own_label: the object's
-    label among them; occlusion_margin: the share of a point's depth another surface must
-    be nearer by."""
-    visibility = np.zeros(in_view.shape, bool)
-    # Per frame, the candidates no other surface covers, and their rays to the own surface.
-    frames, ends, rays, clearances = [], [], [], []
-    for i, frame_occluders in enumerate(occluders):
-        rotation = cam_from_box[i, :3, :3]
-        points = tracks[i]
+    tracks [T, N, 3] (camera frame, as seen), pixels [T, N, 2], in view where ``in_view`` [T, N]
+    (``camera_model.Projection``); box_points, box_normals: [N, 3] each, the points and their fitted
+    normals in the box frame; cam_from_box: [T, 4, 4]; surface: the object's own surface;
+    own_label: the object's label among the footprints; occlusion_margin: the share of a point's
+    depth another surface must be nearer by."""
+
+    def __init__(
+        self,
+        tracks: np.ndarray,
+        pixels: np.ndarray,
+        in_view: np.ndarray,
+        box_points: np.ndarray,
+        box_normals: np.ndarray,
+        cam_from_box: np.ndarray,
+        surface: OwnSurface,
+        own_label: int,
+        occlusion_margin: float,
+    ):
+        self.tracks, self.pixels, self.in_view = tracks, pixels, in_view
+        self.box_points, self.box_normals, self.cam_from_box = box_points, box_normals, cam_from_box
+        self.surface, self.own_label, self.occlusion_margin = surface, own_label, occlusion_margin
+        # Per frame seen: the candidates no other surface covers, and their rays to the own surface.
+        self.uncovered: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {}
+
+    def see(self, i: int, occluders: FrameOccluders) -> None:
+        """Frame i's candidates (in view, facing the camera) that no other surface covers."""
+        rotation = self.cam_from_box[i, :3, :3]
+        points = self.tracks[i]
         distance = np.linalg.norm(points, axis=1)
-        cosine = -np.einsum("ni,ni->n", box_normals @ rotation.T, points) / distance
-        candidates = np.flatnonzero(in_view[i] & (cosine > 0))
+        cosine = -np.einsum("ni,ni->n", self.box_normals @ rotation.T, points) / distance
+        candidates = np.flatnonzero(self.in_view[i] & (cosine > 0))
         seen = points[candidates]
         across = SURFACE_TOLERANCE_M / np.maximum(cosine[candidates], MIN_RAY_COSINE)
         depth = seen[:, 2]
-        limits = depth - np.maximum(occlusion_margin * depth, across * depth / distance[candidates])
-        reach = occluder_reach(frame_occluders, pixels[i, candidates], seen, limits, own_label)
-        uncovered = np.flatnonzero(~occluded_by_others(reach, frame_occluders.sources))
-        frames.append((i, candidates[uncovered]))
-        ends.append(box_points[candidates[uncovered]])
-        rays.append(seen[uncovered] @ rotation)
-        clearances.append(np.maximum(OWN_CLEARANCE_M, across[uncovered]))
-    hidden = surface.hides(np.concatenate(ends), np.concatenate(rays), np.concatenate(clearances))
-    start = 0
-    for i, rows in frames:
-        visibility[i, rows] = ~hidden[start : start + len(rows)]
-        start += len(rows)
-    return visibility
+        limits = depth - np.maximum(self.occlusion_margin * depth, across * depth / distance[candidates])
+        reach = occluder_reach(occluders, self.pixels[i, candidates], seen, limits, self.own_label)
+        uncovered = np.flatnonzero(~occluded_by_others(reach, occluders.sources))
+        self.uncovered[i] = (
+            candidates[uncovered],
+            self.box_points[candidates[uncovered]],
+            seen[uncovered] @ rotation,
+            np.maximum(OWN_CLEARANCE_M, across[uncovered]),
+        )
+
+    def visibility(self) -> np.ndarray:
+        """Visibility [T, N] bool: uncovered (``see``) and not hidden by the object's own surface."""
+        frames = len(self.in_view)
+        assert sorted(self.uncovered) == list(range(frames)), "every frame's occluders are seen"
+        rows, ends, rays, clearances = zip(*(self.uncovered[i] for i in range(frames)), strict=True)
+        hidden = self.surface.hides(np.concatenate(ends), np.concatenate(rays), np.concatenate(clearances))
+        visibility = np.zeros(self.in_view.shape, bool)
+        start = 0
+        for i, frame_rows in enumerate(rows):
+            visibility[i, frame_rows] = ~hidden[start : start + len(frame_rows)]
+            start += len(frame_rows)
+        return visibility

@@ -6,6 +6,7 @@ through ``filters.mask.agreement``), the ``ClipRecord``. Pure computation on one
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 
 import numpy as np
@@ -14,7 +15,8 @@ from pipeline.core.clip import ClipRecord, SparseDepth, TrackStats
 from pipeline.core.geometry import transform_directions_batch, transform_points_batch
 from pipeline.core.outcomes import NotMade
 from pipeline.drivetrack.camera_model import Projection, UnitCamera
-from pipeline.drivetrack.lidar import LidarEvidence
+from pipeline.drivetrack.footprints import FrameOccluders
+from pipeline.drivetrack.lidar import LidarEvidence, stream_occluders
 from pipeline.drivetrack.masks import object_masks
 from pipeline.drivetrack.object_surface import OwnSurface
 from pipeline.drivetrack.objects import ObjectRun
@@ -26,7 +28,7 @@ from pipeline.drivetrack.queries import (
     point_pool,
 )
 from pipeline.drivetrack.records import UnitInput
-from pipeline.drivetrack.refined_visibility import refined_visibility
+from pipeline.drivetrack.refined_visibility import RefinedTracks
 from pipeline.drivetrack.settings import DriveTrackConfig
 from pipeline.drivetrack.surface_normals import fitted_normals
 from pipeline.drivetrack.units import SegmentCamera, clip_name
@@ -38,45 +40,93 @@ from pipeline.sources import RunChoices
 log = logging.getLogger(__name__)
 
 
-def object_visibility(
+@dataclasses.dataclass
+class PreparedClip:
+    """One vehicle's candidate clip before its visibility: its name, the object run, the point pool
+    and the points chosen [N] with their keys [N], their queries given (or None), how the camera
+    sees them per clip frame (one Projection each) and, with ``drivetrack.refined_visibility``, their
+    refined visibility, filled frame by frame as the frames' occluders come
+    (``lidar.stream_occluders``)."""
+
+    name: str
+    run: ObjectRun
+    pool: PointPool
+    chosen: np.ndarray
+    keys: np.ndarray
+    given: np.ndarray | None
+    seen: list[Projection]
+    refined: RefinedTracks | None
+
+    def see(self, t: int, occluders: FrameOccluders) -> None:
+        """Camera frame t's occluders, when the clip spans it."""
+        if self.refined is not None and self.run.start <= t < self.run.stop:
+            self.refined.see(t - self.run.start, occluders)
+
+
+def prepare_clip(
     unit: UnitInput,
     run: ObjectRun,
     evidence: LidarEvidence,
     camera: UnitCamera,
-    seen: list[Projection],
-    pool: PointPool,
-    chosen: np.ndarray,
+    rules: DriveTrackConfig,
+    choices: RunChoices,
+) -> PreparedClip | NotMade:
+    """One vehicle's clip up to its visibility: its points chosen and queried (those of
+    ``--queries-from``'s clip of its name, when it holds one) and seen in every clip frame; or why
+    there is none: its box holds no lidar point."""
+    name = clip_name(unit.segment, unit.camera, run.object_id)
+    pool = point_pool(evidence, run, unit.frames.timestamps)
+    if pool is None:
+        log.info("%s: object %s has no lidar points in its box; no clip", unit_name(unit), run.object_id)
+        return NotMade(f"object {run.object_id}'s box holds no lidar point on its frames")
+    keys = point_keys(choices.seed, name, pool.timestamps, pool.pixels)
+    frames = range(run.start, run.stop)
+    given = choices.given.of(name)
+    count = rules.oversample * rules.tracks_per_clip
+    chosen = choose_points(pool.points, keys, given, run, camera, name, count)
+    seen = camera.project_frames(frames, transform_points_batch(run.world_from_box, pool.points[chosen]))
+    refined = None
+    if rules.refined_visibility:
+        found = evidence.refined
+        assert found is not None, "gather_lidar_cameras(refined=True) gathers the refined evidence"
+        surface = found.surfaces[run.object_id]
+        refined = RefinedTracks(
+            np.stack([s.points for s in seen]),
+            np.stack([s.pixels for s in seen]),
+            np.stack([s.in_view for s in seen]),
+            pool.points[chosen],
+            track_normals(pool, chosen),
+            camera.cam_from_world[run.start : run.stop] @ run.world_from_box,
+            OwnSurface([surface[t] for t in frames if t in surface]),
+            found.labels[run.object_id],
+            rules.occlusion_margin,
+        )
+    return PreparedClip(name, run, pool, chosen, keys[chosen], given, seen, refined)
+
+
+def object_visibility(
+    unit: UnitInput,
+    prepared: PreparedClip,
+    evidence: LidarEvidence,
+    camera: UnitCamera,
     rules: DriveTrackConfig,
 ) -> np.ndarray:
-    """Visibility [T, N] of the pool's points ``chosen`` [N] seen as ``seen`` (one Projection per clip
-    frame): in view, facing the camera, not occluded in the lidar's depth; or with
-    ``drivetrack.refined_visibility``, ``refined_visibility``'s decisions."""
+    """Visibility [T, N] of the prepared clip's points: in view, facing the camera, not occluded in
+    the lidar's depth; or with ``drivetrack.refined_visibility``, ``refined_visibility``'s
+    decisions, every frame's occluders seen."""
+    if prepared.refined is not None:
+        return prepared.refined.visibility()
+    run, seen = prepared.run, prepared.seen
     frames = range(run.start, run.stop)
     # Normals turn with the frame's pose (the camera turns by under a milliradian during a readout).
     cam_from_box = camera.cam_from_world[run.start : run.stop] @ run.world_from_box
-    tracks, pixels = np.stack([s.points for s in seen]), np.stack([s.pixels for s in seen])
-    in_view = np.stack([s.in_view for s in seen])
-    if rules.refined_visibility:
-        refined = evidence.refined
-        assert refined is not None, "gather_lidar_cameras(refined=True) gathers the refined evidence"
-        surface = refined.surfaces[run.object_id]
-        return refined_visibility(
-            tracks,
-            pixels,
-            in_view,
-            pool.points[chosen],
-            track_normals(pool, chosen),
-            cam_from_box,
-            OwnSurface([surface[t] for t in frames if t in surface]),
-            [refined.frame_occluders(t) for t in frames],
-            refined.labels[run.object_id],
-            rules.occlusion_margin,
-        )
     return track_visibility(
-        tracks,
-        pixels,
-        in_view,
-        transform_directions_batch(cam_from_box, pool.normals[chosen]) if rules.facing_test else None,
+        np.stack([s.points for s in seen]),
+        np.stack([s.pixels for s in seen]),
+        np.stack([s.in_view for s in seen]),
+        transform_directions_batch(cam_from_box, prepared.pool.normals[prepared.chosen])
+        if rules.facing_test
+        else None,
         [evidence.depth_uv[t] for t in frames],
         [evidence.depth_z[t] for t in frames],
         [evidence.depth_grid(t) for t in frames],
@@ -123,45 +173,57 @@ def candidate_clip(
     rules: DriveTrackConfig,
     choices: RunChoices,
 ) -> ClipRecord | NotMade:
-    """One vehicle's candidate clip: its candidate tracks with visibility, queries (those of
-    ``--queries-from``'s clip of its name, when it holds one) and filter statistics; or why there is
-    none: its box holds no lidar point.
+    """One vehicle's candidate clip (``prepare_clip``, its occluders streamed with the refined
+    visibility, ``finish_clip``): the camera's only clip, as a test makes it."""
+    prepared = prepare_clip(unit, run, evidence, camera, rules, choices)
+    if isinstance(prepared, NotMade):
+        return prepared
+    if prepared.refined is not None:
+        stream_occluders([evidence], [prepared.see])
+    return finish_clip(unit, prepared, evidence, camera, stored_jpegs, rules, choices)
+
+
+def finish_clip(
+    unit: UnitInput,
+    prepared: PreparedClip,
+    evidence: LidarEvidence,
+    camera: UnitCamera,
+    stored_jpegs: dict[int, bytes],
+    rules: DriveTrackConfig,
+    choices: RunChoices,
+) -> ClipRecord:
+    """The prepared clip's candidate tracks with visibility, queries and filter statistics.
 
     stored_jpegs: the stored frame per unit frame index, for the run's frames.
     """
-    name = clip_name(unit.segment, unit.camera, run.object_id)
-    unit_name = SegmentCamera(unit.segment, unit.camera).name
-    pool = point_pool(evidence, run, unit.frames.timestamps)
-    if pool is None:
-        log.info("%s: object %s has no lidar points in its box; no clip", unit_name, run.object_id)
-        return NotMade(f"object {run.object_id}'s box holds no lidar point on its frames")
-    keys = point_keys(choices.seed, name, pool.timestamps, pool.pixels)
+    run, seen, name = prepared.run, prepared.seen, prepared.name
     frames = range(run.start, run.stop)
-    given = choices.given.of(name)
-    count = rules.oversample * rules.tracks_per_clip
-    chosen = choose_points(pool.points, keys, given, run, camera, name, count)
-    seen = camera.project_frames(frames, transform_points_batch(run.world_from_box, pool.points[chosen]))
     uv = np.stack([s.pixels for s in seen])
-    visibility = object_visibility(unit, run, evidence, camera, seen, pool, chosen, rules)
+    visibility = object_visibility(unit, prepared, evidence, camera, rules)
     frame_ids = unit.frames.timestamps[run.start : run.stop]
     return ClipRecord(
         source="drivetrack",
         name=name,
-        unit=unit_name,
+        unit=unit_name(unit),
         images_jpeg=[stored_jpegs[t] for t in frames],
         fx_fy_cx_cy=unit.calibration.fx_fy_cx_cy.copy(),
         image_size=(unit.calibration.width, unit.calibration.height),
         extrinsics_w2c=camera.cam_from_world[run.start : run.stop].copy(),
         tracks_xyz=np.stack([s.points for s in seen]),
         visibility=visibility,
-        queries_xyt=clip_queries(uv, visibility, given, keys[chosen], rules.stable_query_frames),
+        queries_xyt=clip_queries(uv, visibility, prepared.given, prepared.keys, rules.stable_query_frames),
         frame_ids=frame_ids.copy(),
         track_stats=TrackStats(mask_agreement(unit, run, name, evidence, camera, uv, visibility, rules)),
         target_tracks=rules.tracks_per_clip,
-        given_queries=given is not None,
+        given_queries=prepared.given is not None,
         depth_export=depth_export(evidence, frames, frame_ids) if choices.export_depth else None,
-        track_keys=keys[chosen],
+        track_keys=prepared.keys,
     )
+
+
+def unit_name(unit: UnitInput) -> str:
+    """The name of the unit (segment, camera)."""
+    return SegmentCamera(unit.segment, unit.camera).name
 
 
 def depth_export(evidence: LidarEvidence, frames: range, frame_ids: np.ndarray) -> SparseDepth:

@@ -3,6 +3,8 @@ its group form, ``Source.annotate_group``; these call it for one unit)."""
 
 from __future__ import annotations
 
+import dataclasses
+
 from pipeline.adt.annotate import annotate_group
 from pipeline.adt.units import SequenceChunk
 from pipeline.core.clip import ClipRecord
@@ -28,9 +30,13 @@ def drivetrack_input(input_root: str, segment: str, camera: int) -> DriveTrackIn
 
 
 def drivetrack_clips(unit: DriveTrackInput, config: RunConfig) -> list[ClipRecord]:
-    """The candidate clips of one DriveTrack unit (raises its failure)."""
+    """The candidate clips of one DriveTrack unit (raises its failure). The annotation takes a
+    unit's JPEGs over (``CameraFrames.release_jpegs``): it is given a copy of their list, so that
+    ``unit`` can be annotated again."""
     choices = RunChoices.of(config, "drivetrack")
-    return list(_ok(annotate_cameras([unit], config.section(DriveTrackConfig), choices)[0]).clips)
+    frames = dataclasses.replace(unit.frames, jpegs=list(unit.frames.jpegs))
+    copy = dataclasses.replace(unit, frames=frames)
+    return list(_ok(annotate_cameras([copy], config.section(DriveTrackConfig), choices)[0]).clips)
 
 
 def drivetrack_segment_clips(
