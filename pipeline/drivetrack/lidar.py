@@ -400,11 +400,22 @@ def box_points(
     # Only points within ``reach`` (the circumscribed sphere's radius and a metre) of the centre in
     # x and y can be inside: the others are never carried into the box frame (same numbers).
     reach = np.linalg.norm(np.abs(box[3:6] - shrink)) / 2.0 + 1.0
-    near = np.flatnonzero(np.abs(points_vehicle[:, 0] - box[0]) <= reach)
-    near = near[np.abs(points_vehicle[near, 1] - box[1]) <= reach]
+    near = _near(points_vehicle, float(box[0]), float(box[1]), float(reach))
     local = transform_points(box_from_vehicle, points_vehicle[near])
     inside = inside_box(local, box[3:6], shrink)
     return near[inside], local[inside], box_from_vehicle
+
+
+@numba.njit(cache=True, nogil=True)
+def _near(points, x, y, reach):
+    """[K] ascending indices of the points [P, 3] within ``reach`` of (x, y) in x and in y."""
+    near = np.empty(len(points), np.int64)
+    count = 0
+    for i in range(len(points)):
+        if abs(points[i, 0] - x) <= reach and abs(points[i, 1] - y) <= reach:
+            near[count] = i
+            count += 1
+    return near[:count].copy()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -480,14 +491,13 @@ def stream_occluders(
     footprints of each sweep in the frames it serves; each camera frame's, once the sweeps of the
     frame and of its neighbours are in, go to its camera's consumer (``consumers[i](t, occluders)``)
     and are let go of. Only a few frames' footprints are ever held."""
-    refined = [found.refined for found in evidence]
-    assert all(r is not None for r in refined), "gather_lidar_cameras(refined=True) keeps the sweeps"
+    refined = [_refined(found) for found in evidence]
     if not refined:
         return
-    passes = [r.item for r in refined if r is not None]
+    passes = [found.item for found in refined]
     first = passes[0].unit
     users = _users(passes)
-    sweeps = refined[0].sweeps if refined[0] is not None else {}
+    sweeps = refined[0].sweeps  # shared by the cameras of the pass
     for stamp in sorted(users):
         kept = sweeps.pop(stamp)
         what = f"lidar/{first.segment} TOP frame {kept.timestamp}"
@@ -496,15 +506,20 @@ def stream_occluders(
         in_vehicle = _in_vehicle(sweep)
         for i, t in users[stamp]:
             found = refined[i]
-            assert found is not None
             in_camera = kept.seen_by(found.item.unit.camera)
             _sweep_footprints(found, t, sweep, spacing, in_camera, in_vehicle(found.item.world_from_frame[t]))
             if t - 1 in found.footprints:  # its sweeps t - 2, t - 1 and t are all in
                 consumers[i](t - 1, found.settled(t - 1))
     for found, consume in zip(refined, consumers, strict=True):
-        assert found is not None
         for t in sorted(found.footprints):
             consume(t, found.settled(t))
+
+
+def _refined(found: LidarEvidence) -> RefinedEvidence:
+    """A camera's refined evidence (``gather_lidar_cameras`` with ``refined`` gathers it)."""
+    if found.refined is None:
+        raise ValueError("the refined visibility's second pass needs gather_lidar_cameras(refined=True)")
+    return found.refined
 
 
 def _spacing(calibration: LidarCalibration, height: int, what: str) -> np.ndarray:
