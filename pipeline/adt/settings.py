@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from pipeline.settings.fields import NOT_KNOWN, flag, not_in_clips, ranged
+from pipeline.settings.fields import NOT_KNOWN, clip_length, flag, not_in_clips, ranged
 
 
 @dataclasses.dataclass(frozen=True)
@@ -15,7 +15,8 @@ class AdtConfig:
 
     chunk_frames: frames per clip (chunk k = frames [k * chunk_frames, (k + 1) * chunk_frames)
       of the RGB frames strictly inside the ground-truth window).
-    min_frames: a chunk with fewer frames (the end of a sequence) is skipped.
+    min_frames: a chunk with fewer frames (the end of a sequence) is skipped. A training run sets
+      both to ``training.clip_frames`` unless a ``--set`` gives one of them.
     with_skeleton: read the depth and segmentation that render the wearer's body and hands.
     max_gt_offset_ms: the largest time between an RGB frame and the depth, segmentation and
       poses used for it (projectaria-tools' CLOSEST sample); a frame beyond it fails its unit
@@ -39,8 +40,8 @@ class AdtConfig:
       at a time per worker, and deleted after; empty = a folder under the system's temporary folder.
     """
 
-    chunk_frames: int = ranged(300, "[1, 100000]")
-    min_frames: int = ranged(300, "[1, chunk_frames]")
+    chunk_frames: int = clip_length(300, "[1, 100000]")
+    min_frames: int = clip_length(300, "[1, chunk_frames]")
     with_skeleton: bool = flag(True, release=NOT_KNOWN)
     max_gt_offset_ms: float = ranged(5.0, "[0, 1000]", release=0.0)
     image_size: int = ranged(512, "[2, 8192]", even=True)

@@ -100,7 +100,6 @@ def annotate_cameras(
             world_from_frame = frame_poses(unit)
             camera = unit_camera(unit)
             runs, why = select_objects(unit, camera, world_from_frame, rules, object_ids(unit, wanted[i]))
-            why = {clip_name(unit.segment, unit.camera, object_id): text for object_id, text in why.items()}
             if not runs:
                 results[i] = UnitClips((), why)
                 continue
@@ -156,9 +155,8 @@ def _prepared(
     try:
         clips: dict[str, PreparedClip | NotMade] = {}
         for run in item.runs:
-            name = clip_name(item.unit.segment, item.unit.camera, run.object_id)
-            if choices.wants(name, None):  # the wanted objects alone were selected
-                clips[name] = prepare_clip(item.unit, run, evidence, item.camera, rules, choices)
+            if choices.wants(run.name, None):  # the wanted objects alone were selected
+                clips[run.name] = prepare_clip(item.unit, run, evidence, item.camera, rules, choices)
         return clips
     except Exception as error:  # noqa: BLE001 - the camera's failure, the others go on
         return error

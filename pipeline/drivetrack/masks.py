@@ -16,6 +16,7 @@ from pipeline.drivetrack.lidar import LidarEvidence
 from pipeline.drivetrack.objects import ObjectRun
 from pipeline.drivetrack.records import UnitInput
 from pipeline.drivetrack.settings import DriveTrackConfig
+from pipeline.drivetrack.units import clip_name
 from pipeline.io.files import read_input
 
 MAX_CLOSING_PX = 63
@@ -70,19 +71,18 @@ def read_mask_png(path: str, width: int, height: int) -> np.ndarray | None:
 def object_masks(
     unit: UnitInput,
     run: ObjectRun,
-    clip_name: str,
     evidence: LidarEvidence,
     camera: UnitCamera,
     rules: DriveTrackConfig,
 ) -> tuple[list[np.ndarray | None], np.ndarray]:
     """Object mask per clip frame ([H, W] bool, or None where there is none) and [T] has-mask
-    flags: ``<masks_dir>/<clip name>/<frame id>.png`` when ``drivetrack.masks_dir`` is set, else
-    the silhouette of the object's lidar points of that frame, where they appear in the stored
-    frame (placed by the run's boxes)."""
+    flags: ``<masks_dir>/<clip name>/<frame id>.png`` when ``drivetrack.masks_dir`` is set (a
+    window's: its object's whole run's clip name), else the silhouette of the object's lidar points
+    of that frame, where they appear in the stored frame (placed by the run's boxes)."""
     calibration = unit.calibration
     frames = range(run.start, run.stop)
     if rules.masks_dir:
-        folder = f"{rules.masks_dir.rstrip('/')}/{clip_name}"
+        folder = f"{rules.masks_dir.rstrip('/')}/{clip_name(unit.segment, unit.camera, run.object_id)}"
         masks = [
             read_mask_png(f"{folder}/{unit.frames.timestamps[t]}.png", calibration.width, calibration.height)
             for t in frames

@@ -1,6 +1,7 @@
 """Which vehicles become clips of a unit, and on which frames: the objects the camera sees best
-whose box projects into it on enough contiguous frames, near enough; and the geometry of their
-upright 7-DoF boxes (cx, cy, cz, length, width, height, heading)."""
+whose box projects into it on enough contiguous frames (cut into windows of ``drivetrack.clip_frames``),
+near enough; and the geometry of their upright 7-DoF boxes (cx, cy, cz, length, width, height,
+heading)."""
 
 from __future__ import annotations
 
@@ -12,19 +13,22 @@ import numpy as np
 from pipeline.core.errors import InputError
 from pipeline.core.geometry import rotation_z, se3_from_rotation_translation, transform_points
 from pipeline.core.outcomes import NotMade
+from pipeline.core.windows import cut
 from pipeline.drivetrack.camera_model import Projection, UnitCamera
 from pipeline.drivetrack.records import UnitInput
 from pipeline.drivetrack.settings import DriveTrackConfig
+from pipeline.drivetrack.units import clip_name
 
 
 @dataclasses.dataclass(frozen=True)
 class ObjectRun:
-    """A vehicle's clip: frames [start, stop) of the camera, its boxes on those frames.
+    """A vehicle's clip ``name``: frames [start, stop) of the camera, its boxes on those frames.
 
     world_from_box: [T, 4, 4] camera-synced box poses in the world.
     lidar_boxes: [T, 7] lidar boxes (vehicle frame at frame time).
     """
 
+    name: str
     object_id: str
     start: int
     stop: int
@@ -88,46 +92,40 @@ def select_objects(
     wanted: frozenset[str] | None = None,
 ) -> tuple[list[ObjectRun], dict[str, str]]:
     """Vehicles assigned to this camera whose box projects on enough contiguous frames, each on its
-    longest such run, with a box corner within reach on one of its frames; in object-id order.
+    longest such run (cut into windows of ``drivetrack.clip_frames``, each a run of its own), with a
+    box corner within reach on one of its frames; in object-id order, then window order.
 
     world_from_frame: [T, 4, 4] vehicle pose per camera frame (``camera_model.frame_poses``).
     wanted: object ids to consider (a release run's); None: every object of the segment.
-    Returns the runs and, for each object considered and left out (and each wanted id the segment
-    does not have), why.
+    Returns the runs and, by clip name, why each object or window considered makes none (and each
+    wanted id the segment does not have).
     """
     known = set(unit.boxes.object_ids.tolist())
+    absent = sorted((wanted or set()) - known)
     skipped = {
-        object_id: f"object id {object_id} is not among the segment's boxes"
-        for object_id in sorted((wanted or set()) - known)
+        clip_name(unit.segment, unit.camera, i): f"object id {i} is not among the segment's boxes"
+        for i in absent
     }
     runs = []
     for object_id in sorted(known if wanted is None else known & wanted):
-        made = object_run(unit, camera, world_from_frame, object_id, rules)
-        if isinstance(made, NotMade):
-            skipped[object_id] = made.reason
-        else:
-            runs.append(made)
+        for name, made in object_runs(unit, camera, world_from_frame, object_id, rules).items():
+            if isinstance(made, NotMade):
+                skipped[name] = made.reason
+            else:
+                runs.append(made)
     return runs, skipped
 
 
-def object_run(
+def object_runs(
     unit: UnitInput, camera: UnitCamera, world_from_frame: np.ndarray, object_id: str, rules: DriveTrackConfig
-) -> ObjectRun | NotMade:
-    """The clip run of one object of the segment, or why it makes none on this unit's camera."""
-    boxes = unit.boxes
-    rows = np.nonzero(boxes.object_ids == object_id)[0]
-    kind = int(boxes.types[rows[0]])
-    if kind not in rules.object_types:
-        types = ",".join(str(t) for t in rules.object_types)
-        return NotMade(
-            f"object {object_id} is of type {kind} ({OBJECT_TYPES.get(kind, 'unknown')}), not in "
-            f"drivetrack.object_types={types}"
-        )
-    assigned = assigned_camera(boxes.most_visible_camera[rows])
-    if assigned != unit.camera:
-        return NotMade(
-            f"object {object_id} belongs to camera {assigned} (the one that sees it most), not {unit.camera}"
-        )
+) -> dict[str, ObjectRun | NotMade]:
+    """The clip runs of one object of the segment by name (its longest run, or that run's windows),
+    or why one makes none on this unit's camera."""
+    name = clip_name(unit.segment, unit.camera, object_id)
+    rows = np.nonzero(unit.boxes.object_ids == object_id)[0]
+    refused = not_tracked(unit, object_id, rows, rules)
+    if refused is not None:
+        return {name: refused}
     synced, lidar = boxes_per_frame(unit, object_id, rows)
     labelled = np.isfinite(synced[:, 0])
     world_from_box = np.full((len(synced), 4, 4), np.nan)
@@ -140,16 +138,42 @@ def object_run(
         nearest[t] = np.linalg.norm(corners.points, axis=1).min()
     start, stop = longest_run(in_view_flags)
     if stop - start < rules.min_contiguous_frames:
-        return NotMade(
+        why = (
             f"object {object_id}'s box is in view on at most {stop - start} contiguous frame(s), fewer "
             f"than drivetrack.min_contiguous_frames={rules.min_contiguous_frames}"
         )
-    if nearest[start:stop].min() > rules.max_corner_distance_m:
-        return NotMade(
-            f"object {object_id}'s box comes no nearer than {nearest[start:stop].min():.1f} m, beyond "
-            f"drivetrack.max_corner_distance_m={rules.max_corner_distance_m:g}"
+        return {name: NotMade(why)}
+    runs: dict[str, ObjectRun | NotMade] = {}
+    for window in cut(name, stop - start, rules.clip_frames, rules.min_contiguous_frames):
+        first, last = start + window.start, start + window.stop
+        closest = nearest[first:last].min()
+        runs[window.name] = (
+            ObjectRun(window.name, object_id, first, last, world_from_box[first:last], lidar[first:last])
+            if closest <= rules.max_corner_distance_m
+            else NotMade(
+                f"object {object_id}'s box comes no nearer than {closest:.1f} m, beyond "
+                f"drivetrack.max_corner_distance_m={rules.max_corner_distance_m:g}"
+            )
         )
-    return ObjectRun(object_id, start, stop, world_from_box[start:stop], lidar[start:stop])
+    return runs
+
+
+def not_tracked(unit: UnitInput, object_id: str, rows: np.ndarray, rules: DriveTrackConfig) -> NotMade | None:
+    """Why the object of label rows [R] makes no clip on this unit's camera whatever its boxes: its
+    type is not tracked, or another camera sees it most; None when neither."""
+    kind = int(unit.boxes.types[rows[0]])
+    if kind not in rules.object_types:
+        types = ",".join(str(t) for t in rules.object_types)
+        return NotMade(
+            f"object {object_id} is of type {kind} ({OBJECT_TYPES.get(kind, 'unknown')}), not in "
+            f"drivetrack.object_types={types}"
+        )
+    assigned = assigned_camera(unit.boxes.most_visible_camera[rows])
+    if assigned != unit.camera:
+        return NotMade(
+            f"object {object_id} belongs to camera {assigned} (the one that sees it most), not {unit.camera}"
+        )
+    return None
 
 
 _CORNER_SIGNS = np.array(

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from pipeline.settings.fields import NOT_KNOWN, flag, path_setting, ranged
+from pipeline.settings.fields import NOT_KNOWN, clip_length, flag, path_setting, ranged
 
 
 @dataclasses.dataclass(frozen=True)
@@ -26,6 +26,10 @@ class DriveTrackConfig:
       box are attached to the object.
     min_contiguous_frames: an object makes a clip only when its box projects into the camera on at
       least this many contiguous frames (the clip is the longest such run).
+    clip_frames: frames per clip: an object's run longer than this is cut into consecutive windows
+      of this many frames, each a clip named ``<run's name>_w<k>`` (k = 0, 1, ...), a shorter last
+      one kept only with at least min_contiguous_frames; 0: the whole run (the release's). A
+      training run sets it (``training.clip_frames``).
     max_corner_distance_m: an object makes a clip only when some box corner comes within this
       distance (metres) of the camera during the clip.
     occlusion_margin: a track point is occluded when the lidar depth at its pixel is below
@@ -49,8 +53,8 @@ class DriveTrackConfig:
       generator's Segment Anything masks trimmed (2-3%); 0.8 trimmed 13-22% there, mostly true
       surface points the one-sweep lidar silhouette missed.
     masks_dir: optional per-frame masks instead of the default lidar silhouette,
-      read as ``<masks_dir>/<clip name>/<frame id>.png`` (non-zero = object), on the undistorted
-      frames' pixels.
+      read as ``<masks_dir>/<clip name>/<frame id>.png`` (non-zero = object; a window's: its whole
+      run's clip name), on the undistorted frames' pixels.
     mask_closing_px: kernel of the morphological closing of the lidar silhouette;
       0 picks it from the spacing of the projected lidar points in each frame.
     undistort_frames: Waymo's frames carry lens distortion (up to ~8 px at the corners of a
@@ -65,6 +69,7 @@ class DriveTrackConfig:
     object_types: tuple[int, ...] = ranged((1,), "[1, 4]", nonempty=True)
     box_shrink_m: float = ranged(0.1, "[0, 10]")
     min_contiguous_frames: int = ranged(24, "[1, 100000]")
+    clip_frames: int = clip_length(0, "[0, 100000]", release_fixed=True)
     max_corner_distance_m: float = ranged(50.0, "(0, 10000]")
     occlusion_margin: float = ranged(0.05, "[0, 1)")
     facing_test: bool = flag(True, release=False)

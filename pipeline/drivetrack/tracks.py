@@ -31,7 +31,7 @@ from pipeline.drivetrack.records import UnitInput
 from pipeline.drivetrack.refined_visibility import RefinedTracks
 from pipeline.drivetrack.settings import DriveTrackConfig
 from pipeline.drivetrack.surface_normals import fitted_normals
-from pipeline.drivetrack.units import SegmentCamera, clip_name
+from pipeline.drivetrack.units import SegmentCamera
 from pipeline.drivetrack.visibility import track_visibility
 from pipeline.export.depth_export import sparse_export
 from pipeline.filters.mask import agreement, on_mask
@@ -74,7 +74,7 @@ def prepare_clip(
     """One vehicle's clip up to its visibility: its points chosen and queried (those of
     ``--queries-from``'s clip of its name, when it holds one) and seen in every clip frame; or why
     there is none: its box holds no lidar point."""
-    name = clip_name(unit.segment, unit.camera, run.object_id)
+    name = run.name
     pool = point_pool(evidence, run, unit.frames.timestamps)
     if pool is None:
         log.info("%s: object %s has no lidar points in its box; no clip", unit_name(unit), run.object_id)
@@ -145,7 +145,6 @@ def track_normals(pool: PointPool, chosen: np.ndarray) -> np.ndarray:
 def mask_agreement(
     unit: UnitInput,
     run: ObjectRun,
-    name: str,
     evidence: LidarEvidence,
     camera: UnitCamera,
     uv: np.ndarray,
@@ -154,7 +153,7 @@ def mask_agreement(
 ) -> np.ndarray:
     """Per track [N], the share of its visible frames [T, N] on the object's mask (NaN without a
     mask); uv [T, N, 2] the tracks' pixels in the stored frames."""
-    masks, has_mask = object_masks(unit, run, name, evidence, camera, rules)
+    masks, has_mask = object_masks(unit, run, evidence, camera, rules)
     on_object = np.stack(
         [
             on_mask(mask, uv[i]) if mask is not None else np.zeros(uv.shape[1], bool)
@@ -213,7 +212,7 @@ def finish_clip(
         visibility=visibility,
         queries_xyt=clip_queries(uv, visibility, prepared.given, prepared.keys, rules.stable_query_frames),
         frame_ids=frame_ids.copy(),
-        track_stats=TrackStats(mask_agreement(unit, run, name, evidence, camera, uv, visibility, rules)),
+        track_stats=TrackStats(mask_agreement(unit, run, evidence, camera, uv, visibility, rules)),
         target_tracks=rules.tracks_per_clip,
         given_queries=prepared.given is not None,
         depth_export=depth_export(evidence, frames, frame_ids) if choices.export_depth else None,

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 
 from pipeline.core.errors import InputError
 from pipeline.core.outcomes import UnitClips
+from pipeline.core.windows import cut
 from pipeline.pstudio.reader import SequenceFiles, params_path, read_gaussians, read_views
 from pipeline.pstudio.records import GaussianConstants, Gaussians, UnitInput, Views
 from pipeline.pstudio.settings import PstudioConfig
@@ -65,8 +66,9 @@ def annotate_group(
     """The cameras of one sequence annotated together (``Source.annotate_group``): its Gaussians
     read once, each mask decoded once (the multi-view mask statistic reads every camera's); per
     unit, as soon as it is made, its clip or the exception that failed it (a bad train_meta.json or
-    params.npz fails them all). A camera whose clip is not wanted (``wanted``: a release run's, or
-    not in ``--queries-from``) makes none; the run says why."""
+    params.npz fails them all). A camera's sequence longer than ``pstudio.clip_frames`` makes one
+    clip per window (``core.windows.cut``). A clip not wanted (``wanted``: a release run's, or not
+    in ``--queries-from``) is not made; the run says why."""
     sequences = {unit.sequence for unit in units}
     if len(sequences) != 1:
         raise ValueError(f"annotate_group takes the units of one sequence, got {sorted(sequences)}")
@@ -79,10 +81,14 @@ def annotate_group(
     for unit, keep in zip(units, wanted, strict=True):
         result: UnitClips | Exception
         try:
-            if choices.wants(clip_name(unit.sequence, unit.camera), keep):
-                result = UnitClips((candidate_clip(camera_input(opened, unit.camera), settings, choices),))
-            else:
-                result = UnitClips(())
+            whole = clip_name(unit.sequence, unit.camera)
+            windows = cut(whole, opened.frames, settings.clip_frames, settings.min_frames)
+            windows = [window for window in windows if choices.wants(window.name, keep)]
+            clips = []
+            if windows:
+                camera = camera_input(opened, unit.camera)
+                clips = [candidate_clip(camera.in_window(window), settings, choices) for window in windows]
+            result = UnitClips(tuple(clips))
         except Exception as error:  # noqa: BLE001 - this camera's failure only (a bad --queries-from file too)
             result = error
         yield result

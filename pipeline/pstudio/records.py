@@ -8,6 +8,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from pipeline.core.windows import Window
 from pipeline.pstudio.mask_cache import unpack_mask
 
 
@@ -75,7 +76,8 @@ class UnitInput:
     """Everything one unit reads. ``constants``: the Gaussians' (``splats.gaussian_constants``, once
     per sequence); ``packed_mask(view, t)`` returns camera ``view``'s foreground mask at frame t
     bit-packed, ``np.packbits`` of the [H, W] bools row-major ([ceil(H W / 8)] uint8; ``mask``
-    unpacks it); ``frames_jpeg`` are the unit camera's T frames."""
+    unpacks it); ``frames_jpeg`` are the unit camera's T frames. ``window``: the clip of a cut
+    sequence these T frames are (``in_window``); None: the camera's whole sequence."""
 
     sequence: str
     camera_id: int
@@ -84,7 +86,24 @@ class UnitInput:
     constants: GaussianConstants
     frames_jpeg: list[bytes]
     packed_mask: Callable[[int, int], np.ndarray]
+    window: Window | None = None
 
     def mask(self, view: int, t: int) -> np.ndarray:
         """Camera ``view``'s foreground mask [H, W] bool at frame t."""
         return unpack_mask(self.packed_mask(view, t), self.views.width, self.views.height)
+
+    def in_window(self, window: Window) -> UnitInput:
+        """The unit of ``window``'s frames of this whole sequence: its Gaussians' means and
+        quaternions, frames and masks from the window's first frame on (views, no copies)."""
+        g, start, stop = self.gaussians, window.start, window.stop
+        gaussians = Gaussians(
+            g.means[start:stop], g.quaternions[start:stop], g.scales, g.opacities, g.foreground
+        )
+
+        def packed_mask(view: int, t: int) -> np.ndarray:
+            return self.packed_mask(view, start + t)
+
+        frames = self.frames_jpeg[start:stop]
+        return dataclasses.replace(
+            self, gaussians=gaussians, frames_jpeg=frames, packed_mask=packed_mask, window=window
+        )

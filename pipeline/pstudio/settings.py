@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from pipeline.settings.fields import NOT_KNOWN, path_setting, ranged
+from pipeline.settings.fields import NOT_KNOWN, clip_length, path_setting, ranged
 
 
 @dataclasses.dataclass(frozen=True)
@@ -15,6 +15,11 @@ class PstudioConfig:
     params_dir: folder holding ``<sequence>/params.npz``; empty = ``<input>/output/<exp>``
       when ``<input>/output`` holds exactly one experiment.
     cameras: the unit cameras; empty = every camera of train_meta.json.
+    clip_frames: frames per clip: a camera's sequence longer than this is cut into consecutive
+      windows of this many frames, each a clip named ``<sequence>_<camera>_w<k>`` (k = 0, 1, ...);
+      0: the whole sequence (the release's). A training run sets it (``training.clip_frames``).
+    min_frames: the last window of a cut sequence, when shorter than clip_frames, makes a clip only
+      with at least this many frames.
     depth_delta_m: depth-test tolerance |z - D(u, v)| < delta on the splats' median depth
       (metres); no point is visible where the transmittance never drops below 0.5 (the
       renderer's 15 m background). 0.05 measured best on the sample world (agreement with
@@ -33,6 +38,8 @@ class PstudioConfig:
 
     params_dir: str = path_setting()
     cameras: tuple[int, ...] = ranged((), "[0, 999]")
+    clip_frames: int = clip_length(0, "[0, 100000]", release_fixed=True)
+    min_frames: int = ranged(24, "[1, 100000]")
     depth_delta_m: float = ranged(0.05, "(0, 10]", release=NOT_KNOWN)
     max_attach_distance_m: float = ranged(0.03, "[0, 10]", release=0.0)
     mask_min_agreement: float = ranged(0.75, "[0, 1]")

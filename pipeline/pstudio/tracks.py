@@ -23,6 +23,7 @@ from pipeline.core.errors import InputError
 from pipeline.core.geometry import invert_se3, project, transform_points, unproject
 from pipeline.core.sampling import rng_for
 from pipeline.core.visibility import in_view, passes_dense_depth_test
+from pipeline.core.windows import Window
 from pipeline.export.depth_export import dense_depth_mm, dense_export
 from pipeline.io.given_queries import given_query_frames
 from pipeline.pstudio.multiview_masks import multiview_mask_fraction
@@ -33,6 +34,12 @@ from pipeline.pstudio.settings import PstudioConfig
 from pipeline.pstudio.splats import Splats2D, project_splats
 from pipeline.pstudio.units import SequenceCamera, clip_name
 from pipeline.sources import RunChoices
+
+
+def unit_clip(unit: UnitInput) -> Window:
+    """The unit's clip: its window of a cut sequence, else the camera's whole sequence, named
+    ``<sequence>_<camera>``."""
+    return unit.window or Window(clip_name(unit.sequence, unit.camera_id), 0, unit.gaussians.num_frames)
 
 
 def splats_in_view(
@@ -69,7 +76,7 @@ def attach_queries(
     intrinsics = unit.views.fx_fy_cx_cy[view]
     world_from_cam = invert_se3(unit.views.w2c[view])
     foreground = np.nonzero(unit.gaussians.foreground)[0]
-    rng = rng_for(seed, f"{clip_name(unit.sequence, unit.camera_id)}/queries")
+    rng = rng_for(seed, f"{unit_clip(unit).name}/queries")
     frames = rng.integers(0, unit.gaussians.num_frames, size=attempts)
     draws = rng.random(attempts)
     gaussian = np.full(attempts, -1)
@@ -104,7 +111,7 @@ def match_given_queries(unit: UnitInput, queries: np.ndarray) -> np.ndarray:
     intrinsics = unit.views.fx_fy_cx_cy[view]
     world_from_cam = invert_se3(unit.views.w2c[view])
     foreground = np.nonzero(unit.gaussians.foreground)[0]
-    name = clip_name(unit.sequence, unit.camera_id)
+    name = unit_clip(unit).name
     frames = given_query_frames(queries, unit.gaussians.num_frames, name)
     chosen = np.empty(len(queries), np.int64)
     for t in np.unique(frames):
@@ -208,16 +215,16 @@ def read_masks(unit: UnitInput) -> None:
     bad mask fails the unit before any Gaussian is projected (each is decoded once, then cached).
     A mask is checked by its packed length, without unpacking it: the statistic's kernel reads
     its bits by pixel index."""
-    views = unit.views
+    views, clip = unit.views, unit_clip(unit)
     size = -(-views.width * views.height // 8)
     for t in range(unit.gaussians.num_frames):
         for view in range(len(views.camera_ids)):
             packed = unit.packed_mask(view, t)
             if packed.dtype != np.uint8 or packed.shape != (size,):
                 raise InputError(
-                    f"{clip_name(unit.sequence, unit.camera_id)}: the mask of camera "
-                    f"{views.camera_ids[view]} at frame {t} is {packed.dtype} {packed.shape}, not "
-                    f"{views.width}x{views.height} pixels bit-packed (uint8 ({size},))"
+                    f"{clip.name}: the mask of camera {views.camera_ids[view]} at frame {clip.start + t} "
+                    f"is {packed.dtype} {packed.shape}, not {views.width}x{views.height} pixels bit-packed "
+                    f"(uint8 ({size},))"
                 )
 
 
@@ -226,7 +233,8 @@ def candidate_clip(unit: UnitInput, settings: PstudioConfig, choices: RunChoices
     ``--queries-from``'s clip of its name, when it holds one)."""
     wanted = settings.tracks_per_clip * settings.oversample
     delta, export_depth = settings.depth_delta_m, choices.export_depth
-    queries = choices.given.of(clip_name(unit.sequence, unit.camera_id))
+    clip = unit_clip(unit)
+    queries = choices.given.of(clip.name)
     read_masks(unit)
     if queries is not None:
         gaussians = match_given_queries(unit, queries)
@@ -244,10 +252,10 @@ def candidate_clip(unit: UnitInput, settings: PstudioConfig, choices: RunChoices
     view = unit.views.index(unit.camera_id)
     intrinsics = unit.views.fx_fy_cx_cy[view]
     query_xy = project(tracks[query_frames, np.arange(len(valid))], intrinsics)
-    frame_ids = np.arange(unit.gaussians.num_frames, dtype=np.int64)
-    clip = ClipRecord(
+    frame_ids = np.arange(clip.start, clip.stop, dtype=np.int64)
+    return ClipRecord(
         source="pstudio",
-        name=clip_name(unit.sequence, unit.camera_id),
+        name=clip.name,
         unit=SequenceCamera(unit.sequence, unit.camera_id).name,
         images_jpeg=unit.frames_jpeg,
         fx_fy_cx_cy=intrinsics,
@@ -265,4 +273,3 @@ def candidate_clip(unit: UnitInput, settings: PstudioConfig, choices: RunChoices
         given_queries=queries is not None,
         depth_export=dense_export(depth_maps, frame_ids) if export_depth else None,
     )
-    return clip

@@ -20,7 +20,7 @@ from pipeline.io.files import is_local, remove_quietly, write_atomic
 from pipeline.io.http import is_http
 from pipeline.runner.splits import Release, read_release
 from pipeline.runner.training import Training, prepare_training
-from pipeline.settings.fields import path_settings
+from pipeline.settings.fields import path_settings, release_fixed_changes
 from pipeline.settings.rule_sets import RuleSet, assigned_keys, configured, rule_set
 from pipeline.settings.run_config import RunConfig
 from pipeline.sources import Source, UnitPlan
@@ -75,6 +75,8 @@ def prepare_run(args: argparse.Namespace, beam_args: list[str]) -> PreparedRun:
     output = absolute(args.output)
     storage.check_scheme(output)
     config = configured(args.overrides, bool(args.release))
+    if args.release:
+        check_release_lengths(config, source.name)
     rules = rule_set(config, source.name, assigned_keys(args.overrides))
     config, release = command_settings(config, args)
     training = None
@@ -92,6 +94,18 @@ def prepare_run(args: argparse.Namespace, beam_args: list[str]) -> PreparedRun:
     return PreparedRun(
         source, config, rules, input_root, output, release, args.overwrite, beam_args, options, training
     )
+
+
+def check_release_lengths(config: RunConfig, source: str) -> None:
+    """CannotStart, on a ``--release`` run, when a clip length of the source is set that cuts the
+    release's clips into windows it does not name (``release_fixed``: ``<source>.clip_frames``)."""
+    changed = release_fixed_changes(config, source)
+    if changed:
+        given = ", ".join(f"--set {key}={value}" for key, value in changed.items())
+        raise CannotStart(
+            f"--release makes the release's clips, whole: {given} cuts them into clips it does not "
+            "name; drop it"
+        )
 
 
 def command_settings(config: RunConfig, args: argparse.Namespace) -> tuple[RunConfig, Release | None]:

@@ -1,12 +1,13 @@
 """A training run (``python -m pipeline.run --training``): clips of the scenes the benchmark does not
-evaluate on, with the rules and tracks per clip of training data.
+evaluate on, with the rules, tracks and frames per clip of training data.
 
 Before any work (``prepare_training``): the source must say what a scene is (``Source.scene_of``,
 ``Source.clip_scene``); the benchmark's splits file is found (``training.splits_file``, else the
 official one beside the repository) and read; the source's own ``<source>.tracks_per_clip`` takes
-``training.tracks_per_clip`` unless a ``--set`` gives it. Once the units are listed
-(``leave_out_benchmark``): every unit whose scene a benchmark clip comes from is dropped and listed,
-with those clips, in ``<out>/train/exclusions_<source>.jsonl``. The run's end, shards and card, is
+``training.tracks_per_clip``, and its clip-length settings ``training.clip_frames``, unless a
+``--set`` gives them. Once the units are listed (``leave_out_benchmark``): every unit whose scene a
+benchmark clip comes from is dropped and listed, with those clips, in
+``<out>/train/exclusions_<source>.jsonl``. The run's end, shards and card, is
 ``runner/training_output.py``'s.
 """
 
@@ -24,7 +25,7 @@ from pipeline.export.layout import exclusions_path
 from pipeline.io.files import is_local, write_atomic
 from pipeline.io.http import scrub
 from pipeline.runner.splits import read_release
-from pipeline.settings.fields import flat_settings, with_overrides
+from pipeline.settings.fields import clip_lengths, flat_settings, with_overrides
 from pipeline.settings.rule_sets import assigned_keys
 from pipeline.settings.run_config import RunConfig
 from pipeline.sources import Source, UnitPlan
@@ -93,8 +94,8 @@ def splits_path(config: RunConfig) -> str:
 def prepare_training(
     config: RunConfig, source: Source, args: argparse.Namespace, beam_args: Sequence[str]
 ) -> tuple[RunConfig, Training]:
-    """A training run's settings (its tracks per clip, its splits file resolved) and what it keeps;
-    CannotStart or InputError saying why it cannot start."""
+    """A training run's settings (its tracks and frames per clip, its splits file resolved) and what
+    it keeps; CannotStart or InputError saying why it cannot start."""
     if source.scene_of is None or source.clip_scene is None:
         raise CannotStart(
             f"--training: source {source.name} does not say what a scene is (Source.scene_of and "
@@ -104,8 +105,9 @@ def prepare_training(
     given = f"--set {SPLITS_KEY}={config.training.splits_file}" if config.training.splits_file else path
     scenes, unknown = benchmark_scenes(source, read_release(path, given).clips.get(source.name, {}))
     config, tracks = with_training_tracks(config, source.name, args.overrides)
+    config, lengths = with_training_lengths(config, source.name, args.overrides)
     config = dataclasses.replace(config, training=dataclasses.replace(config.training, splits_file=path))
-    lines = [f"training: leaving out the {len(scenes)} {source.name} scene(s) of {path}", *tracks]
+    lines = [f"training: leaving out the {len(scenes)} {source.name} scene(s) of {path}", *tracks, *lengths]
     if unknown:
         lines.append(
             f"training: {unknown} {source.name} clip name(s) of {path} name no scene; none left out for them"
@@ -141,6 +143,29 @@ def with_training_tracks(
         return config, [f"training: --set {key}={values[key]} wins over training.tracks_per_clip ({tracks})"]
     line = f"training: {key}={tracks} (training.tracks_per_clip; a plain run's: {values[key]})"
     return with_overrides(config, [f"{key}={tracks}"]), [line]
+
+
+def with_training_lengths(
+    config: RunConfig, source: str, assignments: list[str]
+) -> tuple[RunConfig, list[str]]:
+    """``config`` with the source's clip-length settings (``clip_lengths``: ``<source>.clip_frames``,
+    ADT's ``chunk_frames`` and ``min_frames``) at ``training.clip_frames``, unless a ``--set`` gave one
+    of them (then all are as given) or it is 0 (the source's own lengths); and the line that says
+    which."""
+    frames, lengths = config.training.clip_frames, clip_lengths(config, source)
+    if not lengths:
+        return config, []
+    given = [key for key in lengths if key in assigned_keys(assignments)]
+    if given:
+        said = ", ".join(f"--set {key}={lengths[key]}" for key in given)
+        values = ", ".join(f"{key}={value}" for key, value in lengths.items())
+        return config, [f"training: {said} wins over training.clip_frames ({frames}): {values}"]
+    plain = ", ".join(str(value) for value in lengths.values())
+    if not frames:
+        return config, [f"training: {', '.join(lengths)} as a plain run's ({plain}; training.clip_frames=0)"]
+    set_to = ", ".join(f"{key}={frames}" for key in lengths)
+    line = f"training: {set_to} (training.clip_frames; a plain run's: {plain})"
+    return with_overrides(config, [f"{key}={frames}" for key in lengths]), [line]
 
 
 def command_line(args: argparse.Namespace, beam_args: Sequence[str]) -> str:

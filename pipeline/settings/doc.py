@@ -4,9 +4,11 @@ Everything in the page comes from the settings' dataclasses, so it cannot drift 
 of ``RunConfig`` (``pipeline/settings/run_config.py``) and of the built-in sources' sections
 (``pipeline/<source>/settings.py``), its default, its allowed range (``ranged(...)``, described as
 ``--set`` describes a value outside it) and its meaning (the ``field: ...`` lines of the dataclass's
-docstring), marked when it names a path the run reads (``path_setting``) and when it never changes a
-clip's bytes (``clip_bytes`` False: the resume fingerprint leaves it out). tests/docs/test_docs.py checks
-that docs/configuration.md is this command's output::
+docstring), marked when it names a path the run reads (``path_setting``), when it never changes a
+clip's bytes (``clip_bytes`` False: the resume fingerprint leaves it out), and when it sets the
+source's clip length (``clip_length``: a training run sets it; ``release_fixed``: a ``--release``
+run refuses another value). tests/docs/test_docs.py checks that docs/configuration.md is this
+command's output::
 
     python -m pipeline.settings.doc > docs/configuration.md
 """
@@ -46,7 +48,10 @@ these settings wins over the rule set, and the run's first lines say so.
 
 Marks: **path**, a file or folder the run reads, checked to exist before any work; **not in
 clips**, a setting that never changes a clip's bytes, so changing it re-annotates no unit (resume
-leaves it out of its fingerprint; see [robustness.md](robustness.md)).
+leaves it out of its fingerprint; see [robustness.md](robustness.md)); **clip length**, a setting of
+the source's clip length, which a training run sets to `training.clip_frames` unless a `--set`
+gives it ([training.md](training.md#clip-length)); **default on --release**, a `--release` run
+refuses another value (it would cut the release's clips into clips the release does not name).
 
 Generated from `pipeline/settings/run_config.py` (the run-wide settings) and `pipeline/<source>/settings.py`
 (one section per source, `--set <source>.<field>=...`; a plug-in source brings its own section,
@@ -115,6 +120,10 @@ def _marks(field: dataclasses.Field) -> str:
         marks.append("path")
     if field.metadata.get("clip_bytes") is False:
         marks.append("not in clips")
+    if field.metadata.get("clip_length"):
+        marks.append("clip length")
+    if "release_fixed" in field.metadata:
+        marks.append("default on --release")
     return ", ".join(marks)
 
 

@@ -166,6 +166,48 @@ def not_in_clips(default, interval: str | None = None):
     return dataclasses.field(default=default, metadata={**field.metadata, "clip_bytes": False})
 
 
+def clip_length(default: int, interval: str, *, release_fixed: bool = False):
+    """A setting of the source's clip length in frames, which a training run sets to
+    ``training.clip_frames`` (``clip_lengths``); ``release_fixed``: a ``--release`` run refuses any
+    value but ``default``, which makes the release's clips (``release_fixed_changes``)."""
+    field = ranged(default, interval)
+    fixed = {"release_fixed": default} if release_fixed else {}
+    return dataclasses.field(default=default, metadata={**field.metadata, "clip_length": True, **fixed})
+
+
+def _marked(config, mark: str, prefix: str = "") -> dict[str, tuple[typing.Any, typing.Any]]:
+    """Key -> (value, the mark's value) of every setting of ``config`` (sections included) whose
+    field's metadata holds ``mark``."""
+    declared = _declared_metadata(config)
+    found = {}
+    for name, value, _ in settings_items(config):
+        if dataclasses.is_dataclass(value):
+            found.update(_marked(value, mark, f"{prefix}{name}."))
+        elif mark in declared.get(name, {}):
+            found[prefix + name] = (value, declared[name][mark])
+    return found
+
+
+def clip_lengths(config, section: str) -> dict[str, typing.Any]:
+    """Key -> value of the clip-length settings (``clip_length``) of ``config``'s section ``section``,
+    in declaration order."""
+    return {
+        key: value
+        for key, (value, _) in _marked(config, "clip_length").items()
+        if key.startswith(f"{section}.")
+    }
+
+
+def release_fixed_changes(config, section: str) -> dict[str, typing.Any]:
+    """Key -> value of the ``release_fixed`` settings of ``config``'s section ``section`` that are not
+    at their default."""
+    return {
+        key: value
+        for key, (value, default) in _marked(config, "release_fixed").items()
+        if key.startswith(f"{section}.") and value != default
+    }
+
+
 def path_setting(default: str = "", label: str = "", clip_bytes: bool = True):
     """A string field naming a file or folder the run reads, checked to exist before any work
     (``path_settings``); ``label`` names it in messages (default: its key)."""

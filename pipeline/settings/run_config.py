@@ -80,11 +80,17 @@ class TrainingConfig:
       ``$TAPVID3D_OFFICIAL_SPLITS`` names).
     tracks_per_clip: tracks written per clip on a training run: each source's own
       ``<source>.tracks_per_clip`` takes this value there, unless a ``--set`` gives it.
+    clip_frames: frames per clip on a training run: each source's clip-length settings
+      (``<source>.clip_frames``; ADT's ``chunk_frames`` and ``min_frames``) take this value there,
+      unless a ``--set`` gives one of them; 0: each source's own lengths. 64, the long end of the
+      24-64-frame windows point trackers train on: a loader cuts any shorter window out of a clip,
+      but cannot join two (docs/training.md).
     shard_mb: the bounded size of each Parquet shard of ``<out>/train/<source>/`` (MiB).
     """
 
     splits_file: str = path_setting("", clip_bytes=False)
     tracks_per_clip: int = not_in_clips(1024, "[1, 100000]")
+    clip_frames: int = not_in_clips(64, "[0, 100000]")
     shard_mb: int = not_in_clips(256, "[1, 65536]")
 
 

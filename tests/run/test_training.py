@@ -1,18 +1,22 @@
 """A training run (``python -m pipeline.run --training``, pipeline/runner/training.py): the units of
 the benchmark's scenes are left out before any work and listed, a run on nothing else ends with
-exit status 3, the clips of the other scenes are a plain run's with the same settings, the training
-settings are checked at the door, and the dataset card counts what the run's records count."""
+exit status 3, the clips of the other scenes are a plain run's with the same settings, each source's
+clips hold at most ``training.clip_frames`` frames (windows of the whole clips, a ``--set`` of the
+source's own length winning; a release run refuses windows), the training settings are checked at
+the door, and the dataset card counts what the run's records count."""
 
 from __future__ import annotations
 
 import json
 import os
+import pathlib
 import shutil
 
 import numpy as np
 import pyarrow.dataset
 import pytest
 
+import pipeline.clips
 from pipeline import sources
 from pipeline.adt.units import SequenceChunk
 from pipeline.adt.units import clip_scene as adt_clip_scene
@@ -27,7 +31,11 @@ from pipeline.pstudio.units import clip_scene as pstudio_clip_scene
 from pipeline.pstudio.units import scene_of as pstudio_scene_of
 from pipeline.runner.command import parse_args
 from pipeline.runner.prepare import prepare_run
+from pipeline.runner.splits import SAMPLE_RELEASE
 from pipeline.runner.training import SPLITS_ENV
+from tests.support.adt_excerpt import SAMPLE as ADT_EXCERPT
+from tests.support.adt_excerpt import SETTINGS as ADT_SETTINGS
+from tests.support.adt_excerpt import needs_excerpt
 from tests.support.cli import clip_bytes, run_in_process
 from tests.support.toy.source import TOY, write_sample
 
@@ -185,6 +193,147 @@ def test_an_explicit_tracks_per_clip_wins_over_the_trainings(pstudio_sample, tmp
     )
 
 
+# ------------------------------------------------------------------------------- the clip lengths
+
+
+def same_points(window: np.ndarray, whole: np.ndarray) -> list[tuple[int, int]]:
+    """(window track, whole clip track) of each track of ``window`` [T, N, 3] whose positions are bit
+    for bit those of a track of ``whole`` [T, M, 3] (the same point, tracked in both)."""
+    tracks = {whole[:, j].tobytes(): j for j in range(whole.shape[1])}
+    return [
+        (i, tracks[window[:, i].tobytes()])
+        for i in range(window.shape[1])
+        if window[:, i].tobytes() in tracks
+    ]
+
+
+def test_a_studio_training_run_cuts_each_cameras_sequence_into_windows_of_clip_frames(
+    studio_training, pstudio_sample, tmp_path
+):
+    whole_out, whole_result = studio_training
+    assert "training: pstudio.clip_frames=64 (training.clip_frames; a plain run's: 0)" in whole_result.stdout
+    out = tmp_path / "out"
+    splits = splits_file(tmp_path, {"pstudio": ["tennis_3"]})
+    windows = ("--set", "training.clip_frames=16")
+    result = training("pstudio", out, splits, "--input", pstudio_sample[0], *ONE_CAMERA, *windows)
+    assert result.returncode == 0, result.stderr
+    assert "training: pstudio.clip_frames=16 (training.clip_frames; a plain run's: 0)" in result.stdout
+    # the 40 frames: frames 0-15 and 16-31; the 8 left are fewer than pstudio.min_frames (24)
+    assert sorted(clip_bytes(str(out), "pstudio")) == ["dome_3_w0.npz", "dome_3_w1.npz"]
+    assert shard_rows(out / "train" / "pstudio") == [
+        {"name": f"dome_3_w{k}", "scene": "dome", "unit": "dome/camera_3"} for k in (0, 1)
+    ]
+    shared = 0
+    with np.load(whole_out / "pstudio" / "dome_3.npz") as whole:
+        for k in (0, 1):
+            frames = slice(16 * k, 16 * k + 16)
+            with np.load(out / "pstudio" / f"dome_3_w{k}.npz") as window:
+                np.testing.assert_array_equal(window["images_jpeg_bytes"], whole["images_jpeg_bytes"][frames])
+                assert window["tracks_XYZ"].shape[0] == 16 and window["queries_xyt"][:, 2].max() <= 15
+                pairs = same_points(window["tracks_XYZ"], whole["tracks_XYZ"][frames])
+                for i, j in pairs:
+                    np.testing.assert_array_equal(window["visibility"][:, i], whole["visibility"][frames, j])
+                shared += len(pairs)
+    assert shared >= 200  # of the 1,024 tracks of each window
+
+
+def test_a_driving_training_run_cuts_each_objects_run_into_windows_of_clip_frames(
+    reference_run, sample_split, tmp_path
+):
+    whole = pathlib.Path(reference_run("drivetrack")) / "drivetrack"  # a plain run: 256 tracks, whole runs
+    out = tmp_path / "out"
+    splits = splits_file(tmp_path, {"drivetrack": [clip_name("other_1_000_2_000", 1, "x")]})
+    same = ("--set", "drivetrack.tracks_per_clip=256", "--set", "drivetrack.min_contiguous_frames=12")
+    windows = ("--set", "training.clip_frames=16")
+    result = training("drivetrack", out, splits, "--input", sample_split[0], *same, *windows)
+    assert result.returncode == 0, result.stderr
+    # each run of T frames: windows of 16 frames, and a rest of at least 12 (the 28-frame run's)
+    lengths = {
+        name[: -len(".npz")]: pipeline.clips.open(str(whole / name)).num_frames for name in os.listdir(whole)
+    }
+    assert sorted(lengths.values()) == [28, 33, 40, 40]
+    expected = {
+        f"{name}_w{k}.npz": (name, 16 * k, min(16 * k + 16, frames))
+        for name, frames in lengths.items()
+        for k in range(frames // 16 + 1)
+        if min(16 * k + 16, frames) - 16 * k >= 12
+    }
+    assert sorted(clip_bytes(str(out), "drivetrack")) == sorted(expected) and len(expected) == 8
+    compared = agree = 0
+    for name, (run, start, stop) in expected.items():
+        with np.load(out / "drivetrack" / name) as window, np.load(whole / f"{run}.npz") as clip:
+            frames = slice(start, stop)
+            for member in ("images_jpeg_bytes", "extrinsics_w2c"):
+                np.testing.assert_array_equal(
+                    window[member], clip[member][frames], err_msg=f"{name} {member}"
+                )
+            assert window["queries_xyt"][:, 2].max() < stop - start
+            for i, j in same_points(window["tracks_XYZ"], clip["tracks_XYZ"][frames]):
+                agree += int((window["visibility"][:, i] == clip["visibility"][frames, j]).sum())
+                compared += stop - start
+    # the points both track (~150 of them): the refined visibility reads the object's surface from the
+    # clip's own sweeps, a window's fewer than its whole run's, and agrees on nearly every frame
+    assert compared >= 50 * 16 and agree >= 0.99 * compared
+
+
+@needs_excerpt
+def test_adts_chunks_take_training_clip_frames(tmp_path):
+    splits = splits_file(tmp_path, {"adt": ["Apartment_release_clean_seq131_0"]})
+    out, plain = tmp_path / "out", tmp_path / "plain"
+    excerpt = ("--input", str(ADT_EXCERPT), "--set", "adt.max_gt_offset_ms=40")
+    result = training("adt", out, splits, *excerpt, "--set", "training.clip_frames=2")
+    assert result.returncode == 0, result.stderr
+    said = "training: adt.chunk_frames=2, adt.min_frames=2 (training.clip_frames; a plain run's: 300, 300)"
+    assert said in result.stdout
+    assert (
+        run_in_process("adt", "--output", str(plain), "--input", str(ADT_EXCERPT), *ADT_SETTINGS).returncode
+        == 0
+    )
+    made = clip_bytes(str(out), "adt")
+    assert list(made) == ["aria_digital_twin_test_data_0.npz"] and made == clip_bytes(str(plain), "adt")
+
+
+@pytest.mark.parametrize(
+    ("source", "given", "lengths", "said"),
+    [
+        (
+            "drivetrack",
+            ["drivetrack.clip_frames=20"],
+            {"clip_frames": 20},
+            "--set drivetrack.clip_frames=20 wins over training.clip_frames (16): drivetrack.clip_frames=20",
+        ),
+        (
+            "adt",
+            ["adt.min_frames=10"],
+            {"chunk_frames": 300, "min_frames": 10},
+            "--set adt.min_frames=10 wins over training.clip_frames (16): adt.chunk_frames=300, "
+            "adt.min_frames=10",
+        ),
+    ],
+)
+def test_a_set_of_the_sources_own_length_wins_over_the_trainings(source, given, lengths, said, tmp_path):
+    splits = splits_file(tmp_path, {})
+    argv = ["--source", source, "--input", str(tmp_path), "--output", str(tmp_path / "out"), "--training"]
+    for assignment in [f"training.splits_file={splits}", "training.clip_frames=16", *given]:
+        argv += ["--set", assignment]
+    prepared = prepare_run(*parse_args(argv))
+    assert prepared.training is not None and f"training: {said}" in prepared.training.lines
+    assert {key: prepared.config.to_dict()[source][key] for key in lengths} == lengths
+
+
+@pytest.mark.parametrize("source", ["drivetrack", "pstudio"])
+def test_a_release_run_refuses_a_clip_length_that_cuts_the_releases_clips(source, tmp_path):
+    out = tmp_path / "out"
+    result = run_in_process(
+        source, "--output", str(out), "--release", SAMPLE_RELEASE, "--set", f"{source}.clip_frames=16"
+    )
+    assert result.returncode == 2 and result.stdout == "" and not out.exists()
+    assert result.stderr.splitlines() == [
+        f"cannot start: --release makes the release's clips, whole: --set {source}.clip_frames=16 cuts them "
+        "into clips it does not name; drop it"
+    ]
+
+
 # ------------------------------------------------------------------------------- the door
 
 
@@ -196,6 +345,10 @@ def test_an_explicit_tracks_per_clip_wins_over_the_trainings(pstudio_sample, tmp
             "--set training.tracks_per_clip=0: must be an integer in [1, 100000]",
         ),
         (["--set", "training.shard_mb=-1"], "--set training.shard_mb=-1: must be an integer in [1, 65536]"),
+        (
+            ["--set", "training.clip_frames=-1"],
+            "--set training.clip_frames=-1: must be an integer in [0, 100000]",
+        ),
         (
             ["--set", "training.splits_file=/no/such/splits.json"],
             "--set training.splits_file=/no/such/splits.json does not exist",
