@@ -54,7 +54,8 @@ test: setup
 
 # bench: a few minutes (inputs as large per frame as the release's, fewer frames; units extrapolated),
 # one table at the end, also in out/bench/bench.json. bench-full: the full-size inputs (writing them
-# takes about 7 minutes the first time), table in out/bench/bench-full.json.
+# takes about 7 minutes the first time) and every source's groups also through python -m pipeline.run
+# on Beam (--beam), table in out/bench/bench-full.json.
 bench: setup
 	$(PY) -m benchmarks all
 

@@ -4,6 +4,8 @@ package: they import ``pipeline`` (its sources' sample worlds among it), never t
 The framework, one file per job:
   cli.py         the command: ``python -m benchmarks {all,<source>} [--quick|--full] [--micro]``
   units.py       the per-unit benchmark of one source: prepare, run the scaling set and the floor
+  beam.py        with --beam, the source's groups through python -m pipeline.run on Beam's
+                 DirectRunner with 1 and N workers: speed-up and serial start
   worker.py      one unit (or its floor) in a fresh single-threaded pinned process
   processes.py   spawning the worker processes, reaping them (wait4), their peak memory (VmHWM)
   report.py      one source's figures: computed from its runs, printed
@@ -32,8 +34,10 @@ sources in ``sources.names()``'s order. An entry defines:
   unit_of(fields)                   -> the source's unit from its fields as a spec holds them (a
                                     JSON list: ``[segment, camera]``)
   micro(frames)                     prints its micro-benchmarks (``--micro``)
-  beam_run_args(units)              -> the ``pipeline.run`` arguments that make these units, or
-                                    None: not run through Beam (``--beam``)
+  beam_input(setup, folder, groups) -> the ``pipeline.run`` arguments (``--input``, settings) of
+                                    an input of ``groups`` distinct groups, each the size of
+                                    ``setup``'s unit, made in ``folder`` out of its input by links
+                                    (``--beam``; the setup's ``overrides`` are added as ``--set``)
 and may define:
   release_size_clip(spec, config)   -> a ``ClipRecord`` as long as a release unit's: its filter,
                                     encode and write stage is timed apart (``write_unit_s``), for

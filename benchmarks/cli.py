@@ -14,17 +14,24 @@ source, in the registry's order):
    time on an idle machine);
 5. the CPU-hours of the whole benchmark (units of the release x CPU per unit).
 
-It ends with one table (ms/frame, peak RSS, speed-up, CPU-hours, unit/floor, each against its
-target, and a last row ``all`` with the total CPU-hours), also written as JSON (``--json``,
-default ``<workdir>/bench.json``, ``bench-full.json`` with ``--full``).
+It ends with one table (ms/frame, peak RSS, speed-up, with ``--beam`` the speed-up through Beam,
+CPU-hours, unit/floor, each against its target, and a last row ``all`` with the total CPU-hours),
+also written as JSON (``--json``, default ``<workdir>/bench.json``, ``bench-full.json`` with
+``--full``); the JSON also holds each source's peak memory per rule set
+(``peak_rss_gib_by_rules``: the unit under its own and under each variant's, ``release`` and
+``refined`` for each built-in source, DriveTrack's ``refined without undistorted frames`` too).
 
 Sizes. Default (``make bench``, a few minutes): inputs as large per frame as the release's but
 shorter, the release unit extrapolated from the measured per-frame cost (marked ``*``).
-``--full`` (``make bench-full``): full-size inputs, 4 units in the scaling set, and with
-``--beam`` the units also through ``python -m pipeline.run`` on Beam's DirectRunner (where the
-entry's ``beam_run_args`` selects them). ``--quick``: small sizes to exercise the code paths fast
-(figures meaningless). Inputs are generated once under ``--workdir`` (default out/bench) and
-reused.
+``--full`` (``make bench-full``): full-size inputs, 4 units in the scaling set. ``--beam`` (at any
+size; ``make bench-full`` sets it): each source's groups also through ``python -m pipeline.run`` on
+Beam's DirectRunner, as a user runs them, with 1 and ``--workers`` worker processes: 4 distinct
+groups per worker, made of the unit's input by links (the entry's ``beam_input``); the whole
+command's speed-up, judged like the units', and its serial start (the command's start until its
+first unit starts, + its last unit's end until the command ends; from the units' checkpoints), in
+the table and its JSON (``beam_speedup``, ``beam_wall_s``, ``beam_serial_s``;
+``benchmarks/beam.py``). ``--quick``: small sizes to exercise the code paths fast (figures
+meaningless). Inputs are generated once under ``--workdir`` (default out/bench) and reused.
 
 Micro-benchmarks (``--micro``, with ``--frames``): each source's entry's ``micro``.
 
@@ -103,6 +110,8 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
 
 
 def _parser(names: tuple[str, ...]) -> StrictParser:
+    from benchmarks.beam import GROUPS_PER_WORKER
+
     parser = StrictParser(
         prog="python -m benchmarks",
         description=_described(names),
@@ -130,7 +139,8 @@ def _parser(names: tuple[str, ...]) -> StrictParser:
     parser.add_argument(
         "--beam",
         action="store_true",
-        help="also run the scaling units through python -m pipeline.run on Beam's DirectRunner",
+        help=f"also run {GROUPS_PER_WORKER} groups per worker of each source through python -m pipeline.run "
+        "on Beam's DirectRunner, with 1 and --workers workers: the command's speed-up and serial start",
     )
     parser.add_argument(
         "--json", default=None, help="where to write the table (default <workdir>/bench[-full|-quick].json)"

@@ -17,7 +17,7 @@ INTERFACE = (
     "floor",
     "unit_of",
     "micro",
-    "beam_run_args",
+    "beam_input",
     "RELEASE_SHAPE",
 )
 

@@ -13,6 +13,11 @@ Peak memory (max RSS) is always the measured process's, at the size benched.
 machine it equals its wall time; on a busy one the wall time also counts the waits for that CPU
 (the ``CPU/wall`` column: below ~0.95 the machine was busy, and the speed-up, a ratio of wall
 times, is not to be trusted). The wall-time figures are in the JSON too (``*_wall``).
+
+Per rule set (``peak_rss_gib_by_rules``): the peak memory of the unit's process under its own rule
+set and under each variant's that ``UnitSetup.rule_sets`` names. With ``--beam``: the groups'
+``pipeline.run`` command's wall time with 1 and N workers (``beam_wall_s``, by worker count), its
+speed-up (``beam_speedup``) and its serial start (``beam_serial_s``, ``benchmarks.beam``).
 """
 
 from __future__ import annotations
@@ -21,6 +26,7 @@ import dataclasses
 import os
 from statistics import fmean
 
+from benchmarks.beam import BeamRuns
 from benchmarks.processes import UnitRun
 from benchmarks.table import SPEEDUP_TARGET, targets
 from pipeline.core.benchmark import UnitSetup
@@ -40,6 +46,7 @@ ROW = (
     "ms_per_frame",
     "ms_per_frame_wall",
     "peak_rss_gib",
+    "peak_rss_gib_by_rules",
     "speedup",
     "speedup_cpu",
     "full_units",
@@ -53,6 +60,10 @@ ROW = (
     "clips_written",
     "tracks_written",
     "clip_frames_per_frame",
+    "beam_groups",
+    "beam_wall_s",
+    "beam_speedup",
+    "beam_serial_s",
     "notes",
 )
 
@@ -63,7 +74,8 @@ class Runs:
     all), each followed by its floor process (``floors``); ``many``, the same units with
     ``workers`` workers (``many_wall`` seconds; None: not run); ``pinned``: each process bound to a
     CPU of its own; ``variants``: name -> the units run with that variant's settings
-    (``UnitSetup.variants``), each right after its unit's floor."""
+    (``UnitSetup.variants``), each right after its unit's floor; ``beam``: the source's groups
+    through ``pipeline.run`` (None: not run)."""
 
     one: list[UnitRun]
     one_wall: float
@@ -73,6 +85,7 @@ class Runs:
     workers: int
     pinned: bool
     variants: dict[str, list[UnitRun]] = dataclasses.field(default_factory=dict)
+    beam: BeamRuns | None = None
 
 
 def report(setup: UnitSetup, runs: Runs) -> dict:
@@ -95,8 +108,10 @@ def figures(setup: UnitSetup, runs: Runs) -> dict:
         **unit,
         "ms_per_frame": 1000 * unit["unit_cpu_s"] / unit["unit_frames"],
         "ms_per_frame_wall": 1000 * unit["unit_s"] / unit["unit_frames"],
+        "peak_rss_gib_by_rules": peaks_by_rules(setup, runs),
         **_floor(runs.floors, unit),
         **_scaling(runs),
+        **_beam(runs.beam),
         "full_units": setup.full_units,
         "cpu_hours": unit["unit_cpu_s"] * setup.full_units / 3600,
         "clips_per_cpu_hour": setup.full_clips * 3600 / (unit["unit_cpu_s"] * setup.full_units)
@@ -121,6 +136,17 @@ def _measured(setup: UnitSetup, one: list[UnitRun]) -> dict:
         "tracks_written": first["tracks_written"],
         "clip_frames_per_frame": first["clip_frames"] / setup.frames,
     }
+
+
+def peaks_by_rules(setup: UnitSetup, runs: Runs) -> dict[str, float]:
+    """Rule set -> the peak memory (GiB) of the unit's processes under it: the unit's own rule set
+    (its ``overrides``', as the worker reads them) and each of ``UnitSetup.rule_sets``."""
+    from pipeline.settings.fields import with_overrides
+    from pipeline.settings.run_config import RunConfig
+
+    own = with_overrides(RunConfig(), setup.overrides).rules
+    under = {own: runs.one, **{rules: runs.variants[name] for rules, name in setup.rule_sets.items()}}
+    return {rules: max(run.max_rss for run in runs_of) / GIB for rules, runs_of in under.items()}
 
 
 def _release_unit(setup: UnitSetup, one: list[UnitRun], measured: dict) -> dict:
@@ -200,6 +226,20 @@ def _scaling(runs: Runs) -> dict:
     return scaling
 
 
+def _beam(beam: BeamRuns | None) -> dict:
+    """The groups through ``pipeline.run``: their count, the command's wall time and serial start
+    by worker count, and its speed-up; None each without ``--beam``."""
+    if beam is None:
+        return dict.fromkeys(("beam_groups", "beam_wall_s", "beam_speedup", "beam_serial_s"))
+    runs = (beam.one, beam.many)
+    return {
+        "beam_groups": beam.groups,
+        "beam_wall_s": {str(run.workers): run.wall_s for run in runs},
+        "beam_speedup": beam.one.wall_s / beam.many.wall_s,
+        "beam_serial_s": {str(run.workers): run.serial_s for run in runs},
+    }
+
+
 def print_speedup(what: str, one_wall: float, many_wall: float, workers: int, tail: str = "") -> None:
     """Print the 1-vs-``workers`` line with its verdict against ``SPEEDUP_TARGET``."""
     speedup = one_wall / many_wall
@@ -218,6 +258,8 @@ def print_figures(setup: UnitSetup, runs: Runs, f: dict) -> None:
     _print_floor(setup, runs, f, where)
     if runs.many is not None:
         _print_scaling(runs, f)
+    if runs.beam is not None:
+        _print_beam(runs.beam)
     print(
         f"CPU-hours, full benchmark: {setup.full_units} units x {f['unit_cpu_s']:.1f} s CPU = "
         f"{f['cpu_hours']:.2f} CPU-hours ({setup.full_units_note})"
@@ -369,4 +411,25 @@ def _print_scaling(runs: Runs, f: dict) -> None:
     print(
         f"  peak memory per process with {workers} workers: {max(r.max_rss for r in runs.many) / GIB:.2f} GiB"
         " (CPU / wall below ~0.95: the CPUs were shared with other processes)"
+    )
+
+
+def _print_beam(beam: BeamRuns) -> None:
+    """The ``pipeline.run`` command's speed-up, and the serial start of each run."""
+    one, many = beam.one, beam.many
+    print_speedup(
+        f"through Beam: {beam.groups} groups ({one.units} units) by python -m pipeline.run on the "
+        "DirectRunner (multi_processing), the whole command",
+        one.wall_s,
+        many.wall_s,
+        many.workers,
+    )
+    print(
+        "  serial start (the command's start to its first unit's start + its last unit's end to the "
+        "command's end; each unit's start and end from its checkpoint: written as it ends, it records "
+        "the seconds the unit took): "
+        + ", ".join(
+            f"{run.workers} worker(s) {run.start_s:.1f} + {run.end_s:.1f} = {run.serial_s:.1f} s"
+            for run in (one, many)
+        )
     )

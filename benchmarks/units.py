@@ -6,8 +6,9 @@ A unit is a group of the source's units, as the Beam graph hands them to one wor
 ``prepare`` says which: DriveTrack a segment's three cameras, which share one read of the lidar).
 Its work is the graph's own, ``pipeline.runner.stages.run_group`` (``benchmarks.worker``), in a fresh
 single-threaded pinned process (``benchmarks.processes``); its floor (the entry's ``floor``) is
-measured in one more such process right after each 1-worker run; the figures are printed by
-``benchmarks.report``.
+measured in one more such process right after each 1-worker run; with ``--beam`` the source's
+groups also run through ``python -m pipeline.run`` on Beam (``benchmarks.beam``); the figures are
+printed by ``benchmarks.report``.
 
 Each source's inputs are built (once, cached under the work folder) by its entry's
 ``prepare(workdir, size) -> UnitSetup`` (or None: skipped).
@@ -18,14 +19,13 @@ from __future__ import annotations
 import argparse
 import os
 import shutil
-import subprocess
-import sys
 import tempfile
 import time
 
+from benchmarks.beam import beam_scaling
 from benchmarks.entry import entry, entry_name
-from benchmarks.processes import run_processes, single_threaded_env
-from benchmarks.report import Runs, print_speedup, report
+from benchmarks.processes import run_processes
+from benchmarks.report import Runs, report
 from pipeline.core.benchmark import UnitSetup
 
 
@@ -94,7 +94,8 @@ def bench_source(
 
 def run_units(setup: UnitSetup, args: argparse.Namespace, scratch: str) -> Runs:
     """The scaling set with 1 worker (each run paired with its read+decode floor), then with
-    ``args.workers`` workers (and through Beam with ``args.beam``), outputs under ``scratch``."""
+    ``args.workers`` workers (and, with ``args.beam``, the source's groups through Beam with 1 and
+    ``args.workers`` workers: ``benchmarks.beam``), outputs under ``scratch``."""
     print(
         f"running {len(setup.units)} unit(s), one fresh single-threaded process each, 1 worker, each "
         "followed by its read+decode floor (one more such process)"
@@ -114,10 +115,8 @@ def run_units(setup: UnitSetup, args: argparse.Namespace, scratch: str) -> Runs:
         many, many_wall = run_processes(
             _specs(setup, scratch, f"w{args.workers}"), args.workers, scratch, args.pin
         )
-    beam_args = entry(setup.source).beam_run_args(setup.units)
-    if args.beam and beam_args is not None and scaling:
-        beam_scaling(setup, beam_args, args.workers, scratch)
-    return Runs(one, one_wall, floors, many, many_wall, args.workers, args.pin, variant_runs)
+    beam = beam_scaling(setup, args.workers, scratch) if args.beam and args.workers > 1 else None
+    return Runs(one, one_wall, floors, many, many_wall, args.workers, args.pin, variant_runs, beam)
 
 
 def paired_with_floors(
@@ -141,30 +140,3 @@ def paired_with_floors(
             (variant,), _ = run_processes([variant_spec], 1, scratch, pin)
             variant_runs[name].append(variant)
     return runs, wall, floors, variant_runs
-
-
-def beam_scaling(setup: UnitSetup, run_args: list[str], workers: int, scratch: str) -> None:
-    """The same units through ``python -m pipeline.run`` on Beam's DirectRunner in multi_processing
-    mode, with 1 and then ``workers`` worker processes (single-threaded, not pinned): the speed-up
-    a user gets from the runner itself, Beam's start-up and the finalize step included."""
-    walls = {}
-    for count in (1, workers):
-        command = [
-            sys.executable,
-            "-m",
-            "pipeline.run",
-            "--source",
-            setup.source,
-            "--input",
-            setup.input_root,
-        ]
-        command += ["--output", os.path.join(scratch, f"beam_w{count}"), "--overwrite", *run_args]
-        command += ["--runner", "DirectRunner", "--direct_running_mode=multi_processing"]
-        command += [f"--direct_num_workers={count}"]
-        print(f"running them through Beam's DirectRunner, {count} worker process(es) ...", flush=True)
-        started = time.perf_counter()
-        subprocess.run(command, env=single_threaded_env(), check=True, capture_output=True)
-        walls[count] = time.perf_counter() - started
-    print_speedup(
-        "through Beam (DirectRunner multi_processing, whole command)", walls[1], walls[workers], workers
-    )

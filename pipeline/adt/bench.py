@@ -25,6 +25,16 @@ re-rendering them to the stored frames both ways -- projectaria-tools' ``distort
 with the largest difference between the two renderings; then the cost of building the tables and
 the annotation cost of one clip, per frame and extrapolated to a 300-frame chunk.
 
+Rules: the unit runs under the release's rules (``rules=release``: what regenerating the release
+costs), and each 1-worker unit once more under the refined rules (``rules=refined``, a plain
+run's), printed beside it, the peak memory of each in the table's JSON; with the excerpt's settings
+the two do the same work (the one ADT setting they govern, ``adt.max_gt_offset_ms``, is one of
+those settings).
+
+Beam (``--beam``, ``beam_input``): as many sequences as groups asked, each a symbolic link to the
+excerpt under a name of its own, its one chunk a group: a 2-frame group, so the command's start
+and finish weigh on the speed-up more than with a release's 300-frame chunks.
+
 The pipeline's modules are imported inside the functions, so that a floor process imports only
 what its floor reads.
 """
@@ -69,7 +79,7 @@ def prepare(workdir: str, size: str) -> UnitSetup | None:
         source="adt",
         input_root=path,
         units=[[[path, 0]]],
-        overrides=list(EXCERPT_SETTINGS),
+        overrides=[*EXCERPT_SETTINGS, "rules=release"],
         frames=chunk * repeat,
         description=[
             f"the real ADT excerpt: its one chunk of {chunk} frames ({', '.join(EXCERPT_SETTINGS)}), "
@@ -94,6 +104,8 @@ def prepare(workdir: str, size: str) -> UnitSetup | None:
             "per-query work of the query frames (drawing, attaching) leans high"
         ],
         extra={"repeat": repeat},
+        variants={"the refined rules": ["rules=refined"]},
+        rule_sets={"refined": "the refined rules"},
     )
 
 
@@ -352,7 +364,11 @@ def _clip_cost(path: str, sequence, stamps, config) -> None:
     )
 
 
-def beam_run_args(units: list) -> None:
-    """None: not run through Beam (the scaling set repeats the excerpt's one chunk, which no command
-    line selects twice)."""
-    return None
+def beam_input(setup: UnitSetup, folder: str, groups: int) -> list[str]:
+    """``groups`` sequence folders in ``folder``, each a symbolic link to the excerpt under a name of
+    its own (``<excerpt>_<k>``, read in place; the excerpt's one chunk is a group). Returns the
+    ``pipeline.run`` arguments."""
+    name = os.path.basename(setup.input_root)
+    for k in range(groups):
+        os.symlink(setup.input_root, os.path.join(folder, f"{name}_{k}"))
+    return ["--input", folder]

@@ -25,8 +25,12 @@ class UnitSetup:
       a training run of this source costs a clip); 0: not printed.
     size: "quick", "default" or "full" (ADT: its excerpt whatever the size).
     variants: name -> settings added to ``overrides``: each unit of the 1-worker runs is run once
-      more with each, one process right after its floor's, and their time printed beside the
-      unit's (not in the table).
+      more with each, one process right after its floor's, and their time and peak memory
+      printed beside the unit's (not in the table's columns).
+    rule_sets: rule set -> the variant that runs the unit under it (a name of ``variants``): the
+      table's peak memory per rule set (``peak_rss_gib_by_rules``) holds each one's beside the
+      unit's own, under the rule set its ``overrides`` set (a plain run's, ``refined``, when they
+      set none).
     """
 
     source: str
@@ -43,6 +47,7 @@ class UnitSetup:
     notes: list[str] = dataclasses.field(default_factory=list)
     extra: dict = dataclasses.field(default_factory=dict)  # passed to the worker in its spec
     variants: dict[str, list[str]] = dataclasses.field(default_factory=dict)
+    rule_sets: dict[str, str] = dataclasses.field(default_factory=dict)
 
 
 def wall_and_cpu(function, *args) -> tuple[float, float]:

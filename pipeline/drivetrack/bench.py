@@ -29,7 +29,11 @@ Rules: the units run under the release's rules (``rules=release``: what regenera
 costs); each 1-worker unit runs once more under the refined rules (``rules=refined``, a plain run's:
 the refined visibility and undistorted frames), and once more with the refined visibility alone
 (Waymo's frames kept, ``drivetrack.undistort_frames=false``), each time printed beside the unit's
-(``UnitSetup.variants``).
+(``UnitSetup.variants``); the table's JSON holds the peak memory of each (``release``, ``refined``,
+``refined without undistorted frames``).
+
+Beam (``--beam``, ``beam_input``): the segment's files hard-linked under other segment names, one
+segment a group.
 
 Warm-up: each process runs its unit once before the timed runs (``extra["warm_up"]``), so that the
 timed runs are a worker's steady state, as in a run of many units: what only the first unit of a
@@ -159,6 +163,10 @@ def prepare(workdir: str, size: str) -> UnitSetup:
         variants={
             "the refined rules": ["rules=refined"],
             "the refined visibility alone": ["rules=refined", "drivetrack.undistort_frames=false"],
+        },
+        rule_sets={
+            "refined": "the refined rules",
+            "refined without undistorted frames": "the refined visibility alone",
         },
         extra={"warm_up": True},
         notes=[
@@ -362,7 +370,20 @@ def micro(frames: int) -> None:
     )
 
 
-def beam_run_args(units: list) -> None:
-    """None: not run through Beam (the scaling set repeats one segment, which no command line
-    selects twice)."""
-    return None
+def beam_input(setup: UnitSetup, folder: str, groups: int) -> list[str]:
+    """``groups`` segments in ``folder``: each component file of the setup's segment hard-linked under
+    as many segment names (the segment's context number counted up), each segment a group of its
+    three cameras. The reader takes a segment's name from its files' names and never reads the
+    ``key.segment_context_name`` column. Returns the ``pipeline.run`` arguments."""
+    context, rest = SEGMENT.split("_", 1)
+    names = [f"{int(context) + k}_{rest}" for k in range(groups)]
+    for component in os.listdir(setup.input_root):
+        if not os.path.isdir(os.path.join(setup.input_root, component)):
+            continue  # write_once's marker
+        os.makedirs(os.path.join(folder, component))
+        for name in names:
+            os.link(
+                os.path.join(setup.input_root, component, f"{SEGMENT}.parquet"),
+                os.path.join(folder, component, f"{name}.parquet"),
+            )
+    return ["--input", folder]

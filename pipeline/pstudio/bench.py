@@ -1,8 +1,8 @@
 """Panoptic Studio's benchmark entry. Unit: 3 cameras of a sequence annotated together (a group of the
 graph), on a synthetic dome of 300,000 Gaussians x 27 cameras at 640x360 in Dynamic 3D Gaussians'
 file layout. Default size: 30 frames, extrapolated to 3 x 150 frames; ``--full``: 150 frames
-(writing them takes about 7 minutes the first time), also through Beam with ``--beam``. Micro:
-full-frame against selected-pixel depth renders, and one clip's annotation.
+(writing them takes about 7 minutes the first time). Micro: full-frame against selected-pixel
+depth renders, and one clip's annotation.
 
 The scene: five people-sized ellipsoids (120,000 foreground Gaussians) walk on a floor inside a
 dome wall (180,000 background Gaussians), for 150 frames, on one thread (numba's, as a benchmark
@@ -28,6 +28,19 @@ Micro (``micro``), on four cameras: the full-frame depth render time, the select
 time for a clip's 400 candidate tracks (each the best of REPEATS runs, averaged over the timed
 frames), their ratio, and the time to annotate one 150-frame clip (its masks drawn beforehand:
 drawing one costs more than decoding a PNG).
+
+Rules: the units run under the release's rules (``rules=release``: what regenerating the release
+costs; a query attached to a centre at any distance, ``pstudio.max_attach_distance_m=0``, so the
+nearest-centre search loses its prefilter); each 1-worker unit runs once more under the refined
+rules (``rules=refined``, a plain run's), printed beside the unit's (``UnitSetup.variants``); the
+table's JSON holds the peak memory of each (``release``, ``refined``).
+
+Beam (``--beam``, ``beam_input``): whole groups of 3 cameras, as many as asked, the first cameras
+of as few sequences as hold them, each the sequence's files linked under a name of its own: at the
+default and full sizes one sequence for 2 workers (cameras 0-23), at the quick size (4 cameras,
+one whole group) 8 (their masks the same bytes: a worker's mask cache serves them all). Each
+worker decodes a sequence's masks once (about 2.9 s at the full size), on the first of its groups:
+every group reads every camera's masks at every frame, and the workers are processes of their own.
 
 The pipeline's modules are imported inside the functions, so that a floor process imports only
 what its floor reads.
@@ -84,7 +97,7 @@ def prepare(workdir: str, size: str) -> UnitSetup:
             [[SEQUENCE, camera] for camera in range(first, first + GROUP)]
             for first in range(0, cameras - GROUP + 1, GROUP)
         ],
-        overrides=[],
+        overrides=["rules=release"],
         frames=GROUP * sizes["frames"],
         description=_description(folder, sizes, cameras, written),
         full_units=RELEASE_UNITS // GROUP,
@@ -98,6 +111,8 @@ def prepare(workdir: str, size: str) -> UnitSetup:
         size=size,
         extrapolate_frames=GROUP * FULL["frames"] if size == "default" else None,
         notes=_notes(size, sizes),
+        variants={"the refined rules": ["rules=refined"]},
+        rule_sets={"refined": "the refined rules"},
     )
 
 
@@ -499,7 +514,23 @@ def _mask_function(gaussians: Gaussians, views: Views):
     return mask
 
 
-def beam_run_args(units: list) -> list[str]:
-    """``pipeline.run`` arguments that make exactly these (sequence, camera) units."""
-    cameras = [camera for group in units for _, camera in group]
-    return ["--set", "pstudio.cameras=" + ",".join(str(camera) for camera in cameras)]
+def beam_input(setup: UnitSetup, folder: str, groups: int) -> list[str]:
+    """``groups`` whole groups of ``CAMERAS_PER_GROUP`` cameras in ``folder``: the first cameras of as
+    few sequences as hold them, each the setup's sequence under a name of its own
+    (``<sequence>_<k>``): its ``data/`` and ``params.npz`` folders made of symbolic links to the
+    files and folders of the setup's (a linked folder would not be listed: Beam's listing does not
+    enter one). Returns the ``pipeline.run`` arguments, the cameras chosen by ``pstudio.cameras``."""
+    from pipeline.pstudio.units import CAMERAS_PER_GROUP as GROUP
+
+    cameras = CAMERAS_QUICK if setup.size == "quick" else CAMERAS_FULL
+    sequences = -(-groups // (cameras // GROUP))
+    per_sequence = -(-groups // sequences)
+    for k in range(sequences):
+        for kind in ("data", os.path.join("output", EXPERIMENT)):
+            original = os.path.join(setup.input_root, kind, SEQUENCE)
+            named = os.path.join(folder, kind, f"{SEQUENCE}_{k}")
+            os.makedirs(named)
+            for name in os.listdir(original):
+                os.symlink(os.path.join(original, name), os.path.join(named, name))
+    chosen = ",".join(str(camera) for camera in range(per_sequence * GROUP))
+    return ["--input", folder, "--set", f"pstudio.cameras={chosen}"]

@@ -1,7 +1,8 @@
 """The toy source's benchmark entry (``tests/support/toy/bench.py``, named by ``Source(bench=...)``):
-with the toy registered as a plug-in (``TAPVID3D_SOURCES``), ``python -m benchmarks toy`` finds the
-entry through the registry and benchmarks it like a built-in source's (worker and floor processes
-included, and its variant's line), with no change to ``benchmarks/``."""
+with the toy registered as a plug-in (``TAPVID3D_SOURCES``), ``python -m benchmarks toy --beam``
+finds the entry through the registry and benchmarks it like a built-in source's (worker and floor
+processes included, its variant's line, and its groups through ``python -m pipeline.run`` on Beam),
+with no change to ``benchmarks/``."""
 
 from __future__ import annotations
 
@@ -28,6 +29,7 @@ def test_the_toy_is_benchmarked_through_its_own_entry(tmp_path):
         "benchmarks",
         "toy",
         "--quick",
+        "--beam",
         "--workdir",
         str(tmp_path),
         "--json",
@@ -50,6 +52,19 @@ def test_the_toy_is_benchmarked_through_its_own_entry(tmp_path):
     for key in ("ms_per_frame", "peak_rss_gib", "speedup", "speedup_cpu", "floor_cpu_s", "floor_ratio"):
         assert toy[key] > 0, (key, toy[key])
     assert every["cpu_hours"] == pytest.approx(toy["cpu_hours"])
+    # The toy's unit runs under a plain run's rules (its settings name none); its variant is no rule set.
+    assert toy["peak_rss_gib_by_rules"] == {"refined": toy["peak_rss_gib"]}
+    # Through Beam: 4 groups per worker, 1 then 2 workers, each command's serial start inside its time.
+    walls, serial = toy["beam_wall_s"], toy["beam_serial_s"]
+    assert toy["beam_groups"] == 8 and walls.keys() == serial.keys() == {"1", "2"}
+    assert toy["beam_speedup"] == pytest.approx(walls["1"] / walls["2"])
+    assert (toy["beam_speedup_target"], toy["beam_speedup_pass"]) == (1.8, None)  # quick: not judged
+    assert all(0 < serial[count] < walls[count] for count in walls), (serial, walls)
+    beam = next(line for line in done.stdout.splitlines() if line.startswith("through Beam:"))
+    assert beam.startswith("through Beam: 8 groups (8 units) by python -m pipeline.run")
+    assert f"1 worker {walls['1']:.1f} s, 2 workers {walls['2']:.1f} s" in beam
+    said = next(line for line in done.stdout.splitlines() if line.startswith("  serial start"))
+    assert f"= {serial['1']:.1f} s, 2 worker(s) " in said and said.endswith(f"= {serial['2']:.1f} s")
 
 
 def test_a_warm_up_run_takes_what_only_a_processs_first_unit_pays_out_of_the_timed_run(tmp_path):

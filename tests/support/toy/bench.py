@@ -81,6 +81,9 @@ def micro(frames: int) -> None:
         print(f"annotate the toy's unit {UNIT!r}: {1000 * (time.perf_counter() - started) / frames:.2f} ms")
 
 
-def beam_run_args(units: list) -> None:
-    """None: not run through Beam (the scaling set repeats the one unit)."""
-    return None
+def beam_input(setup: UnitSetup, folder: str, groups: int) -> list[str]:
+    """``groups`` units in ``folder``: the sample unit's file hard-linked under as many names (each
+    unit a group of its own). Returns the ``pipeline.run`` arguments."""
+    for k in range(groups):
+        os.link(os.path.join(setup.input_root, f"{UNIT}.json"), os.path.join(folder, f"{UNIT}_{k}.json"))
+    return ["--input", folder]
