@@ -82,7 +82,9 @@ def test_table_judges_each_figure_and_sums_the_cpu_hours():
     assert lines[0].split()[0] == "source" and lines[4].startswith("all")
     assert "120.0* <=100 FAIL" in lines[2] and "14.75* <=15 pass" in lines[4]
     assert "1.82x >=1.8 pass" in lines[1] and "1.52x >=1.8 FAIL" in lines[2]
-    assert "of a release unit (drivetrack 597, pstudio 450, adt 300 frames" in lines[5]
+    assert lines[5] == "the release under its rules: 14.75 CPU-hours in all, +8.75 from the goal of 6"
+    assert rows["all"]["cpu_hours_gap"] == pytest.approx(8.75)
+    assert "of a release unit (drivetrack 597, pstudio 450, adt 300 frames" in lines[6]
     # Without every source, the total is not judged against the whole benchmark's target.
     partial = summary_table(figures[:2], "default")["rows"][-1]
     assert partial["cpu_hours"] == pytest.approx(10.75) and partial["cpu_hours_pass"] is None
