@@ -313,19 +313,16 @@ class KeptSweep:
     kept_count: int
 
     @staticmethod
-    def of(lidar: LidarFrame, sweep: TopSweep, cameras: set[int]) -> KeptSweep:
-        """The sweep of ``lidar`` (placed as ``sweep``) as the cameras ``cameras`` need it again."""
+    def of(lidar: LidarFrame, sweep: TopSweep, in_camera: dict[int, np.ndarray]) -> KeptSweep:
+        """The sweep of ``lidar`` (placed as ``sweep``) as the cameras need it again: ``in_camera``,
+        camera name -> [M] bool over the kept pixels (``seen_by_camera``)."""
         pose = lidar.pixel_pose
         if np.all(pose == pose[:1]):  # the TOP lidar fires a column at once
             pose = np.broadcast_to(pose[:1].copy(), pose.shape)
         else:
             pose = pose.copy()
-        projection = lidar.camera_projection
-        in_camera = {
-            camera: np.packbits(((projection[..., 0] == camera) | (projection[..., 3] == camera))[sweep.kept])
-            for camera in cameras
-        }
-        return KeptSweep(lidar.timestamp, lidar.range_image.copy(), pose, in_camera, len(sweep.points))
+        packed = {camera: np.packbits(seen) for camera, seen in in_camera.items()}
+        return KeptSweep(lidar.timestamp, lidar.range_image.copy(), pose, packed, len(sweep.points))
 
     def placed(self, calibration: LidarCalibration, what: str) -> TopSweep:
         """The sweep in the world, as the first pass placed it (``top_lidar_world_points``)."""
@@ -466,20 +463,19 @@ def gather_lidar_cameras(
     for stamp, lidar in zip(stamps, first.lidar_frames(stamps), strict=True):
         what = f"lidar/{first.segment} TOP frame {lidar.timestamp}"
         sweep = top_lidar_world_points(lidar.range_image, lidar.pixel_pose, first.lidar_calibration, what)
+        seen = {camera: seen_by_camera(lidar.camera_projection, sweep.kept, camera) for camera in cameras}
         if refined:
-            kept[stamp] = KeptSweep.of(lidar, sweep, cameras)
-            spacing = row_spacings(
-                beam_inclinations(first.lidar_calibration, lidar.range_image.shape[0], what)
-            )
+            kept[stamp] = KeptSweep.of(lidar, sweep, seen)
+            spacing = _spacing(first.lidar_calibration, lidar.range_image.shape[0], what)
         in_vehicle = _in_vehicle(sweep)
         for i, t in users[stamp]:
-            frame = (t, lidar.camera_projection, sweep, in_vehicle(passes[i].world_from_frame[t]))
+            frame = (t, seen[passes[i].unit.camera], sweep, in_vehicle(passes[i].world_from_frame[t]))
             depth_rule = (occlusion_margin, parallax_cleanup, depth)
             in_camera, bodies = _camera_frame(passes[i], evidence[i], *frame, shrink, *depth_rule)
             found_refined = evidence[i].refined
             if found_refined is not None:
-                seen = (in_camera, bodies, in_vehicle(passes[i].world_from_frame[t]))
-                _refined_bodies(found_refined, t, sweep, spacing, *seen)
+                own = (in_camera, bodies, in_vehicle(passes[i].world_from_frame[t]))
+                _refined_bodies(found_refined, t, sweep, spacing, *own)
     return evidence
 
 
@@ -522,6 +518,12 @@ def _refined(found: LidarEvidence) -> RefinedEvidence:
     return found.refined
 
 
+def seen_by_camera(projection: np.ndarray, kept: np.ndarray, camera: int) -> np.ndarray:
+    """[M] bool over the kept pixels [H, W] of a sweep: those its lidar_camera_projection [H, W, 6]
+    (camera name, u, v, twice) projects into ``camera``."""
+    return ((projection[..., 0] == camera) | (projection[..., 3] == camera))[kept]
+
+
 def _spacing(calibration: LidarCalibration, height: int, what: str) -> np.ndarray:
     """[H] the angular spacing of a range image's rows (``footprints.row_spacings``)."""
     return row_spacings(beam_inclinations(calibration, height, what))
@@ -560,7 +562,7 @@ def _camera_frame(
     item: CameraPass,
     evidence: LidarEvidence,
     t: int,
-    projection: np.ndarray,
+    in_camera: np.ndarray,
     sweep: TopSweep,
     in_vehicle: tuple[np.ndarray, np.ndarray],
     shrink: float,
@@ -572,10 +574,9 @@ def _camera_frame(
     into ``evidence``. Returns the kept points the lidar projects into this camera [K] and per object
     its body points [K'] (kept-point indices) with its box_from_vehicle [4, 4].
 
-    projection: [H, W, 6] the sweep's lidar_camera_projection (camera name, u, v, twice);
+    in_camera: [M] bool, the kept points the lidar projects into this camera (``seen_by_camera``);
     in_vehicle: vehicle_from_world [4, 4] at the frame and the sweep's points [M, 3] in that frame."""
-    world, camera = sweep.points, item.unit.camera
-    in_camera = ((projection[..., 0] == camera) | (projection[..., 3] == camera))[sweep.kept]
+    world = sweep.points
     if depth:
         evidence.depth_uv[t], evidence.depth_z[t] = depth_samples(
             world[in_camera], item.camera, t, occlusion_margin, parallax_cleanup

@@ -130,17 +130,10 @@ def _declared_metadata(config) -> dict[str, Mapping[str, typing.Any]]:
     return {field.name: field.metadata for field in dataclasses.fields(config)}
 
 
-def release_values(config, prefix: str = "") -> dict[str, object]:
+def release_values(config) -> dict[str, object]:
     """Key -> the release's value (or NOT_KNOWN) of every setting of ``config`` whose release value
     is marked (``ranged(..., release=...)``, ``flag``), sections included."""
-    declared = _declared_metadata(config)
-    found = {}
-    for name, value, _ in settings_items(config):
-        if dataclasses.is_dataclass(value):
-            found.update(release_values(value, f"{prefix}{name}."))
-        elif "release" in declared.get(name, {}):
-            found[prefix + name] = declared[name]["release"]
-    return found
+    return {key: release for key, (_, release) in _marked(config, "release").items()}
 
 
 def with_rules(config, rules: str, keep: frozenset[str] = frozenset(), prefix: str = ""):
@@ -177,7 +170,7 @@ def clip_length(default: int, interval: str, *, release_fixed: bool = False):
 
 def _marked(config, mark: str, prefix: str = "") -> dict[str, tuple[typing.Any, typing.Any]]:
     """Key -> (value, the mark's value) of every setting of ``config`` (sections included) whose
-    field's metadata holds ``mark``."""
+    field's metadata holds ``mark``, in declaration order: the one walk of the marks."""
     declared = _declared_metadata(config)
     found = {}
     for name, value, _ in settings_items(config):
@@ -215,16 +208,13 @@ def path_setting(default: str = "", label: str = "", clip_bytes: bool = True):
     return dataclasses.field(default=default, metadata=metadata)
 
 
-def path_settings(config, prefix: str = "") -> dict[str, str]:
+def path_settings(config) -> dict[str, str]:
     """The paths the run reads: label (or key) -> value of every set ``path_setting`` of ``config``."""
-    declared = _declared_metadata(config)
-    found = {}
-    for name, value, _ in settings_items(config):
-        if dataclasses.is_dataclass(value):
-            found.update(path_settings(value, f"{prefix}{name}."))
-        elif value and (label := declared.get(name, {}).get("path")):
-            found[label if isinstance(label, str) else prefix + name] = value
-    return found
+    return {
+        label if isinstance(label, str) else key: value
+        for key, (value, label) in _marked(config, "path").items()
+        if value and label
+    }
 
 
 def sections(default_factory):
